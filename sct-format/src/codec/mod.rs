@@ -1,0 +1,130 @@
+//! Node codecs: how the children of one level are stored relative to their decoded parents.
+//!
+//! A block holds sibling pairs; pair `k` of a block has decoded parent `parents[k]`. Every
+//! profile encodes children relative to the *decoded* parent (thesis §5.9.1) so that
+//! quantization errors never accumulate down the tree. The root is always stored raw in
+//! the tree header.
+
+pub mod canopy;
+pub mod default;
+pub mod raw;
+
+use crate::error::{Error, Result};
+use crate::node::Node;
+
+/// A node encoding profile (spec §5).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Profile {
+    /// 40 bytes per node: f32 attributes, 8-bit RGBA.
+    Raw,
+    /// The thesis's 86-bit node (§5.9.1): 14-bit position/radius state, 16-bit normal, 8-bit
+    /// cone, RGB565 / RGBA5654, f32 area.
+    Canopy,
+    /// Our default: separated attribute streams predicted from the parent, zstd-coded.
+    #[default]
+    Default,
+}
+
+impl Profile {
+    /// The profile id stored in the tree header.
+    pub fn id(self) -> u8 {
+        match self {
+            Profile::Raw => 0,
+            Profile::Canopy => 1,
+            Profile::Default => 2,
+        }
+    }
+
+    /// The profile with stored id `id`.
+    pub fn from_id(id: u8) -> Option<Profile> {
+        match id {
+            0 => Some(Profile::Raw),
+            1 => Some(Profile::Canopy),
+            2 => Some(Profile::Default),
+            _ => None,
+        }
+    }
+
+    /// Name used on command lines and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Profile::Raw => "raw",
+            Profile::Canopy => "canopy",
+            Profile::Default => "default",
+        }
+    }
+
+    /// Whether blocks of this profile are zstd-compressed by default.
+    pub fn compress_by_default(self) -> bool {
+        matches!(self, Profile::Default)
+    }
+
+    /// Documented containment tolerance: a decoded child lies inside its decoded parent
+    /// grown by this fraction of the parent's radius (spec §5).
+    pub fn containment_slack(self) -> f32 {
+        match self {
+            Profile::Raw => raw::CONTAINMENT_SLACK,
+            Profile::Canopy => canopy::CONTAINMENT_SLACK,
+            Profile::Default => default::CONTAINMENT_SLACK,
+        }
+    }
+}
+
+impl std::str::FromStr for Profile {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "raw" => Ok(Profile::Raw),
+            "canopy" => Ok(Profile::Canopy),
+            "default" => Ok(Profile::Default),
+            _ => Err(format!("unknown profile {s:?} (expected raw, canopy or default)")),
+        }
+    }
+}
+
+/// Tree-wide settings a codec needs (stored in the tree header).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CodecParams {
+    /// True when some node has alpha < 255 (Canopy switches from RGB565 to RGBA5654).
+    pub alpha: bool,
+}
+
+/// Encodes `children` (sibling pairs, `children.len() == 2 * parents.len()`), appending to
+/// `out`; returns the children exactly as a reader will decode them.
+pub fn encode_children(
+    profile: Profile,
+    params: CodecParams,
+    parents: &[Node],
+    children: &[Node],
+    out: &mut Vec<u8>,
+) -> Result<Vec<Node>> {
+    if children.len() != 2 * parents.len() {
+        return Err(Error::Misuse(format!(
+            "{} children for {} parents (need exactly two each)",
+            children.len(),
+            parents.len()
+        )));
+    }
+    match profile {
+        Profile::Raw => Ok(raw::encode(children, out)),
+        Profile::Canopy => canopy::encode(params, parents, children, out),
+        Profile::Default => default::encode(params, parents, children, out),
+    }
+}
+
+/// Decodes the children of `parents` from `bytes` (one block's codec payload), appending
+/// `2 * parents.len()` nodes to `out`. `offset` is the payload's position, for errors.
+pub fn decode_children(
+    profile: Profile,
+    params: CodecParams,
+    parents: &[Node],
+    bytes: &[u8],
+    offset: u64,
+    out: &mut Vec<Node>,
+) -> Result<()> {
+    match profile {
+        Profile::Raw => raw::decode(parents.len() * 2, bytes, offset, out),
+        Profile::Canopy => canopy::decode(params, parents, bytes, offset, out),
+        Profile::Default => default::decode(params, parents, bytes, offset, out),
+    }
+}

@@ -1,0 +1,104 @@
+//! One error type for the whole crate, split by who caused the failure
+//! (the file, the environment, the caller, or a configured limit).
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong while reading or writing SCT and samples files.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// The operating system failed an I/O request.
+    #[error("I/O error{}: {source}", path.as_ref().map(|p| format!(" on {}", p.display())).unwrap_or_default())]
+    Io {
+        /// File involved, when known.
+        path: Option<PathBuf>,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The bytes do not follow the specification.
+    #[error("malformed file at byte {offset}: {what}")]
+    Malformed {
+        /// Absolute byte offset in the file (or in the decompressed block when `what` says so).
+        offset: u64,
+        /// What was wrong.
+        what: String,
+    },
+    /// A stored checksum does not match the bytes it covers.
+    #[error("checksum mismatch in {what} at byte {offset}: stored {stored:#010x}, computed {computed:#010x}")]
+    Checksum {
+        /// Section tag or block description.
+        what: String,
+        /// Absolute byte offset of the checksummed range.
+        offset: u64,
+        /// Checksum stored in the file.
+        stored: u32,
+        /// Checksum of the bytes as read.
+        computed: u32,
+    },
+    /// The file is not an SCT file (or not the kind of SCT file expected).
+    #[error("not an {expected} file (magic bytes {found:02x?})")]
+    BadMagic {
+        /// The kind of file expected.
+        expected: &'static str,
+        /// The first bytes found.
+        found: Vec<u8>,
+    },
+    /// The file's major version is newer (or older) than this reader understands.
+    #[error("unsupported format version {major}.{minor}: this reader understands {supported}.x; upgrade the SCT tools")]
+    UnsupportedVersion {
+        /// Major version in the file.
+        major: u16,
+        /// Minor version in the file.
+        minor: u16,
+        /// Major version this reader supports.
+        supported: u16,
+    },
+    /// A section marked required is unknown to this reader.
+    #[error("unknown required section {tag:?} at byte {offset}: the file needs a newer reader")]
+    UnknownRequiredSection {
+        /// Four-character tag.
+        tag: String,
+        /// Offset of its section-table entry.
+        offset: u64,
+    },
+    /// A count or size in the file exceeds a configured [`crate::Limits`] cap.
+    #[error("limit exceeded: {what} is {value}, limit is {limit}")]
+    LimitExceeded {
+        /// Which quantity.
+        what: &'static str,
+        /// Value found (or requested).
+        value: u64,
+        /// The configured limit.
+        limit: u64,
+    },
+    /// The caller passed something the API cannot represent (not a file problem).
+    #[error("invalid argument: {0}")]
+    Misuse(String),
+}
+
+/// Shorthand for results of this crate.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    /// A [`Error::Malformed`] at `offset`.
+    pub fn malformed(offset: u64, what: impl Into<String>) -> Self {
+        Error::Malformed { offset, what: what.into() }
+    }
+
+    /// An I/O error tied to a path.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Error::Io { path: Some(path.into()), source }
+    }
+
+    /// True when the file content (not the environment or the caller) is at fault.
+    pub fn is_invalid_input(&self) -> bool {
+        !matches!(self, Error::Io { .. } | Error::Misuse(_))
+    }
+}
+
+impl From<std::io::Error> for Error {
+    fn from(source: std::io::Error) -> Self {
+        Error::Io { path: None, source }
+    }
+}

@@ -1,0 +1,33 @@
+//! # sct-format
+//!
+//! The SCT ("scene tree") file format of the Canopy point-based renderer, as specified in
+//! `spec/SCT.md`: a hierarchy of bounding spheres whose nodes carry a normal cone, surface
+//! area and colour, compressed relative to their parents, embedded in a scene graph of
+//! groups, instances and inlines.
+//!
+//! A short tour:
+//! - [`Node`] is a decoded scene node; [`geometry`] computes a parent from two children
+//!   (thesis EQ 9–14), shared by the tree builder and the validator.
+//! - [`SceneTree`] is a tree in breadth-first order: one "has children" bit per node is its
+//!   whole topology.
+//! - [`codec`] holds the node profiles (raw, canopy, default).
+//! - [`samples`] reads and writes the samples file that `sct-voxelize` produces.
+//! - [`write`] and [`read`] write and read SCT files; [`raw`] mirrors the on-disk tables.
+//! - [`Limits`] caps what a hostile file can make a reader allocate; every failure is an
+//!   [`Error`].
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod codec;
+pub mod error;
+pub mod graph;
+pub mod limits;
+pub mod node;
+pub mod tree;
+
+pub use codec::Profile;
+pub use error::{Error, Result};
+pub use graph::{Generator, GraphNode, InstanceAttrs, Propagation, SceneGraph, Similarity, SourceRef};
+pub use limits::Limits;
+pub use node::Node;
+pub use tree::SceneTree;
