@@ -1,0 +1,1 @@
+//! voxelize library.
