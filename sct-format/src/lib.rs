@@ -15,14 +15,19 @@
 //! - [`write`] and [`read`] write and read SCT files; [`raw`] mirrors the on-disk tables.
 //! - [`Limits`] caps what a hostile file can make a reader allocate; every failure is an
 //!   [`Error`].
-#![forbid(unsafe_code)]
+#![deny(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod atomic;
 pub mod codec;
+pub mod container;
 pub mod error;
 pub mod graph;
+pub mod geometry;
 pub mod limits;
 pub mod node;
+pub mod raw;
+pub mod samples;
 pub mod tree;
 
 pub use codec::Profile;

@@ -1,0 +1,231 @@
+//! The section container shared by SCT and samples files (spec §2): header, section
+//! table, per-section CRC-32 and optional zstd compression.
+
+use std::borrow::Cow;
+use std::io::{Read, Write};
+
+use crate::error::{Error, Result};
+use crate::limits::Limits;
+use crate::raw::{Cursor, FileHeader, SectionEntry, FILE_HEADER_LEN, SECTION_ENTRY_LEN};
+
+/// The major version this crate reads and writes.
+pub const MAJOR: u16 = 1;
+/// The minor version this crate writes.
+pub const MINOR: u16 = 0;
+
+/// A section to be written.
+pub(crate) struct SectionOut {
+    pub tag: [u8; 4],
+    pub required: bool,
+    /// Stored bytes (already compressed when `raw_len` differs).
+    pub stored: Vec<u8>,
+    pub raw_len: u64,
+    pub compressed: bool,
+}
+
+impl SectionOut {
+    /// A section stored as given.
+    pub fn plain(tag: [u8; 4], data: Vec<u8>) -> Self {
+        SectionOut { tag, required: true, raw_len: data.len() as u64, stored: data, compressed: false }
+    }
+
+    /// A section stored as one zstd frame.
+    pub fn zstd(tag: [u8; 4], data: &[u8], level: i32) -> Result<Self> {
+        let stored = zstd::bulk::compress(data, level)?;
+        Ok(SectionOut { tag, required: true, raw_len: data.len() as u64, stored, compressed: true })
+    }
+}
+
+/// Writes header, section table and sections; returns the number of bytes written and
+/// the absolute offset of each section.
+pub(crate) fn write_container<W: Write>(magic: [u8; 8], sections: &[SectionOut], mut w: W) -> Result<(u64, Vec<u64>)> {
+    let table_len = sections.len() * SECTION_ENTRY_LEN;
+    let mut offset = (FILE_HEADER_LEN + table_len) as u64;
+    let mut table = Vec::with_capacity(table_len);
+    let mut offsets = Vec::with_capacity(sections.len());
+    for s in sections {
+        let mut flags = 0;
+        if s.required {
+            flags |= SectionEntry::REQUIRED;
+        }
+        if s.compressed {
+            flags |= SectionEntry::ZSTD;
+        }
+        SectionEntry {
+            tag: s.tag,
+            flags,
+            offset,
+            stored_len: s.stored.len() as u64,
+            raw_len: s.raw_len,
+            crc: crc32fast::hash(&s.stored),
+        }
+        .write(&mut table);
+        offsets.push(offset);
+        offset += s.stored.len() as u64;
+    }
+    let mut head = Vec::with_capacity(FILE_HEADER_LEN);
+    FileHeader {
+        magic,
+        major: MAJOR,
+        minor: MINOR,
+        flags: 0,
+        section_count: sections.len() as u32,
+        section_table_offset: FILE_HEADER_LEN as u64,
+        file_length: offset,
+        table_crc: crc32fast::hash(&table),
+        header_crc: 0,
+    }
+    .write(&mut head);
+    w.write_all(&head)?;
+    w.write_all(&table)?;
+    for s in sections {
+        w.write_all(&s.stored)?;
+    }
+    Ok((offset, offsets))
+}
+
+/// A parsed container over borrowed bytes.
+#[derive(Clone, Debug)]
+pub struct Container<'a> {
+    data: &'a [u8],
+    /// The file header.
+    pub header: FileHeader,
+    /// Known sections in table order (unknown optional sections are skipped).
+    pub sections: Vec<SectionEntry>,
+    /// Tags of unknown optional sections that were skipped.
+    pub skipped: Vec<String>,
+}
+
+impl<'a> Container<'a> {
+    /// Parses and checks the header and section table. `known` lists the tags this reader
+    /// understands; unknown required sections are an error, unknown optional ones skipped.
+    pub fn parse(data: &'a [u8], magic: [u8; 8], expected: &'static str, known: &[[u8; 4]], limits: &Limits) -> Result<Self> {
+        let found_magic = data.get(..8).unwrap_or(data);
+        if found_magic != magic {
+            return Err(Error::BadMagic { expected, found: found_magic.to_vec() });
+        }
+        let mut c = Cursor::new(data, 0);
+        let header = FileHeader::parse(&mut c)?;
+        let computed = crc32fast::hash(&data[..FILE_HEADER_LEN - 4]);
+        if computed != header.header_crc {
+            return Err(Error::Checksum { what: "file header".into(), offset: 0, stored: header.header_crc, computed });
+        }
+        if header.major != MAJOR {
+            return Err(Error::UnsupportedVersion { major: header.major, minor: header.minor, supported: MAJOR });
+        }
+        if header.file_length != data.len() as u64 {
+            return Err(Error::malformed(
+                32,
+                format!("header says the file has {} bytes, it has {} (truncated or extended)", header.file_length, data.len()),
+            ));
+        }
+        Limits::check("section count", header.section_count as u64, limits.max_sections as u64)?;
+        let table_len = (header.section_count as u64) * SECTION_ENTRY_LEN as u64;
+        let table = slice(data, header.section_table_offset, table_len, "section table")?;
+        let computed = crc32fast::hash(table);
+        if computed != header.table_crc {
+            return Err(Error::Checksum {
+                what: "section table".into(),
+                offset: header.section_table_offset,
+                stored: header.table_crc,
+                computed,
+            });
+        }
+        let mut c = Cursor::new(table, header.section_table_offset);
+        let mut sections = Vec::with_capacity(header.section_count as usize);
+        let mut skipped = Vec::new();
+        for _ in 0..header.section_count {
+            let at = c.offset();
+            let e = SectionEntry::parse(&mut c)?;
+            slice(data, e.offset, e.stored_len, "section data")
+                .map_err(|_| Error::malformed(at, format!("section {} lies outside the file", e.tag_str())))?;
+            if !e.compressed() && e.raw_len != e.stored_len {
+                return Err(Error::malformed(at, format!("uncompressed section {} has raw length != stored length", e.tag_str())));
+            }
+            if e.flags & !(SectionEntry::REQUIRED | SectionEntry::ZSTD) != 0 {
+                return Err(Error::malformed(at + 4, format!("section {} has reserved flag bits set", e.tag_str())));
+            }
+            if known.contains(&e.tag) {
+                sections.push(e);
+            } else if e.required() {
+                return Err(Error::UnknownRequiredSection { tag: e.tag_str(), offset: at });
+            } else {
+                skipped.push(e.tag_str());
+            }
+        }
+        Ok(Container { data, header, sections, skipped })
+    }
+
+    /// The whole file.
+    pub fn data(&self) -> &'a [u8] {
+        self.data
+    }
+
+    /// Sections with `tag`, in table order.
+    pub fn sections_with(&self, tag: [u8; 4]) -> impl Iterator<Item = &SectionEntry> {
+        self.sections.iter().filter(move |e| e.tag == tag)
+    }
+
+    /// The only section with `tag`; an error if it is missing or repeated.
+    pub fn single(&self, tag: [u8; 4]) -> Result<&SectionEntry> {
+        let mut it = self.sections_with(tag);
+        let first = it.next().ok_or_else(|| {
+            Error::malformed(self.header.section_table_offset, format!("required section {} is missing", tag.escape_ascii()))
+        })?;
+        if it.next().is_some() {
+            return Err(Error::malformed(self.header.section_table_offset, format!("section {} appears twice", tag.escape_ascii())));
+        }
+        Ok(first)
+    }
+
+    /// Stored bytes of a section, without checking the CRC.
+    pub fn stored(&self, e: &SectionEntry) -> Result<&'a [u8]> {
+        slice(self.data, e.offset, e.stored_len, "section data")
+    }
+
+    /// Verifies a section's CRC.
+    pub fn verify(&self, e: &SectionEntry) -> Result<()> {
+        let stored = self.stored(e)?;
+        let computed = crc32fast::hash(stored);
+        if computed != e.crc {
+            return Err(Error::Checksum { what: format!("section {}", e.tag_str()), offset: e.offset, stored: e.crc, computed });
+        }
+        Ok(())
+    }
+
+    /// The section's bytes after CRC check and decompression.
+    pub fn section_bytes(&self, e: &SectionEntry, limits: &Limits) -> Result<Cow<'a, [u8]>> {
+        self.verify(e)?;
+        let stored = self.stored(e)?;
+        if !e.compressed() {
+            return Ok(Cow::Borrowed(stored));
+        }
+        decompress(stored, e.raw_len, e.offset, limits).map(Cow::Owned)
+    }
+}
+
+/// `data[offset..offset + len]`, or a malformed error naming `what`.
+pub(crate) fn slice<'d>(data: &'d [u8], offset: u64, len: u64, what: &str) -> Result<&'d [u8]> {
+    let end = offset.checked_add(len).filter(|&e| e <= data.len() as u64).ok_or_else(|| {
+        Error::malformed(offset, format!("{what} ({len} bytes at {offset}) extends past the end of the file ({} bytes)", data.len()))
+    })?;
+    Ok(&data[offset as usize..end as usize])
+}
+
+/// Decompresses one zstd frame that must inflate to exactly `raw_len` bytes. Memory grows
+/// with the data actually produced, never with the claimed length alone.
+pub(crate) fn decompress(stored: &[u8], raw_len: u64, offset: u64, limits: &Limits) -> Result<Vec<u8>> {
+    Limits::check("decompressed size", raw_len, limits.max_decompressed_bytes)?;
+    let mut dec = zstd::stream::read::Decoder::with_buffer(stored)
+        .map_err(|e| Error::malformed(offset, format!("zstd: {e}")))?
+        .single_frame();
+    let mut out = Vec::with_capacity(raw_len.min(stored.len() as u64 * 8 + 4096) as usize);
+    (&mut dec)
+        .take(raw_len.saturating_add(1))
+        .read_to_end(&mut out)
+        .map_err(|e| Error::malformed(offset, format!("zstd data is corrupt: {e}")))?;
+    if out.len() as u64 != raw_len {
+        return Err(Error::malformed(offset, format!("decompressed to {} bytes, expected {raw_len}", out.len())));
+    }
+    Ok(out)
+}
