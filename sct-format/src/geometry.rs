@@ -1,0 +1,400 @@
+//! Hierarchical node attributes (thesis §5.1, EQ 9–14): the parent of two children, and the
+//! containment predicates a validator checks them with.
+//!
+//! Everything is computed in f64. When a result is stored in f32 the radius and the cone
+//! angle are *recomputed against the rounded f32 centre / axis* and then rounded up, so a
+//! parent contains its children exactly as stored, not just in exact arithmetic. Inputs are
+//! assumed finite (see [`Node::is_finite`]); non-finite input gives unspecified (but
+//! non-panicking) output.
+
+use std::f64::consts::PI;
+
+use crate::node::Node;
+
+/// Relative safety margin applied before rounding up to f32: covers the few-ulp error of
+/// the f64 distance/angle evaluation so that an f64 re-check of containment never fails.
+const F64_MARGIN: f64 = 8.0 * f64::EPSILON;
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+fn norm(a: [f64; 3]) -> f64 {
+    dot(a, a).sqrt()
+}
+
+fn to64(v: [f32; 3]) -> [f64; 3] {
+    [v[0] as f64, v[1] as f64, v[2] as f64]
+}
+
+fn to32(v: [f64; 3]) -> [f32; 3] {
+    [v[0] as f32, v[1] as f32, v[2] as f32]
+}
+
+/// Unit vector along `v`, or `None` for a (near) zero vector.
+fn normalize(v: [f64; 3]) -> Option<[f64; 3]> {
+    let l = norm(v);
+    if l > 1e-300 && l.is_finite() {
+        Some([v[0] / l, v[1] / l, v[2] / l])
+    } else {
+        None
+    }
+}
+
+/// Angle between two unit vectors; atan2 is accurate near 0 and π where acos is not.
+fn angle_between(a: [f64; 3], b: [f64; 3]) -> f64 {
+    norm(cross(a, b)).atan2(dot(a, b))
+}
+
+/// Smallest f32 that is `>= v` (for non-negative finite `v`).
+fn f32_up(v: f64) -> f32 {
+    let f = v as f32;
+    if (f as f64) < v {
+        f.next_up()
+    } else {
+        f
+    }
+}
+
+/// Minimal sphere enclosing spheres `(ca, ra)` and `(cb, rb)` (EQ 9–10), in f64.
+///
+/// When one sphere contains the other the result is the bigger one (the thesis's special
+/// case; equal spheres return `a`).
+pub fn enclosing_sphere(ca: [f64; 3], ra: f64, cb: [f64; 3], rb: f64) -> ([f64; 3], f64) {
+    let v = sub(cb, ca);
+    let l = norm(v);
+    if l + rb <= ra {
+        return (ca, ra);
+    }
+    if l + ra <= rb {
+        return (cb, rb);
+    }
+    // Here l > |ra - rb| >= 0, so dividing by l is safe.
+    let rc = 0.5 * (l + ra + rb);
+    let t = (rc - ra) / l;
+    ([ca[0] + v[0] * t, ca[1] + v[1] * t, ca[2] + v[2] * t], rc)
+}
+
+/// Smallest normal cone containing cones `(na, ta)` and `(nb, tb)` (EQ 11–12), in f64.
+///
+/// Axes need not be unit; a zero axis is treated as the whole sphere (cone π). Angles are
+/// clamped to [0, π]. Returns a unit axis and a semi-angle in [0, π]; a result of π means
+/// "any direction" (obtuse cones up to the whole sphere are allowed).
+pub fn merge_cones(na: [f64; 3], ta: f64, nb: [f64; 3], tb: f64) -> ([f64; 3], f64) {
+    let ta = ta.clamp(0.0, PI);
+    let tb = tb.clamp(0.0, PI);
+    let (a, b) = match (normalize(na), normalize(nb)) {
+        (Some(a), Some(b)) => (a, b),
+        (Some(a), None) => return (a, PI),
+        (None, Some(b)) => return (b, PI),
+        (None, None) => return ([0.0, 0.0, 1.0], PI),
+    };
+    let d = angle_between(a, b);
+    if d + tb <= ta {
+        return (a, ta);
+    }
+    if d + ta <= tb {
+        return (b, tb);
+    }
+    let tc = 0.5 * (d + ta + tb);
+    if tc >= PI {
+        return (a, PI);
+    }
+    // Rotate A's axis towards B's by (tc - ta) within the plane spanned by the two axes.
+    let u = normalize(sub(b, [a[0] * dot(a, b), a[1] * dot(a, b), a[2] * dot(a, b)]))
+        // Antiparallel (or parallel, which the containment cases already caught): every
+        // plane through A works, so pick a deterministic perpendicular.
+        .unwrap_or_else(|| any_perpendicular(a));
+    let phi = tc - ta;
+    let (s, c) = phi.sin_cos();
+    ([a[0] * c + u[0] * s, a[1] * c + u[1] * s, a[2] * c + u[2] * s], tc)
+}
+
+/// A unit vector perpendicular to unit `a`.
+fn any_perpendicular(a: [f64; 3]) -> [f64; 3] {
+    // Cross with the coordinate axis least aligned with `a` is never degenerate.
+    let ax = [a[0].abs(), a[1].abs(), a[2].abs()];
+    let e = if ax[0] <= ax[1] && ax[0] <= ax[2] {
+        [1.0, 0.0, 0.0]
+    } else if ax[1] <= ax[2] {
+        [0.0, 1.0, 0.0]
+    } else {
+        [0.0, 0.0, 1.0]
+    };
+    normalize(cross(a, e)).unwrap_or([1.0, 0.0, 0.0])
+}
+
+/// Parent area (EQ 13).
+pub fn merge_area(wa: f32, wb: f32) -> f32 {
+    (wa as f64 + wb as f64) as f32
+}
+
+/// Area-weighted RGBA colour (EQ 14), rounded to nearest. With zero (or negative) total
+/// area both children weigh equally, so a zero-area subtree still gets a sensible colour.
+pub fn merge_color(ca: [u8; 4], wa: f32, cb: [u8; 4], wb: f32) -> [u8; 4] {
+    let (wa, wb) = (wa.max(0.0) as f64, wb.max(0.0) as f64);
+    let (wa, wb) = if wa + wb > 0.0 && (wa + wb).is_finite() { (wa, wb) } else { (1.0, 1.0) };
+    let inv = 1.0 / (wa + wb);
+    let mut out = [0u8; 4];
+    for i in 0..4 {
+        let v = (ca[i] as f64 * wa + cb[i] as f64 * wb) * inv;
+        out[i] = v.round().clamp(0.0, 255.0) as u8;
+    }
+    out
+}
+
+/// Smallest f32 radius such that the sphere at f32 centre `c` contains both spheres.
+fn covering_radius(c: [f32; 3], a: &Node, b: &Node) -> f32 {
+    let c = to64(c);
+    let ra = norm(sub(to64(a.center), c)) + a.radius as f64;
+    let rb = norm(sub(to64(b.center), c)) + b.radius as f64;
+    f32_up(ra.max(rb) * (1.0 + F64_MARGIN))
+}
+
+/// Smallest f32 cone angle at f32 axis `n` containing both children's cones (π at most).
+fn covering_cone(n: [f32; 3], a: &Node, b: &Node) -> f32 {
+    let Some(n) = normalize(to64(n)) else { return std::f32::consts::PI };
+    let need = |m: &Node| match normalize(to64(m.normal)) {
+        Some(m_axis) => angle_between(n, m_axis) + m.cone as f64,
+        None => PI,
+    };
+    let t = need(a).max(need(b)) * (1.0 + F64_MARGIN) + F64_MARGIN;
+    // f32 π rounds above the true π, so it always covers the whole sphere.
+    if t >= PI {
+        std::f32::consts::PI
+    } else {
+        f32_up(t).min(std::f32::consts::PI)
+    }
+}
+
+/// The parent of two children (EQ 9–14): minimal enclosing sphere, merged normal cone,
+/// summed area and area-weighted colour. The result contains both children exactly in its
+/// stored f32 form (see [`sphere_contains`] and [`cone_contains`] with zero tolerance).
+pub fn parent_of(a: &Node, b: &Node) -> Node {
+    let (c, r) = enclosing_sphere(to64(a.center), a.radius as f64, to64(b.center), b.radius as f64);
+    let center = to32(c);
+    // Containment cases return a child unchanged: keep its exact radius.
+    let radius = if center == a.center && r == a.radius as f64 && covers(a, b) {
+        a.radius
+    } else if center == b.center && r == b.radius as f64 && covers(b, a) {
+        b.radius
+    } else {
+        covering_radius(center, a, b)
+    };
+
+    let (n, t) = merge_cones(to64(a.normal), a.cone as f64, to64(b.normal), b.cone as f64);
+    let normal = to32(n);
+    let cone = if normal == a.normal && t == a.cone as f64 && cone_contains(a.normal, a.cone, b.normal, b.cone, 0.0) {
+        a.cone
+    } else if normal == b.normal && t == b.cone as f64 && cone_contains(b.normal, b.cone, a.normal, a.cone, 0.0) {
+        b.cone
+    } else {
+        covering_cone(normal, a, b)
+    };
+
+    Node {
+        center,
+        radius,
+        normal,
+        cone,
+        area: merge_area(a.area, b.area),
+        color: merge_color(a.color, a.area, b.color, b.area),
+    }
+}
+
+fn covers(outer: &Node, inner: &Node) -> bool {
+    sphere_contains(outer, inner, 0.0)
+}
+
+/// True when `inner`'s sphere lies inside `outer`'s sphere grown by `slack × outer.radius`
+/// (the codecs' documented containment tolerance), evaluated in f64.
+pub fn sphere_contains(outer: &Node, inner: &Node, slack: f32) -> bool {
+    let d = norm(sub(to64(inner.center), to64(outer.center)));
+    d + inner.radius as f64 <= outer.radius as f64 * (1.0 + slack as f64)
+}
+
+/// True when the cone `(inner_axis, inner_angle)` lies inside `(outer_axis, outer_angle)`
+/// with `tol` radians of tolerance. Axes need not be unit; an outer cone of (about) π
+/// contains everything; a zero axis counts as the whole sphere.
+pub fn cone_contains(outer_axis: [f32; 3], outer_angle: f32, inner_axis: [f32; 3], inner_angle: f32, tol: f32) -> bool {
+    let (outer, inner, tol) = (outer_angle as f64, inner_angle as f64, tol as f64);
+    if outer + tol >= PI {
+        return true;
+    }
+    match (normalize(to64(outer_axis)), normalize(to64(inner_axis))) {
+        (Some(o), Some(i)) => angle_between(o, i) + inner <= outer + tol,
+        _ => false,
+    }
+}
+
+/// True when unit-ish `normal` lies inside the cone `(axis, angle)` within `tol` radians.
+pub fn normal_in_cone(axis: [f32; 3], angle: f32, normal: [f32; 3], tol: f32) -> bool {
+    cone_contains(axis, angle, normal, 0.0, tol)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn node(c: [f32; 3], r: f32, n: [f32; 3], cone: f32, area: f32, color: [u8; 4]) -> Node {
+        Node { center: c, radius: r, normal: n, cone, area, color }
+    }
+
+    #[test]
+    fn separate_spheres_give_minimal_parent() {
+        let a = node([0.0, 0.0, 0.0], 1.0, [0.0, 0.0, 1.0], 0.0, 1.0, [0; 4]);
+        let b = node([4.0, 0.0, 0.0], 1.0, [0.0, 0.0, 1.0], 0.0, 1.0, [0; 4]);
+        let p = parent_of(&a, &b);
+        assert!((p.center[0] - 2.0).abs() < 1e-6 && p.center[1] == 0.0);
+        assert!(p.radius >= 3.0 && p.radius < 3.0 + 1e-5);
+        assert!(sphere_contains(&p, &a, 0.0) && sphere_contains(&p, &b, 0.0));
+    }
+
+    #[test]
+    fn contained_sphere_gives_the_bigger() {
+        let a = node([0.1, 0.2, 0.3], 5.0, [0.0, 0.0, 1.0], 0.1, 1.0, [0; 4]);
+        let b = node([1.0, 0.0, 0.0], 0.5, [0.0, 0.0, 1.0], 0.0, 1.0, [0; 4]);
+        for p in [parent_of(&a, &b), parent_of(&b, &a)] {
+            assert_eq!(p.center, a.center);
+            assert_eq!(p.radius, a.radius);
+            assert_eq!(p.normal, a.normal);
+            assert_eq!(p.cone, a.cone);
+        }
+    }
+
+    #[test]
+    fn identical_spheres_and_zero_radius() {
+        let a = node([1.0, 2.0, 3.0], 0.0, [1.0, 0.0, 0.0], 0.0, 0.0, [10, 20, 30, 255]);
+        let p = parent_of(&a, &a);
+        assert_eq!(p.center, a.center);
+        assert_eq!(p.radius, 0.0);
+        assert_eq!(p.cone, 0.0);
+        assert_eq!(p.color, a.color);
+    }
+
+    #[test]
+    fn antiparallel_normals_give_right_angle_cone() {
+        let a = node([0.0; 3], 1.0, [0.0, 0.0, 1.0], 0.0, 1.0, [0; 4]);
+        let b = node([0.0; 3], 1.0, [0.0, 0.0, -1.0], 0.0, 1.0, [0; 4]);
+        let p = parent_of(&a, &b);
+        assert!((p.cone as f64 - PI / 2.0).abs() < 1e-6, "cone {}", p.cone);
+        assert!(p.normal[2].abs() < 1e-6, "axis must be perpendicular: {:?}", p.normal);
+        assert!(cone_contains(p.normal, p.cone, a.normal, 0.0, 0.0));
+        assert!(cone_contains(p.normal, p.cone, b.normal, 0.0, 0.0));
+    }
+
+    #[test]
+    fn obtuse_cones_grow_to_whole_sphere() {
+        let a = node([0.0; 3], 1.0, [0.0, 0.0, 1.0], 2.0, 1.0, [0; 4]);
+        let b = node([0.0; 3], 1.0, [0.0, 0.0, -1.0], 2.0, 1.0, [0; 4]);
+        let p = parent_of(&a, &b);
+        assert_eq!(p.cone, std::f32::consts::PI);
+        // Obtuse but not whole: (π/2 + 2.0 + 0) / 2 < π.
+        let c = node([0.0; 3], 1.0, [1.0, 0.0, 0.0], 0.0, 1.0, [0; 4]);
+        let q = parent_of(&a, &c);
+        assert!(q.cone > 1.5 && q.cone < std::f32::consts::PI);
+        assert!(cone_contains(q.normal, q.cone, a.normal, a.cone, 0.0));
+        assert!(cone_contains(q.normal, q.cone, c.normal, c.cone, 0.0));
+    }
+
+    #[test]
+    fn zero_cones_same_normal() {
+        let a = node([0.0; 3], 1.0, [0.0, 1.0, 0.0], 0.0, 1.0, [0; 4]);
+        let p = parent_of(&a, &a);
+        assert_eq!(p.normal, a.normal);
+        assert_eq!(p.cone, 0.0);
+    }
+
+    #[test]
+    fn zero_axis_is_whole_sphere() {
+        let a = node([0.0; 3], 1.0, [0.0, 0.0, 0.0], 0.0, 1.0, [0; 4]);
+        let b = node([0.0; 3], 1.0, [0.0, 1.0, 0.0], 0.0, 1.0, [0; 4]);
+        assert_eq!(parent_of(&a, &b).cone, std::f32::consts::PI);
+    }
+
+    #[test]
+    fn area_and_colour() {
+        let a = node([0.0; 3], 1.0, [0.0, 0.0, 1.0], 0.0, 3.0, [255, 0, 0, 255]);
+        let b = node([1.0, 0.0, 0.0], 1.0, [0.0, 0.0, 1.0], 0.0, 1.0, [0, 0, 255, 255]);
+        let p = parent_of(&a, &b);
+        assert_eq!(p.area, 4.0);
+        assert_eq!(p.color, [191, 0, 64, 255]);
+        // Zero total area: plain mean.
+        assert_eq!(merge_color([0, 0, 0, 0], 0.0, [255, 255, 255, 255], 0.0), [128, 128, 128, 128]);
+        // One zero-area child has no influence.
+        assert_eq!(merge_color([0, 0, 0, 0], 0.0, [200, 100, 50, 255], 2.0), [200, 100, 50, 255]);
+    }
+
+    fn arb_unit() -> impl Strategy<Value = [f32; 3]> {
+        (-1.0f32..1.0, -1.0f32..1.0, -1.0f32..1.0)
+            .prop_filter("nonzero", |(x, y, z)| x * x + y * y + z * z > 1e-3)
+            .prop_map(|(x, y, z)| {
+                let l = (x * x + y * y + z * z).sqrt();
+                [x / l, y / l, z / l]
+            })
+    }
+
+    prop_compose! {
+        fn arb_node()(
+            c in prop::array::uniform3(-1000.0f32..1000.0),
+            scale in prop::sample::select(vec![1e-4f32, 1e-2, 1.0, 100.0]),
+            r in 0.0f32..10.0,
+            n in arb_unit(),
+            cone in prop_oneof![Just(0.0f32), 0.0f32..std::f32::consts::PI, Just(std::f32::consts::PI)],
+            area in 0.0f32..10.0,
+            color in prop::array::uniform4(any::<u8>()),
+        ) -> Node {
+            node([c[0] * scale, c[1] * scale, c[2] * scale], r * scale, n, cone, area, color)
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2000))]
+
+        #[test]
+        fn parent_contains_children(a in arb_node(), b in arb_node()) {
+            let p = parent_of(&a, &b);
+            prop_assert!(p.is_finite());
+            prop_assert!(sphere_contains(&p, &a, 0.0), "{p:?} !⊇ {a:?}");
+            prop_assert!(sphere_contains(&p, &b, 0.0), "{p:?} !⊇ {b:?}");
+            prop_assert!(cone_contains(p.normal, p.cone, a.normal, a.cone, 0.0));
+            prop_assert!(cone_contains(p.normal, p.cone, b.normal, b.cone, 0.0));
+            // Tightness: never larger than the sum-based bound by more than rounding.
+            let d = norm(sub(to64(a.center), to64(b.center)));
+            let bound = (0.5 * (d + a.radius as f64 + b.radius as f64)).max(a.radius as f64).max(b.radius as f64);
+            prop_assert!((p.radius as f64) <= bound * (1.0 + 1e-6) + 1e-6 * bound.max(1e-30) + 1e-30);
+            prop_assert!(p.area >= a.area.max(b.area));
+        }
+
+        #[test]
+        fn nested_merges_keep_containment(nodes in prop::collection::vec(arb_node(), 2..16)) {
+            // Fold left: every original node must stay inside the final parent (transitivity
+            // through rounded f32 parents).
+            let mut acc = nodes[0];
+            for n in &nodes[1..] {
+                acc = parent_of(&acc, n);
+            }
+            for n in &nodes {
+                prop_assert!(sphere_contains(&acc, n, 0.0));
+                prop_assert!(cone_contains(acc.normal, acc.cone, n.normal, n.cone, 0.0));
+            }
+        }
+
+        #[test]
+        fn merge_is_symmetric_in_size(a in arb_node(), b in arb_node()) {
+            let p = parent_of(&a, &b);
+            let q = parent_of(&b, &a);
+            prop_assert!((p.radius - q.radius).abs() <= 1e-5 * p.radius.max(1e-20));
+            prop_assert_eq!(p.area, q.area);
+        }
+    }
+}
