@@ -87,7 +87,7 @@ pub(crate) fn write_container<W: Write>(magic: [u8; 8], sections: &[SectionOut],
 /// A parsed container over borrowed bytes.
 #[derive(Clone, Debug)]
 pub struct Container<'a> {
-    data: &'a [u8],
+    pub(crate) data: &'a [u8],
     /// The file header.
     pub header: FileHeader,
     /// Known sections in table order (unknown optional sections are skipped).

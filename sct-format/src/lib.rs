@@ -27,12 +27,16 @@ pub mod geometry;
 pub mod limits;
 pub mod node;
 pub mod raw;
+pub mod read;
 pub mod samples;
 pub mod tree;
+pub mod write;
 
 pub use codec::Profile;
 pub use error::{Error, Result};
 pub use graph::{Generator, GraphNode, InstanceAttrs, Propagation, SceneGraph, Similarity, SourceRef};
 pub use limits::Limits;
 pub use node::Node;
+pub use read::SctReader;
 pub use tree::SceneTree;
+pub use write::{write_scene, write_scene_file, Scene, WriteOptions};

@@ -1,0 +1,482 @@
+//! Reading SCT files lazily (spec §2–§7).
+//!
+//! [`SctReader::open`] memory-maps the file and parses only the header, section table,
+//! generator, scene graph and each tree's index; node data is decoded block by block on
+//! request. [`SctReader::read_tree_levels`] reads the first `L` levels of a tree without
+//! touching deeper blocks (progressive loading); [`SctReader::decode_block`] gives random
+//! access at block granularity. [`SctReader::bytes_read`] counts the bytes actually used.
+
+use std::ops::Deref;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use crate::codec::{decode_children, CodecParams, Profile};
+use crate::container::{decompress, slice, Container};
+use crate::error::{Error, Result};
+use crate::graph::{Generator, GraphNode, InstanceAttrs, Propagation, SceneGraph};
+use crate::limits::Limits;
+use crate::node::Node;
+use crate::raw::{
+    tags, BlockEntry, Cursor, FileHeader, LevelEntry, SectionEntry, TreeHeader, BLOCK_ENTRY_LEN, LEVEL_ENTRY_LEN, SCT_MAGIC,
+    TREE_HEADER_LEN,
+};
+use crate::samples::{parse_generator, read_similarity};
+use crate::tree::SceneTree;
+use crate::write::kind;
+
+/// The bytes of an open file.
+enum Data {
+    Mapped(memmap2::Mmap),
+    Owned(Vec<u8>),
+}
+
+impl Deref for Data {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match self {
+            Data::Mapped(m) => m,
+            Data::Owned(v) => v,
+        }
+    }
+}
+
+/// The index of one tree: enough to locate and decode any block.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TreeIndex {
+    /// The `TREE` section entry.
+    pub section: SectionEntry,
+    /// Tree header (root node included).
+    pub header: TreeHeader,
+    /// Node profile.
+    pub profile: Profile,
+    /// Codec parameters.
+    pub params: CodecParams,
+    /// Level table.
+    pub levels: Vec<LevelEntry>,
+    /// Block table.
+    pub blocks: Vec<BlockEntry>,
+}
+
+impl TreeIndex {
+    /// Blocks of level `d`.
+    pub fn level_blocks(&self, d: usize) -> std::ops::Range<usize> {
+        match self.levels.get(d) {
+            Some(l) => l.first_block as usize..(l.first_block as usize + l.block_count as usize),
+            None => 0..0,
+        }
+    }
+
+    /// The block of level `d` holding node `i` of that level.
+    pub fn block_of(&self, d: usize, i: u64) -> Option<usize> {
+        let r = self.level_blocks(d);
+        let blocks = &self.blocks[r.clone()];
+        let k = blocks.partition_point(|b| b.first_node <= i).checked_sub(1)?;
+        (i < blocks[k].first_node + blocks[k].node_count as u64).then_some(r.start + k)
+    }
+
+    /// The block of level `d` holding the `rank`-th internal node of that level.
+    pub fn block_of_internal(&self, d: usize, rank: u64) -> Option<usize> {
+        let r = self.level_blocks(d);
+        let blocks = &self.blocks[r.clone()];
+        let k = blocks.partition_point(|b| b.internal_before <= rank).checked_sub(1)?;
+        Some(r.start + k)
+    }
+}
+
+/// A decoded block.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DecodedBlock {
+    /// Nodes, in level order.
+    pub nodes: Vec<Node>,
+    /// "Has children" flag per node.
+    pub internal: Vec<bool>,
+}
+
+/// An open SCT file.
+pub struct SctReader {
+    data: Data,
+    path: Option<PathBuf>,
+    limits: Limits,
+    header: FileHeader,
+    sections: Vec<SectionEntry>,
+    skipped: Vec<String>,
+    generator: Generator,
+    graph: SceneGraph,
+    trees: Vec<TreeIndex>,
+    bytes_read: AtomicU64,
+}
+
+impl std::fmt::Debug for SctReader {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SctReader").field("path", &self.path).field("bytes", &self.data.len()).finish_non_exhaustive()
+    }
+}
+
+impl SctReader {
+    /// Opens and memory-maps `path`.
+    pub fn open(path: &Path, limits: &Limits) -> Result<Self> {
+        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+        let data = if len == 0 {
+            Data::Owned(Vec::new())
+        } else {
+            // SAFETY: the map is read-only; the SCT tools never modify a file in place
+            // (outputs are replaced by rename), so the bytes cannot change under us.
+            #[allow(unsafe_code)]
+            let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| Error::io(path, e))?;
+            Data::Mapped(map)
+        };
+        Self::parse(data, Some(path.to_path_buf()), limits)
+    }
+
+    /// Parses a file held in memory.
+    pub fn from_bytes(bytes: Vec<u8>, limits: &Limits) -> Result<Self> {
+        Self::parse(Data::Owned(bytes), None, limits)
+    }
+
+    fn parse(data: Data, path: Option<PathBuf>, limits: &Limits) -> Result<Self> {
+        let known = [tags::GENR, tags::GRPH, tags::TREE];
+        let c = Container::parse(&data, SCT_MAGIC, "SCT scene", &known, limits)?;
+        let mut read = (crate::raw::FILE_HEADER_LEN + c.sections.len() * crate::raw::SECTION_ENTRY_LEN) as u64;
+        if c.sections.first().map(|e| e.tag) != Some(tags::GENR) {
+            return Err(Error::malformed(c.header.section_table_offset, "the first section must be the generator (GENR)"));
+        }
+        let genr = c.single(tags::GENR)?;
+        let generator = parse_generator(&c.section_bytes(genr, limits)?, genr.offset, limits)?;
+        read += genr.stored_len;
+        let grph = c.single(tags::GRPH)?;
+        let graph = parse_graph(&c.section_bytes(grph, limits)?, grph.offset, limits)?;
+        read += grph.stored_len;
+        let mut trees = Vec::new();
+        for e in c.sections_with(tags::TREE) {
+            let t = parse_tree_index(c.stored(e)?, e, limits)?;
+            read += (TREE_HEADER_LEN + t.levels.len() * LEVEL_ENTRY_LEN + t.blocks.len() * BLOCK_ENTRY_LEN) as u64;
+            trees.push(t);
+        }
+        check_graph_refs(&graph, &trees, grph.offset)?;
+        let (header, sections, skipped) = (c.header.clone(), c.sections.clone(), c.skipped.clone());
+        Ok(SctReader { data, path, limits: limits.clone(), header, sections, skipped, generator, graph, trees, bytes_read: AtomicU64::new(read) })
+    }
+
+    /// The path the file was opened from.
+    pub fn path(&self) -> Option<&Path> {
+        self.path.as_deref()
+    }
+    /// File size in bytes.
+    pub fn file_len(&self) -> u64 {
+        self.data.len() as u64
+    }
+    /// The whole file's bytes.
+    pub fn bytes(&self) -> &[u8] {
+        &self.data
+    }
+    /// The limits in force.
+    pub fn limits(&self) -> &Limits {
+        &self.limits
+    }
+    /// File header.
+    pub fn header(&self) -> &FileHeader {
+        &self.header
+    }
+    /// Known sections in table order.
+    pub fn sections(&self) -> &[SectionEntry] {
+        &self.sections
+    }
+    /// Tags of unknown optional sections that were skipped.
+    pub fn skipped_sections(&self) -> &[String] {
+        &self.skipped
+    }
+    /// Provenance.
+    pub fn generator(&self) -> &Generator {
+        &self.generator
+    }
+    /// Scene graph.
+    pub fn graph(&self) -> &SceneGraph {
+        &self.graph
+    }
+    /// Tree indices.
+    pub fn trees(&self) -> &[TreeIndex] {
+        &self.trees
+    }
+    /// Bytes read so far: headers, tables, graph and every block decoded (a block decoded
+    /// twice counts twice).
+    pub fn bytes_read(&self) -> u64 {
+        self.bytes_read.load(Ordering::Relaxed)
+    }
+
+    /// Verifies the CRC of every section (reads the whole file).
+    pub fn verify_checksums(&self) -> Result<()> {
+        let c = self.container();
+        self.sections.iter().try_for_each(|e| c.verify(e))
+    }
+
+    fn container(&self) -> Container<'_> {
+        Container { data: &self.data, header: self.header.clone(), sections: self.sections.clone(), skipped: Vec::new() }
+    }
+
+    /// Decodes block `b` of tree `t`; `parents` are the decoded parents of its sibling
+    /// pairs (the internal nodes of the previous level with ranks
+    /// `first_node / 2 .. (first_node + node_count) / 2`).
+    pub fn decode_block(&self, t: usize, b: usize, parents: &[Node]) -> Result<DecodedBlock> {
+        let tree = self.trees.get(t).ok_or_else(|| Error::Misuse(format!("no tree {t}")))?;
+        let e = tree.blocks.get(b).ok_or_else(|| Error::Misuse(format!("tree {t} has no block {b}")))?;
+        if parents.len() * 2 != e.node_count as usize {
+            return Err(Error::Misuse(format!("block {b} needs {} parents, {} given", e.node_count / 2, parents.len())));
+        }
+        let section = slice(&self.data, tree.section.offset, tree.section.stored_len, "tree section")?;
+        let abs = tree.section.offset + e.offset;
+        let stored = slice(section, e.offset, e.stored_len as u64, "block").map_err(|_| Error::malformed(abs, "block outside its section"))?;
+        self.bytes_read.fetch_add(e.stored_len as u64, Ordering::Relaxed);
+        let computed = crc32fast::hash(stored);
+        if computed != e.crc {
+            return Err(Error::Checksum { what: format!("tree {t} block {b}"), offset: abs, stored: e.crc, computed });
+        }
+        let owned;
+        let payload: &[u8] = if e.flags & 1 != 0 {
+            owned = decompress(stored, e.raw_len as u64, abs, &self.limits)?;
+            &owned
+        } else {
+            if e.raw_len != e.stored_len {
+                return Err(Error::malformed(abs, "uncompressed block with raw length != stored length"));
+            }
+            stored
+        };
+        let n = e.node_count as usize;
+        let mask_len = n.div_ceil(8);
+        let mask = payload.get(..mask_len).ok_or_else(|| Error::malformed(abs, "block shorter than its child-flag mask"))?;
+        let internal: Vec<bool> = (0..n).map(|i| mask[i / 8] >> (i % 8) & 1 == 1).collect();
+        if n % 8 != 0 && mask[mask_len - 1] >> (n % 8) != 0 {
+            return Err(Error::malformed(abs, "padding bits of the child-flag mask are not zero"));
+        }
+        let mut nodes = Vec::with_capacity(n);
+        decode_children(tree.profile, tree.params, parents, &payload[mask_len..], abs, &mut nodes)?;
+        if nodes.len() != n {
+            return Err(Error::malformed(abs, format!("block decoded to {} nodes, expected {n}", nodes.len())));
+        }
+        // The next block's internal_before must agree with this block's flags.
+        let here = internal.iter().filter(|&&f| f).count() as u64;
+        let level_end = tree.level_blocks(e.level as usize).end;
+        let expected_next = if b + 1 < level_end {
+            tree.blocks[b + 1].internal_before
+        } else {
+            tree.levels.get(e.level as usize + 1).map_or(0, |l| l.node_count / 2)
+        };
+        if e.internal_before + here != expected_next {
+            return Err(Error::malformed(
+                abs,
+                format!("block has {here} internal nodes, the index implies {}", expected_next.wrapping_sub(e.internal_before)),
+            ));
+        }
+        Ok(DecodedBlock { nodes, internal })
+    }
+
+    /// Reads the first `max_levels` levels of tree `t` (all of them with `usize::MAX`),
+    /// decoding only the blocks of those levels.
+    pub fn read_tree_levels(&self, t: usize, max_levels: usize) -> Result<SceneTree> {
+        let tree = self.trees.get(t).ok_or_else(|| Error::Misuse(format!("no tree {t}")))?;
+        let levels = tree.levels.len().min(max_levels);
+        if levels == 0 {
+            return SceneTree::from_bfs(Vec::new(), Vec::new());
+        }
+        let total: u64 = tree.levels[..levels].iter().map(|l| l.node_count).sum();
+        let mut nodes = Vec::with_capacity(total as usize);
+        let mut internal = Vec::with_capacity(total as usize);
+        nodes.push(tree.header.root);
+        internal.push(tree.header.root_internal == 1);
+        let mut parents: Vec<Node> = if internal[0] { vec![tree.header.root] } else { Vec::new() };
+        for d in 1..levels {
+            let mut next = Vec::new();
+            for b in tree.level_blocks(d) {
+                let e = &tree.blocks[b];
+                let lo = (e.first_node / 2) as usize;
+                let ps = parents.get(lo..lo + e.node_count as usize / 2).ok_or_else(|| {
+                    Error::malformed(tree.section.offset + e.offset, "block refers to parents that do not exist")
+                })?;
+                let blk = self.decode_block(t, b, ps)?;
+                for (n, &f) in blk.nodes.iter().zip(&blk.internal) {
+                    if f {
+                        next.push(*n);
+                    }
+                }
+                nodes.extend_from_slice(&blk.nodes);
+                internal.extend_from_slice(&blk.internal);
+            }
+            parents = next;
+        }
+        SceneTree::from_bfs(nodes, internal).map_err(|e| Error::malformed(tree.section.offset, format!("tree structure: {e}")))
+    }
+
+    /// Reads all of tree `t`.
+    pub fn read_tree(&self, t: usize) -> Result<SceneTree> {
+        self.read_tree_levels(t, usize::MAX)
+    }
+}
+
+fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits) -> Result<TreeIndex> {
+    let mut c = Cursor::new(section, e.offset);
+    let header = TreeHeader::parse(&mut c)?;
+    let at = e.offset;
+    let profile = Profile::from_id(header.profile).ok_or_else(|| Error::malformed(at, format!("unknown profile id {}", header.profile)))?;
+    if header.flags & !1 != 0 || header.root_internal > 1 {
+        return Err(Error::malformed(at + 1, "reserved tree flag bits set"));
+    }
+    Limits::check("tree levels", header.level_count as u64, limits.max_tree_levels as u64)?;
+    Limits::check("tree nodes", header.node_count, limits.max_tree_nodes)?;
+    let levels_bytes = c.take(header.level_count as usize * LEVEL_ENTRY_LEN, "level table")?;
+    let blocks_len = (header.block_count as usize).checked_mul(BLOCK_ENTRY_LEN).ok_or_else(|| Error::malformed(at, "block count overflows"))?;
+    let block_bytes = c.take(blocks_len, "block table")?;
+    let mut lc = Cursor::new(levels_bytes, at + TREE_HEADER_LEN as u64);
+    let levels: Vec<LevelEntry> = (0..header.level_count).map(|_| LevelEntry::parse(&mut lc)).collect::<Result<_>>()?;
+    let mut bc = Cursor::new(block_bytes, lc.offset());
+    let blocks: Vec<BlockEntry> = (0..header.block_count).map(|_| BlockEntry::parse(&mut bc)).collect::<Result<_>>()?;
+
+    // Structural consistency of the index, so decoding can trust it.
+    let node_sum = levels.iter().try_fold(0u64, |s, l| s.checked_add(l.node_count)).ok_or_else(|| Error::malformed(at, "level counts overflow"))?;
+    if node_sum != header.node_count {
+        return Err(Error::malformed(at, format!("levels hold {node_sum} nodes, header says {}", header.node_count)));
+    }
+    if header.node_count > 0 && header.node_count != header.leaf_count.saturating_mul(2).saturating_sub(1) {
+        return Err(Error::malformed(at, format!("{} nodes cannot form a full binary tree of {} leaves", header.node_count, header.leaf_count)));
+    }
+    if header.node_count == 0 && (header.level_count != 0 || header.block_count != 0) {
+        return Err(Error::malformed(at, "empty tree with levels or blocks"));
+    }
+    if !header.root.is_finite() && header.node_count > 0 {
+        return Err(Error::malformed(at + 32, "root node has non-finite or out-of-range attributes"));
+    }
+    let mut next_block = 0u32;
+    for (d, l) in levels.iter().enumerate() {
+        let where_ = at + (TREE_HEADER_LEN + d * LEVEL_ENTRY_LEN) as u64;
+        if d == 0 {
+            if l.node_count != 1 || l.block_count != 0 {
+                return Err(Error::malformed(where_, "level 0 must hold exactly the root and no blocks"));
+            }
+            if (header.root_internal == 1) != (levels.len() > 1) {
+                return Err(Error::malformed(at + 2, "root internal flag disagrees with the level count"));
+            }
+            continue;
+        }
+        if l.node_count == 0 || l.node_count % 2 != 0 || l.first_block != next_block || l.block_count == 0 {
+            return Err(Error::malformed(where_, format!("level {d} entry is inconsistent")));
+        }
+        next_block = next_block.checked_add(l.block_count).ok_or_else(|| Error::malformed(where_, "block counts overflow"))?;
+        if next_block > header.block_count {
+            return Err(Error::malformed(where_, format!("level {d} refers to blocks past the block table")));
+        }
+        let mut first = 0u64;
+        let mut internal_before = 0u64;
+        for (k, b) in blocks[l.first_block as usize..next_block as usize].iter().enumerate() {
+            let bw = lc.offset() + ((l.first_block as usize + k) * BLOCK_ENTRY_LEN) as u64;
+            let ok = b.level == d as u32
+                && b.first_node == first
+                && b.node_count > 0
+                && b.node_count % 2 == 0
+                && b.internal_before >= internal_before
+                && b.internal_before <= b.first_node
+                && b.flags & !1 == 0
+                && b.offset.checked_add(b.stored_len as u64).is_some_and(|end| end <= e.stored_len)
+                && (b.raw_len as u64) <= limits.max_decompressed_bytes;
+            if !ok {
+                return Err(Error::malformed(bw, format!("block entry {} of level {d} is inconsistent", l.first_block as usize + k)));
+            }
+            first += b.node_count as u64;
+            internal_before = b.internal_before;
+        }
+        if first != l.node_count {
+            return Err(Error::malformed(where_, format!("blocks of level {d} hold {first} nodes, the level {}", l.node_count)));
+        }
+        let prev = &levels[d - 1];
+        if l.node_count > prev.node_count.saturating_mul(2) {
+            return Err(Error::malformed(where_, format!("level {d} has more nodes than its parents can have")));
+        }
+    }
+    if next_block != header.block_count {
+        return Err(Error::malformed(at, "block table has blocks no level uses"));
+    }
+    Ok(TreeIndex {
+        section: e.clone(),
+        params: CodecParams { alpha: header.flags & 1 == 1 },
+        header,
+        profile,
+        levels,
+        blocks,
+    })
+}
+
+fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits) -> Result<SceneGraph> {
+    let mut c = Cursor::new(bytes, offset);
+    let n = c.count(5, "graph node count")?;
+    Limits::check("graph nodes", n as u64, limits.max_graph_nodes)?;
+    let root = c.u32("graph root")?;
+    let mut nodes = Vec::with_capacity(n);
+    for i in 0..n {
+        let at = c.offset();
+        let earlier = |r: u32, c: &Cursor<'_>| -> Result<u32> {
+            if r as usize >= i {
+                return Err(Error::malformed(c.offset() - 4, format!("graph node {i} refers to node {r}: references must point to earlier nodes")));
+            }
+            Ok(r)
+        };
+        let node = match c.u8("graph node kind")? {
+            kind::TREE => GraphNode::Tree { tree: c.u32("tree index")? },
+            kind::GROUP => {
+                let tree = c.u32("group tree")?;
+                let k = c.count(4, "group child count")?;
+                let mut children = Vec::with_capacity(k);
+                for _ in 0..k {
+                    let r = c.u32("group child")?;
+                    children.push(earlier(r, &c)?);
+                }
+                GraphNode::Group { children, tree }
+            }
+            kind::INSTANCE => {
+                let r = c.u32("instance child")?;
+                let child = earlier(r, &c)?;
+                let transform = read_similarity(&mut c)?;
+                let flags = c.u8("instance flags")?;
+                let tint = c.array::<4>("tint")?;
+                if flags & !7 != 0 {
+                    return Err(Error::malformed(at, "reserved instance flag bits set"));
+                }
+                if !transform.is_valid(1e-6) {
+                    return Err(Error::malformed(at, format!("instance {i} transform is not finite, not unit or not positive: {transform:?}")));
+                }
+                let prop = |bit: u8| if flags & bit != 0 { Propagation::PushDown } else { Propagation::PullUp };
+                let attrs = InstanceAttrs { size: prop(1), color: prop(2), tint: (flags & 4 != 0).then_some(tint) };
+                GraphNode::Instance { child, transform, attrs }
+            }
+            kind::INLINE => {
+                let path = c.string(limits.max_string_bytes, "inline path")?;
+                let hash = c.array::<32>("inline hash")?;
+                let bound = crate::codec::raw::read_node(&c.array("inline bound")?);
+                if path.is_empty() || path.starts_with('/') || path.contains('\\') || path.contains('\0') {
+                    return Err(Error::malformed(at, format!("inline path {path:?} is not a relative '/'-separated path")));
+                }
+                GraphNode::Inline { path, hash, bound }
+            }
+            k => return Err(Error::malformed(at, format!("unknown graph node kind {k}"))),
+        };
+        nodes.push(node);
+    }
+    c.finish("scene graph")?;
+    if n == 0 || root as usize >= n {
+        return Err(Error::malformed(offset, format!("graph root {root} out of range ({n} nodes)")));
+    }
+    Ok(SceneGraph { nodes, root })
+}
+
+fn check_graph_refs(g: &SceneGraph, trees: &[TreeIndex], offset: u64) -> Result<()> {
+    for (i, n) in g.nodes.iter().enumerate() {
+        let t = match n {
+            GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => *tree,
+            _ => continue,
+        };
+        let tree = trees.get(t as usize).ok_or_else(|| Error::malformed(offset, format!("graph node {i} refers to tree {t}, the file has {}", trees.len())))?;
+        if let GraphNode::Group { children, .. } = n {
+            if tree.header.leaf_count != children.len() as u64 {
+                return Err(Error::malformed(offset, format!("group {i} has {} children, its tree {} leaves", children.len(), tree.header.leaf_count)));
+            }
+        }
+    }
+    Ok(())
+}

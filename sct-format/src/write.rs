@@ -1,0 +1,335 @@
+//! Writing SCT files (spec §2–§7).
+//!
+//! The whole scene is encoded in memory section by section (trees in parallel blocks),
+//! so every offset is known before the first byte is written; the file is then written
+//! in one pass, atomically when writing to a path.
+
+use std::io::Write;
+use std::path::Path;
+
+use rayon::prelude::*;
+
+use crate::codec::{encode_children, CodecParams, Profile};
+use crate::container::{write_container, SectionOut};
+use crate::error::{Error, Result};
+use crate::graph::{Generator, GraphNode, Propagation, SceneGraph};
+use crate::node::Node;
+use crate::raw::cursor::Put;
+use crate::raw::{tags, BlockEntry, LevelEntry, TreeHeader, BLOCK_ENTRY_LEN, LEVEL_ENTRY_LEN, SCT_MAGIC, TREE_HEADER_LEN};
+use crate::samples::put_similarity;
+use crate::tree::SceneTree;
+
+/// A complete scene: provenance, graph and the trees the graph refers to.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Scene {
+    /// Provenance (first section of the file).
+    pub generator: Generator,
+    /// The scene graph.
+    pub graph: SceneGraph,
+    /// Scene trees, referenced by index from the graph.
+    pub trees: Vec<SceneTree>,
+}
+
+impl Scene {
+    /// A scene of one tree.
+    pub fn single_tree(generator: Generator, tree: SceneTree) -> Self {
+        Scene {
+            generator,
+            graph: SceneGraph { nodes: vec![GraphNode::Tree { tree: 0 }], root: 0 },
+            trees: vec![tree],
+        }
+    }
+}
+
+/// How to encode.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WriteOptions {
+    /// Node profile for every tree.
+    pub profile: Profile,
+    /// zstd level for tree blocks; `None` uses the profile's default (zstd 19 for the default
+    /// profile, no compression for raw and canopy); `Some(0)` disables compression.
+    pub compression_level: Option<i32>,
+    /// Most nodes per block (rounded down to even, at least 2).
+    pub block_nodes: u32,
+}
+
+impl Default for WriteOptions {
+    fn default() -> Self {
+        WriteOptions { profile: Profile::Default, compression_level: None, block_nodes: 16384 }
+    }
+}
+
+impl WriteOptions {
+    fn zstd_level(&self) -> Option<i32> {
+        match self.compression_level {
+            Some(0) => None,
+            Some(l) => Some(l),
+            None if self.profile.compress_by_default() => Some(19),
+            None => None,
+        }
+    }
+}
+
+/// Sizes of one encoded tree.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct TreeStats {
+    /// Nodes.
+    pub nodes: u64,
+    /// Leaves.
+    pub leaves: u64,
+    /// Levels.
+    pub levels: u32,
+    /// Blocks.
+    pub blocks: u32,
+    /// Bytes of the whole `TREE` section.
+    pub section_bytes: u64,
+    /// Bytes of header, level table and block table.
+    pub index_bytes: u64,
+    /// Uncompressed bytes of the child-flag bitmasks.
+    pub flag_bytes: u64,
+    /// Uncompressed bytes of codec payloads.
+    pub payload_bytes: u64,
+}
+
+/// What was written.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct WriteStats {
+    /// Total file size.
+    pub bytes: u64,
+    /// `(tag, stored bytes)` per section in file order.
+    pub sections: Vec<(String, u64)>,
+    /// Per-tree statistics.
+    pub trees: Vec<TreeStats>,
+}
+
+/// Encodes and writes `scene` to `w`.
+pub fn write_scene<W: Write>(scene: &Scene, opts: &WriteOptions, w: W) -> Result<WriteStats> {
+    check_graph(scene)?;
+    let genr = serde_json::to_vec(&scene.generator).map_err(|e| Error::Misuse(format!("generator: {e}")))?;
+    let mut sections = vec![SectionOut::plain(tags::GENR, genr), SectionOut::zstd(tags::GRPH, &encode_graph(&scene.graph), 3)?];
+    let mut tree_stats = Vec::with_capacity(scene.trees.len());
+    for tree in &scene.trees {
+        let (bytes, stats) = encode_tree(tree, opts)?;
+        tree_stats.push(stats);
+        sections.push(SectionOut::plain(tags::TREE, bytes));
+    }
+    let (bytes, _) = write_container(SCT_MAGIC, &sections, w)?;
+    Ok(WriteStats {
+        bytes,
+        sections: sections.iter().map(|s| (s.tag.escape_ascii().to_string(), s.stored.len() as u64)).collect(),
+        trees: tree_stats,
+    })
+}
+
+/// Encodes and writes `scene` to `path` atomically.
+pub fn write_scene_file(path: &Path, scene: &Scene, opts: &WriteOptions) -> Result<WriteStats> {
+    crate::atomic::write_atomic(path, |w| write_scene(scene, opts, w))
+}
+
+fn check_graph(scene: &Scene) -> Result<()> {
+    let g = &scene.graph;
+    if g.nodes.is_empty() {
+        return Err(Error::Misuse("the scene graph has no nodes".into()));
+    }
+    if g.root as usize >= g.nodes.len() {
+        return Err(Error::Misuse(format!("root {} out of range ({} graph nodes)", g.root, g.nodes.len())));
+    }
+    let tree_ok = |t: u32| -> Result<&SceneTree> {
+        scene.trees.get(t as usize).ok_or_else(|| Error::Misuse(format!("graph refers to tree {t}, there are {}", scene.trees.len())))
+    };
+    for (i, n) in g.nodes.iter().enumerate() {
+        let earlier = |c: u32| -> Result<()> {
+            if c as usize >= i {
+                return Err(Error::Misuse(format!("graph node {i} refers to node {c}; references must point to earlier nodes")));
+            }
+            Ok(())
+        };
+        match n {
+            GraphNode::Tree { tree } => {
+                tree_ok(*tree)?;
+            }
+            GraphNode::Group { children, tree } => {
+                let t = tree_ok(*tree)?;
+                children.iter().try_for_each(|&c| earlier(c))?;
+                if t.leaf_count() != children.len() {
+                    return Err(Error::Misuse(format!(
+                        "group {i} has {} children but its tree has {} leaves",
+                        children.len(),
+                        t.leaf_count()
+                    )));
+                }
+            }
+            GraphNode::Instance { child, transform, .. } => {
+                earlier(*child)?;
+                if !transform.is_valid(1e-6) {
+                    return Err(Error::Misuse(format!("instance {i} has an invalid transform {transform:?}")));
+                }
+            }
+            GraphNode::Inline { path, .. } => {
+                if path.is_empty() || path.contains('\\') || path.starts_with('/') {
+                    return Err(Error::Misuse(format!("inline {i} path {path:?} must be relative with '/' separators")));
+                }
+            }
+        }
+    }
+    for (i, t) in scene.trees.iter().enumerate() {
+        if t.level_count() > 0 && t.leaf_count() * 2 != t.len() + 1 {
+            return Err(Error::Misuse(format!("tree {i} is truncated (not all levels are present)")));
+        }
+    }
+    Ok(())
+}
+
+/// Graph record kinds (spec §7).
+pub(crate) mod kind {
+    pub const TREE: u8 = 0;
+    pub const GROUP: u8 = 1;
+    pub const INSTANCE: u8 = 2;
+    pub const INLINE: u8 = 3;
+}
+
+fn encode_graph(g: &SceneGraph) -> Vec<u8> {
+    let mut out = Vec::new();
+    out.put_u64(g.nodes.len() as u64);
+    out.put_u32(g.root);
+    for n in &g.nodes {
+        match n {
+            GraphNode::Tree { tree } => {
+                out.put_u8(kind::TREE);
+                out.put_u32(*tree);
+            }
+            GraphNode::Group { children, tree } => {
+                out.put_u8(kind::GROUP);
+                out.put_u32(*tree);
+                out.put_u64(children.len() as u64);
+                children.iter().for_each(|c| out.put_u32(*c));
+            }
+            GraphNode::Instance { child, transform, attrs } => {
+                out.put_u8(kind::INSTANCE);
+                out.put_u32(*child);
+                put_similarity(&mut out, transform);
+                let mut flags = 0u8;
+                if attrs.size == Propagation::PushDown {
+                    flags |= 1;
+                }
+                if attrs.color == Propagation::PushDown {
+                    flags |= 2;
+                }
+                if attrs.tint.is_some() {
+                    flags |= 4;
+                }
+                out.put_u8(flags);
+                out.extend_from_slice(&attrs.tint.unwrap_or([255; 4]));
+            }
+            GraphNode::Inline { path, hash, bound } => {
+                out.put_u8(kind::INLINE);
+                out.put_str(path);
+                out.extend_from_slice(hash);
+                crate::codec::raw::write_node(bound, &mut out);
+            }
+        }
+    }
+    out
+}
+
+/// Encodes one tree as a `TREE` section body.
+pub fn encode_tree(tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, TreeStats)> {
+    let profile = opts.profile;
+    let params = CodecParams { alpha: tree.nodes().iter().any(|n| n.color[3] != 255) };
+    let block_nodes = (opts.block_nodes.max(2) & !1) as usize;
+    let level = opts.zstd_level();
+    let levels = tree.level_count();
+    let mut level_table = vec![LevelEntry::default(); levels];
+    let mut blocks: Vec<BlockEntry> = Vec::new();
+    let mut data: Vec<Vec<u8>> = Vec::new();
+    let mut stats = TreeStats { nodes: tree.len() as u64, leaves: tree.leaf_count() as u64, levels: levels as u32, ..Default::default() };
+    let nodes = tree.nodes();
+    let flags = tree.internal_flags();
+    // Decoded internal nodes of the previous level: the parents of the current one.
+    let mut parents: Vec<Node> = Vec::new();
+    if levels > 0 {
+        level_table[0] = LevelEntry { node_count: 1, first_block: 0, block_count: 0 };
+        if flags[0] {
+            parents.push(nodes[0]);
+        }
+    }
+    for (d, entry) in level_table.iter_mut().enumerate().skip(1) {
+        let range = tree.level(d);
+        let level_nodes = &nodes[range.clone()];
+        let level_flags = &flags[range];
+        let chunks: Vec<(usize, usize)> =
+            (0..level_nodes.len()).step_by(block_nodes).map(|s| (s, (s + block_nodes).min(level_nodes.len()))).collect();
+        let encoded: Vec<Result<(Vec<u8>, u32, u64, u64, Vec<Node>)>> = chunks
+            .par_iter()
+            .map(|&(s, e)| {
+                let mut payload = Vec::new();
+                let mut mask = vec![0u8; (e - s).div_ceil(8)];
+                for (i, &f) in level_flags[s..e].iter().enumerate() {
+                    mask[i / 8] |= (f as u8) << (i % 8);
+                }
+                payload.extend_from_slice(&mask);
+                let decoded = encode_children(profile, params, &parents[s / 2..e / 2], &level_nodes[s..e], &mut payload)?;
+                let raw_len = payload.len();
+                let (stored, bflags) = match level {
+                    Some(l) => (zstd::bulk::compress(&payload, l)?, 1u32),
+                    None => (payload, 0u32),
+                };
+                Ok((stored, bflags, mask.len() as u64, (raw_len - mask.len()) as u64, decoded))
+            })
+            .collect();
+        entry.node_count = level_nodes.len() as u64;
+        entry.first_block = blocks.len() as u32;
+        entry.block_count = chunks.len() as u32;
+        let mut next_parents = Vec::with_capacity(level_flags.iter().filter(|&&f| f).count());
+        let mut internal_before = 0u64;
+        for (&(s, e), r) in chunks.iter().zip(encoded) {
+            let (stored, bflags, mask_len, payload_len, decoded) = r?;
+            stats.flag_bytes += mask_len;
+            stats.payload_bytes += payload_len;
+            blocks.push(BlockEntry {
+                level: d as u32,
+                node_count: (e - s) as u32,
+                first_node: s as u64,
+                internal_before,
+                offset: 0,
+                stored_len: stored.len() as u32,
+                raw_len: (mask_len + payload_len) as u32,
+                crc: crc32fast::hash(&stored),
+                flags: bflags,
+            });
+            for (n, &f) in decoded.iter().zip(&level_flags[s..e]) {
+                if f {
+                    next_parents.push(*n);
+                    internal_before += 1;
+                }
+            }
+            data.push(stored);
+        }
+        parents = next_parents;
+    }
+    let index_len = TREE_HEADER_LEN + levels * LEVEL_ENTRY_LEN + blocks.len() * BLOCK_ENTRY_LEN;
+    let mut offset = index_len as u64;
+    for (b, d) in blocks.iter_mut().zip(&data) {
+        b.offset = offset;
+        offset += d.len() as u64;
+    }
+    let mut out = Vec::with_capacity(offset as usize);
+    TreeHeader {
+        profile: profile.id(),
+        flags: params.alpha as u8,
+        root_internal: flags.first().copied().unwrap_or(false) as u8,
+        level_count: levels as u32,
+        node_count: tree.len() as u64,
+        leaf_count: tree.leaf_count() as u64,
+        block_count: blocks.len() as u32,
+        root: nodes.first().copied().unwrap_or_default(),
+    }
+    .write(&mut out);
+    level_table.iter().for_each(|l| l.write(&mut out));
+    blocks.iter().for_each(|b| b.write(&mut out));
+    data.iter().for_each(|d| out.extend_from_slice(d));
+    stats.blocks = blocks.len() as u32;
+    stats.index_bytes = index_len as u64;
+    stats.section_bytes = out.len() as u64;
+    Ok((out, stats))
+}
