@@ -1,0 +1,288 @@
+//! Position + radius of a child relative to its decoded parent (thesis §5.9.1.1, EQ 49–57),
+//! shared by the canopy and default profiles.
+//!
+//! The child is normalised into the parent's unit sphere (offset `v = (c - p) / r_p`, radius
+//! coefficient `k = r_c / r_p`), its centre moved to a point `g / QP` of the 13-point grid
+//! (`g ∈ {-6..6}³`, `QP = 6`) and its radius coefficient grown by the position error and
+//! rounded **up** to `q / QR` (`QR = 13`, `q ≥ 1`), so the decoded sphere contains the
+//! original child.
+//!
+//! # Legal states (the 14-bit index)
+//!
+//! A state `(g, q)` is legal iff
+//! 1. `|g|² ≤ 36`: the grid point lies inside (or on) the unit parent sphere, and
+//! 2. `q ≥ 1` and `|g| / 6 + q / 13 ≤ 1 + S` with `S = √3/6 + 1/13 ≈ 0.365598`: the decoded
+//!    child sticks out of the decoded parent by at most `S` parent radii. `S` is the thesis's
+//!    own worst case: twice the worst grid error `√3/12` (the centre moves by `e`, the radius
+//!    grows by `e`) plus one radius step `1/13` from rounding up.
+//!
+//! States are numbered in the order `i` (x), then `j` (y), then `k` (z), each from -6 to 6,
+//! then `q` ascending. This yields **[`STATE_COUNT`] = 6 821** states (fits 13 bits; stored in
+//! the thesis's 14-bit field). Eight states lie exactly on the boundary (`g = (±1,±1,±1)`,
+//! `q = 14`: `√3/6 + 14/13 = 1 + S`); they are legal, and implementations must compare with a
+//! tolerance of 1e-9 (every other state is more than 1e-4 from the boundary).
+//!
+//! Why not 8 721 (thesis) or 7 621 (QSplat)? Applying rule 2 to *all* 13³ grid points (also
+//! the cube corners outside the sphere) with the radius capped at the parent's (`q ≤ 13`)
+//! gives exactly 8 721 (checked in a unit test), so that is most likely the thesis's rule.
+//! We drop the corners because the thesis's encoder only picks points inside the unit sphere
+//! ("nearest legal grid point ... contained by the unit sphere"), and we drop the cap
+//! `q ≤ 13` because rounding up a child that coincides with its parent (welded duplicates,
+//! f32 rounding in the builder) needs `q = 14`. QSplat quantizes offsets as fractions of the
+//! parent's *diameter* and does not publish its validity rule; we could not reproduce 7 621.
+//!
+//! Because every legal state satisfies rule 2, a decoded child lies inside its decoded parent
+//! grown by `S` parent radii whatever the input: that is `CONTAINMENT_SLACK`.
+//!
+//! # Containment, exactly
+//!
+//! The encoder evaluates the decoded child exactly as the decoder computes it (f32) and checks
+//! `|c_dec - c| + r ≤ r_dec` in f64 on those f32 values, growing `q` until it holds. So the
+//! decoded child contains the original child with no tolerance beyond the f64 evaluation of
+//! that inequality (≈1e-16 relative).
+
+use std::sync::OnceLock;
+
+/// Grid points either side of the origin per axis (13-point grid).
+pub const QP: i32 = 6;
+/// Radius steps per parent radius.
+pub const QR: i32 = 13;
+/// Number of legal states.
+pub const STATE_COUNT: usize = 6821;
+/// Largest radius code of any legal state.
+pub const Q_MAX: i32 = 17;
+
+/// The stick-out bound `S = √3/6 + 1/13` of the legality rule (parent radii).
+pub fn stick_out_bound() -> f64 {
+    3f64.sqrt() / 6.0 + 1.0 / 13.0
+}
+
+/// Number of grid points per axis.
+const SIDE: usize = (2 * QP + 1) as usize;
+/// Marks a grid point without legal states.
+const NONE: u16 = u16::MAX;
+
+/// Lookup tables built once.
+pub struct Tables {
+    /// Per state: offset of the centre in parent radii, and radius coefficient (f32, exactly
+    /// what the decoder multiplies with).
+    pub offset: Vec<[f32; 3]>,
+    /// Radius coefficient `q / 13` per state.
+    pub radius: Vec<f32>,
+    /// Grid point and radius code per state.
+    pub state: Vec<([i8; 3], u8)>,
+    /// Per grid point (index `((i+6)·13 + j+6)·13 + k+6`): first state index or `NONE`.
+    base: Vec<u16>,
+    /// Per grid point: largest legal `q` (0 when none).
+    qmax: Vec<u8>,
+    /// Grid points inside the sphere, for the exhaustive search.
+    pub inside: Vec<[i8; 3]>,
+}
+
+fn grid_index(g: [i32; 3]) -> usize {
+    (((g[0] + QP) as usize * SIDE) + (g[1] + QP) as usize) * SIDE + (g[2] + QP) as usize
+}
+
+/// Whether `(g, q)` is legal (see the module docs). f64 with a 1e-9 tolerance that admits the
+/// eight exact-equality states; every other state is > 1e-4 from the boundary (unit test), so
+/// any IEEE double implementation agrees.
+pub fn is_legal(g: [i32; 3], q: i32) -> bool {
+    let n2 = g[0] * g[0] + g[1] * g[1] + g[2] * g[2];
+    q >= 1 && n2 <= QP * QP && (n2 as f64).sqrt() / QP as f64 + q as f64 / QR as f64 <= 1.0 + stick_out_bound() + 1e-9
+}
+
+/// The tables (built on first use).
+pub fn tables() -> &'static Tables {
+    static T: OnceLock<Tables> = OnceLock::new();
+    T.get_or_init(|| {
+        let mut t = Tables {
+            offset: Vec::with_capacity(STATE_COUNT),
+            radius: Vec::with_capacity(STATE_COUNT),
+            state: Vec::with_capacity(STATE_COUNT),
+            base: vec![NONE; SIDE * SIDE * SIDE],
+            qmax: vec![0; SIDE * SIDE * SIDE],
+            inside: Vec::new(),
+        };
+        for i in -QP..=QP {
+            for j in -QP..=QP {
+                for k in -QP..=QP {
+                    let g = [i, j, k];
+                    let gi = grid_index(g);
+                    for q in 1..=Q_MAX + 1 {
+                        if !is_legal(g, q) {
+                            break;
+                        }
+                        if q == 1 {
+                            t.base[gi] = t.state.len() as u16;
+                            t.inside.push([i as i8, j as i8, k as i8]);
+                        }
+                        t.qmax[gi] = q as u8;
+                        let f = |a: i32| a as f32 / QP as f32;
+                        t.offset.push([f(i), f(j), f(k)]);
+                        t.radius.push(q as f32 / QR as f32);
+                        t.state.push(([i as i8, j as i8, k as i8], q as u8));
+                    }
+                }
+            }
+        }
+        t
+    })
+}
+
+impl Tables {
+    /// State index of `(g, q)`, if legal.
+    pub fn index(&self, g: [i32; 3], q: i32) -> Option<u16> {
+        if g.iter().any(|&a| !(-QP..=QP).contains(&a)) || q < 1 {
+            return None;
+        }
+        let gi = grid_index(g);
+        if q > self.qmax[gi] as i32 {
+            return None;
+        }
+        Some(self.base[gi] + (q - 1) as u16)
+    }
+}
+
+/// The decoded child sphere of state `s` in decoded parent `(pc, pr)`: the single definition
+/// both encoder and decoder use, so they agree bit for bit.
+#[inline]
+pub fn decode_state(t: &Tables, s: usize, pc: [f32; 3], pr: f32) -> Option<([f32; 3], f32)> {
+    let o = t.offset.get(s)?;
+    let k = *t.radius.get(s)?;
+    Some(([pc[0] + pr * o[0], pc[1] + pr * o[1], pc[2] + pr * o[2]], pr * k))
+}
+
+fn dist64(a: [f32; 3], b: [f32; 3]) -> f64 {
+    let d = |i: usize| a[i] as f64 - b[i] as f64;
+    (d(0) * d(0) + d(1) * d(1) + d(2) * d(2)).sqrt()
+}
+
+/// True when sphere `(c_out, r_out)` contains `(c_in, r_in)` evaluated in f64 on the f32 values.
+#[inline]
+pub fn contains(c_out: [f32; 3], r_out: f32, c_in: [f32; 3], r_in: f32) -> bool {
+    dist64(c_out, c_in) + r_in as f64 <= r_out as f64
+}
+
+/// Smallest radius code `q` at grid point `g` whose decoded sphere contains the child, and
+/// its state index; `None` when that `q` is not legal at `g`.
+fn fit(t: &Tables, g: [i32; 3], pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Option<(u16, i32, f64)> {
+    let s1 = t.index(g, 1)? as usize;
+    let (dc, _) = decode_state(t, s1, pc, pr)?;
+    let dist = dist64(dc, cc);
+    let need = dist + cr as f64;
+    // First guess from the exact ratio; then walk up until the f32 radius really covers it.
+    let guess = (need / pr as f64 * QR as f64).ceil();
+    if !guess.is_finite() || guess > (Q_MAX + 1) as f64 {
+        return None;
+    }
+    let mut q = (guess as i32).max(1);
+    // One step down too, in case the f32 product rounds above the exact ratio.
+    if q > 1 {
+        q -= 1;
+    }
+    loop {
+        let s = t.index(g, q)?;
+        let r = pr * t.radius[s as usize];
+        if (r as f64) >= need {
+            return Some((s, q, dist));
+        }
+        q += 1;
+    }
+}
+
+/// Encodes a child sphere `(cc, cr)` against decoded parent `(pc, pr)`: the legal state of
+/// smallest decoded radius (ties: smallest centre error) whose decoded sphere contains the
+/// child. The caller checks finiteness and `pr > 0`. `None` when no legal state contains it
+/// (the child lies too far outside the parent).
+pub fn encode_sphere(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Option<u16> {
+    let t = tables();
+    let v = |i: usize| (cc[i] as f64 - pc[i] as f64) / pr as f64 * QP as f64;
+    let g0 = [v(0).round(), v(1).round(), v(2).round()];
+    // Fast path: the nearest grid point overall minimises the error, hence the radius.
+    if g0.iter().all(|a| a.abs() <= QP as f64) {
+        let g = [g0[0] as i32, g0[1] as i32, g0[2] as i32];
+        if let Some((s, _, _)) = fit(t, g, pc, pr, cc, cr) {
+            return Some(s);
+        }
+    }
+    // Near or outside the boundary: exhaustive search over the 925 grid points.
+    let mut best: Option<(u16, i32, f64)> = None;
+    for g in &t.inside {
+        let g = [g[0] as i32, g[1] as i32, g[2] as i32];
+        if let Some(c) = fit(t, g, pc, pr, cc, cr) {
+            if best.map_or(true, |b| (c.1, c.2) < (b.1, b.2)) {
+                best = Some(c);
+            }
+        }
+    }
+    best.map(|b| b.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn state_count_and_inverse() {
+        let t = tables();
+        assert_eq!(t.state.len(), STATE_COUNT);
+        assert_eq!(t.inside.len(), 925);
+        assert!(STATE_COUNT < 1 << 14);
+        let mut maxq = 0;
+        for (s, &(g, q)) in t.state.iter().enumerate() {
+            let g = [g[0] as i32, g[1] as i32, g[2] as i32];
+            assert_eq!(t.index(g, q as i32), Some(s as u16));
+            maxq = maxq.max(q as i32);
+        }
+        assert_eq!(maxq, Q_MAX);
+        assert_eq!(t.index([0, 0, 0], Q_MAX + 1), None);
+        assert_eq!(t.index([6, 6, 6], 1), None);
+    }
+
+    /// The thesis's 8 721: same stick-out rule over all 13³ points with `q ≤ 13`.
+    #[test]
+    fn thesis_count_reproduced() {
+        let mut n = 0;
+        for i in -6i32..=6 {
+            for j in -6i32..=6 {
+                for k in -6i32..=6 {
+                    let d = ((i * i + j * j + k * k) as f64).sqrt() / 6.0;
+                    n += (1..=13).filter(|&q| d + q as f64 / 13.0 <= 1.0 + stick_out_bound()).count();
+                }
+            }
+        }
+        assert_eq!(n, 8721);
+    }
+
+    /// No state is within 1e-4 of the legality boundary, so the set is robust to rounding.
+    #[test]
+    fn legality_margin() {
+        let s = stick_out_bound();
+        for i in -6i32..=6 {
+            for j in -6i32..=6 {
+                for k in -6i32..=6 {
+                    let d = ((i * i + j * j + k * k) as f64).sqrt() / 6.0;
+                    for q in 1..=20 {
+                        let m = (d + q as f64 / 13.0 - 1.0 - s).abs();
+                        let on_boundary = i.abs() == 1 && j.abs() == 1 && k.abs() == 1 && q == 14;
+                        assert!(m > 1e-4 || (on_boundary && m < 1e-12), "{i} {j} {k} {q}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn coincident_child_needs_no_more_than_q14() {
+        let s = encode_sphere([1.0, 2.0, 3.0], 0.5, [1.0, 2.0, 3.0], 0.5).unwrap();
+        let (dc, dr) = decode_state(tables(), s as usize, [1.0, 2.0, 3.0], 0.5).unwrap();
+        assert!(contains(dc, dr, [1.0, 2.0, 3.0], 0.5));
+        assert!(tables().state[s as usize].1 <= 14);
+    }
+
+    #[test]
+    fn far_child_is_refused() {
+        assert!(encode_sphere([0.0; 3], 1.0, [5.0, 0.0, 0.0], 0.1).is_none());
+        assert!(encode_sphere([0.0; 3], 1.0, [0.0; 3], 1.5).is_none());
+    }
+}
