@@ -6,7 +6,10 @@
 //! the tree header.
 
 pub mod canopy;
+mod color;
 pub mod default;
+mod normal;
+mod posrad;
 pub mod raw;
 
 use crate::error::{Error, Result};
