@@ -13,13 +13,17 @@ pub const MAJOR: u16 = 1;
 /// The minor version this crate writes.
 pub const MINOR: u16 = 0;
 
-/// A section to be written.
-pub(crate) struct SectionOut {
+/// A section to be written (low-level API: [`crate::write`] and [`crate::samples`] build these).
+pub struct SectionOut {
+    /// Four ASCII bytes.
     pub tag: [u8; 4],
+    /// Whether readers must understand the section.
     pub required: bool,
-    /// Stored bytes (already compressed when `raw_len` differs).
+    /// Stored bytes (already compressed when `compressed`).
     pub stored: Vec<u8>,
+    /// Length after decompression.
     pub raw_len: u64,
+    /// Whether `stored` is one zstd frame.
     pub compressed: bool,
 }
 
@@ -38,7 +42,7 @@ impl SectionOut {
 
 /// Writes header, section table and sections; returns the number of bytes written and
 /// the absolute offset of each section.
-pub(crate) fn write_container<W: Write>(magic: [u8; 8], sections: &[SectionOut], mut w: W) -> Result<(u64, Vec<u64>)> {
+pub fn write_container<W: Write>(magic: [u8; 8], sections: &[SectionOut], mut w: W) -> Result<(u64, Vec<u64>)> {
     let table_len = sections.len() * SECTION_ENTRY_LEN;
     let mut offset = (FILE_HEADER_LEN + table_len) as u64;
     let mut table = Vec::with_capacity(table_len);

@@ -1,0 +1,77 @@
+//! Random but self-consistent scene trees for round-trip and hostile-input tests.
+#![allow(dead_code)]
+
+use sct_format::{Node, SceneTree};
+
+/// Small deterministic PRNG (splitmix64) so tests need no extra dependency.
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E3779B97F4A7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58476D1CE4E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D049BB133111EB);
+        z ^ (z >> 31)
+    }
+    pub fn f32(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+    pub fn unit(&mut self) -> [f32; 3] {
+        loop {
+            let v = [self.f32() * 2.0 - 1.0, self.f32() * 2.0 - 1.0, self.f32() * 2.0 - 1.0];
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if l > 0.1 && l <= 1.0 {
+                return [v[0] / l, v[1] / l, v[2] / l];
+            }
+        }
+    }
+}
+
+/// A random full binary tree of about `target_nodes` nodes, generated top-down so that every
+/// child lies inside its parent, areas split exactly, and cones contain the children's
+/// normals (internal cones are whole-sphere; leaves have cone 0).
+pub fn random_tree(seed: u64, target_nodes: usize, alpha: bool) -> SceneTree {
+    let mut rng = Rng(seed);
+    let root = Node { center: [1.0, -2.0, 3.0], radius: 1000.0, normal: [0.0, 0.0, 1.0], cone: std::f32::consts::PI, area: 100.0, color: [128, 64, 32, 255] };
+    let mut nodes = vec![root];
+    let mut internal = Vec::new();
+    let mut level = vec![root];
+    let mut total = 1usize;
+    while !level.is_empty() {
+        let mut next = Vec::new();
+        for p in &level {
+            let split = total + 2 <= target_nodes && (next.len() < 4 || rng.f32() < 0.9) && p.radius > 1e-2;
+            internal.push(split);
+            if !split {
+                continue;
+            }
+            total += 2;
+            let f = 0.2 + 0.6 * rng.f32();
+            for area in [p.area * f, p.area * (1.0 - f)] {
+                let r = p.radius * (0.5 + 0.3 * rng.f32());
+                let d = rng.unit();
+                let off = (p.radius - r) * rng.f32();
+                let leafish = rng.f32() < 0.3;
+                let c = Node {
+                    center: [p.center[0] + d[0] * off, p.center[1] + d[1] * off, p.center[2] + d[2] * off],
+                    radius: r,
+                    normal: rng.unit(),
+                    cone: if leafish { 0.0 } else { std::f32::consts::PI },
+                    area,
+                    color: [rng.next_u64() as u8, rng.next_u64() as u8, rng.next_u64() as u8, if alpha { rng.next_u64() as u8 } else { 255 }],
+                };
+                next.push(c);
+            }
+        }
+        nodes.extend_from_slice(&next);
+        level = next;
+    }
+    // Leaves carry cone 0.
+    for (n, &i) in nodes.iter_mut().zip(&internal) {
+        if !i {
+            n.cone = 0.0;
+        }
+    }
+    SceneTree::from_bfs(nodes, internal).expect("generator builds a valid tree")
+}

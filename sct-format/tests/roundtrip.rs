@@ -1,0 +1,120 @@
+//! Writer → reader round trips: structure exact, attributes exact (raw) or within the
+//! codec's bounds (canopy, default).
+
+mod common;
+
+use sct_format::read::SctReader;
+use sct_format::{write_scene, Generator, Limits, Node, Profile, Scene, SceneTree, WriteOptions};
+
+fn write(tree: &SceneTree, profile: Profile) -> Vec<u8> {
+    let scene = Scene::single_tree(Generator { tool: "test".into(), version: "0".into(), ..Default::default() }, tree.clone());
+    let mut bytes = Vec::new();
+    let opts = WriteOptions { profile, block_nodes: 4096, ..Default::default() };
+    let stats = write_scene(&scene, &opts, &mut bytes).expect("write");
+    assert_eq!(stats.bytes as usize, bytes.len());
+    bytes
+}
+
+fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+fn check_within_bounds(orig: &SceneTree, got: &SceneTree, profile: Profile) {
+    assert_eq!(orig.internal_flags(), got.internal_flags(), "structure must be exact");
+    for (i, (a, b)) in orig.nodes().iter().zip(got.nodes()).enumerate() {
+        if profile == Profile::Raw {
+            assert_eq!(a, b, "raw node {i}");
+            continue;
+        }
+        // The decoded sphere contains the original one (f32 rounding allowance).
+        let slack = 1e-4 * a.radius.max(1e-3) + 1e-5;
+        assert!(dist(a.center, b.center) + a.radius <= b.radius + slack, "node {i}: decoded {b:?} does not contain {a:?}");
+        // Colour within 5-bit quantisation.
+        for ch in 0..3 {
+            assert!((a.color[ch] as i32 - b.color[ch] as i32).abs() <= 8, "node {i} colour {:?} vs {:?}", a.color, b.color);
+        }
+        assert!(b.cone + 1e-4 >= a.cone.min(std::f32::consts::PI), "node {i}: cone shrank");
+        let rel = (a.area - b.area).abs() / a.area.max(1e-12);
+        assert!(rel < 0.02 || (a.area - b.area).abs() < 1e-6, "node {i}: area {} vs {}", a.area, b.area);
+    }
+}
+
+#[test]
+fn million_node_tree_round_trips_in_every_profile() {
+    let tree = common::random_tree(7, 1_000_001, false);
+    assert!(tree.len() >= 1_000_000);
+    for profile in [Profile::Raw, Profile::Canopy, Profile::Default] {
+        let bytes = write(&tree, profile);
+        let r = SctReader::from_bytes(bytes, &Limits::default()).expect("read");
+        r.verify_checksums().expect("checksums");
+        let got = r.read_tree(0).expect("decode");
+        check_within_bounds(&tree, &got, profile);
+    }
+}
+
+#[test]
+fn alpha_trees_round_trip() {
+    let tree = common::random_tree(11, 5000, true);
+    for profile in [Profile::Raw, Profile::Canopy, Profile::Default] {
+        let r = SctReader::from_bytes(write(&tree, profile), &Limits::default()).expect("read");
+        check_within_bounds(&tree, &r.read_tree(0).expect("decode"), profile);
+    }
+}
+
+#[test]
+fn first_levels_read_without_deeper_blocks() {
+    let tree = common::random_tree(3, 200_000, false);
+    let bytes = write(&tree, Profile::Default);
+    let file_len = bytes.len() as u64;
+    let r = SctReader::from_bytes(bytes, &Limits::default()).expect("read");
+    let before = r.bytes_read();
+    let prefix = r.read_tree_levels(0, 4).expect("prefix");
+    assert_eq!(prefix.level_count(), 4);
+    let full = r.read_tree(0).expect("full");
+    assert_eq!(&full.nodes()[..prefix.len()], prefix.nodes(), "prefix decodes identically");
+    // Four levels are a small fraction of the file.
+    assert!(r.bytes_read() - before < file_len, "read {} of {file_len}", r.bytes_read() - before);
+    let idx = &r.trees()[0];
+    let prefix_blocks: u64 = (1..4).flat_map(|d| idx.level_blocks(d)).map(|b| idx.blocks[b].stored_len as u64).sum();
+    assert!(prefix_blocks * 10 < file_len, "prefix blocks {prefix_blocks} vs file {file_len}");
+}
+
+#[test]
+fn random_access_by_block_matches_full_decode() {
+    let tree = common::random_tree(5, 100_000, false);
+    let r = SctReader::from_bytes(write(&tree, Profile::Canopy), &Limits::default()).expect("read");
+    let full = r.read_tree(0).expect("full");
+    let idx = &r.trees()[0];
+    // Decode the last block of the deepest level with parents taken from the full decode.
+    let d = idx.levels.len() - 1;
+    let b = idx.level_blocks(d).end - 1;
+    let e = idx.blocks[b];
+    let prev = full.level(d - 1);
+    let parents: Vec<Node> = full.nodes()[prev].iter().zip(&full.internal_flags()[full.level(d - 1)]).filter(|(_, &f)| f).map(|(n, _)| *n).collect();
+    let lo = (e.first_node / 2) as usize;
+    let blk = r.decode_block(0, b, &parents[lo..lo + e.node_count as usize / 2]).expect("block");
+    let start = full.level(d).start + e.first_node as usize;
+    assert_eq!(blk.nodes, full.nodes()[start..start + e.node_count as usize]);
+    assert_eq!(idx.block_of(d, e.first_node), Some(b));
+}
+
+#[test]
+fn single_leaf_and_empty_trees() {
+    let leaf = SceneTree::from_bfs(vec![Node { radius: 1.0, area: 1.0, color: [1, 2, 3, 255], ..Default::default() }], vec![false]).expect("tree");
+    for profile in [Profile::Raw, Profile::Canopy, Profile::Default] {
+        let r = SctReader::from_bytes(write(&leaf, profile), &Limits::default()).expect("read");
+        assert_eq!(r.read_tree(0).expect("decode"), leaf);
+    }
+    let empty = SceneTree::from_bfs(vec![], vec![]).expect("tree");
+    let r = SctReader::from_bytes(write(&empty, Profile::Default), &Limits::default()).expect("read");
+    assert!(r.read_tree(0).expect("decode").is_empty());
+}
+
+#[test]
+fn output_is_identical_with_one_and_two_threads() {
+    let tree = common::random_tree(9, 300_000, false);
+    let run = |threads| {
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool").install(|| write(&tree, Profile::Default))
+    };
+    assert_eq!(run(1), run(2));
+}
