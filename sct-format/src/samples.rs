@@ -109,6 +109,9 @@ impl SamplesFile {
     pub fn read(data: &[u8], limits: &Limits) -> Result<Self> {
         let known = [tags::GENR, tags::MESH, tags::INST, tags::SMPL];
         let c = Container::parse(data, SAMPLES_MAGIC, "SCT samples", &known, limits)?;
+        if c.sections.first().map(|e| e.tag) != Some(tags::GENR) {
+            return Err(Error::malformed(c.header.section_table_offset, "the first section must be the generator (GENR)"));
+        }
         let genr = c.single(tags::GENR)?;
         let generator = parse_generator(&c.section_bytes(genr, limits)?, genr.offset, limits)?;
 
