@@ -1,18 +1,305 @@
-//! default profile (being written; falls back to raw storage until then).
+//! The default profile: canopy's quantizers, reorganised into byte-aligned attribute streams
+//! predicted from the decoded parent (and, for the second child, from the first), with the
+//! area stored as a fraction of the parent's. The container zstd-compresses the payload.
+//!
+//! Because position/radius, normal, cone and colour use exactly canopy's quantizers, every
+//! error bound of [`super::canopy`] holds unchanged (containment, ≤ 0.144 parent radii centre
+//! error for interior children, 0.64° normal, round-up cone, ≤ 4/2/4/8 colour steps); only
+//! the area becomes lossy (bound below). Predictions change the bytes, never the values.
+//!
+//! # Block payload (n parents, m = 2n children, child `2k` = A, `2k+1` = B of parent `k`)
+//!
+//! Streams follow each other without padding or headers; each holds one byte per child
+//! (per pair for the area), in child order:
+//!
+//! | stream | bytes | content |
+//! |---|---|---|
+//! | 1 | m | state low byte |
+//! | 2 | m | state high byte (state < 6821, as canopy) |
+//! | 3 | m | `zz(u - û)`: octahedral `u` residual |
+//! | 4 | m | `zz(v - v̂)`: octahedral `v` residual |
+//! | 5 | m | cone code (canopy's) |
+//! | 6 | m | `zz5(r - r̂)` 5-bit red code residual |
+//! | 7 | m | `zz6(g - ĝ)` 6-bit green code residual |
+//! | 8 | m | `zz5(b - b̂)` 5-bit blue code residual |
+//! | 9 (alpha only) | m | `zz4(a - â)` 4-bit alpha code residual |
+//! | 10 | n | area code low byte |
+//! | 11 | n | area code high byte (code ≤ 4096) |
+//!
+//! Total `8m + 2n` bytes (`9m + 2n` with alpha), i.e. 9 (10) bytes per child before zstd.
+//!
+//! `zzb(d)`: the difference taken modulo `2^b`, read as a signed value in `[-2^(b-1),
+//! 2^(b-1))`, zigzag-mapped (`0,-1,1,-2,… → 0,1,2,3,…`). A byte ≥ `2^b` is malformed.
+//!
+//! Predictions (all f32/f64 IEEE arithmetic, deterministic):
+//! - Areas first: `a_A = A_P · (code / 4096)` (f32), `a_B = A_P − a_A` (f32), so siblings
+//!   sum to the parent's decoded area.
+//! - Normal of A: `oct_fast(n_P)`; of B: `oct_fast(2(n_P·n_A)n_P − n_A)` (the reflection of
+//!   A's decoded axis about the parent's, exact when the parent axis bisects the children's
+//!   as EQ 11–12 does for equal cones), falling back to `n_P` when that is zero. `oct_fast`
+//!   rounds the octahedral projection to the nearest code; an unusable parent axis predicts +z.
+//! - Colour of A: the parent's colour quantized; of B: `(A_P·c_P − a_A·c_A) / a_B` (EQ 14
+//!   solved for B with decoded values, f64, rounded, clamped to [0, 255]) quantized, or the
+//!   parent's colour when `a_B ≤ 0`.
+//!
+//! # Area bound
+//!
+//! The stored fraction is `round(4096·a/(a+b))`, so each level adds at most `1/8192` of the
+//! parent's decoded area to a child's area error; decoded siblings sum exactly (up to one f32
+//! rounding) to their decoded parent. Errors accumulate with depth (measured in
+//! `examples/rate_distortion.rs`).
 
-use super::CodecParams;
-use crate::error::Result;
+use super::canopy::{check_child, check_parent, color_codes, sphere_state};
+use super::{color, normal, posrad, CodecParams};
+use crate::error::{Error, Result};
 use crate::node::Node;
 
-/// Documented containment slack (fraction of the parent radius).
-pub const CONTAINMENT_SLACK: f32 = 0.5;
+/// Same bound as canopy: the same position/radius states are used.
+pub const CONTAINMENT_SLACK: f32 = super::canopy::CONTAINMENT_SLACK;
 
-/// Encodes sibling pairs relative to their decoded parents.
-pub fn encode(_params: CodecParams, _parents: &[Node], children: &[Node], out: &mut Vec<u8>) -> Result<Vec<Node>> {
-    Ok(super::raw::encode(children, out))
+/// Area fraction denominator.
+const AREA_ONE: u16 = 4096;
+
+/// Zigzag of a `bits`-bit wrapped difference.
+fn zz(code: u8, pred: u8, bits: u32) -> u8 {
+    let m = (1u32 << bits) - 1;
+    let d = (code as u32).wrapping_sub(pred as u32) & m;
+    let half = 1u32 << (bits - 1);
+    let s = if d >= half { d as i32 - (1 << bits) } else { d as i32 };
+    (if s >= 0 { 2 * s } else { -2 * s - 1 }) as u8
 }
 
-/// Decodes the children of `parents`.
-pub fn decode(_params: CodecParams, parents: &[Node], bytes: &[u8], offset: u64, out: &mut Vec<Node>) -> Result<()> {
-    super::raw::decode(parents.len() * 2, bytes, offset, out)
+/// Inverse of [`zz`]; `None` when the byte is out of range.
+fn unzz(z: u8, pred: u8, bits: u32) -> Option<u8> {
+    if (z as u32) >> bits != 0 {
+        return None;
+    }
+    let s = if z & 1 == 0 { (z >> 1) as i32 } else { -((z >> 1) as i32) - 1 };
+    Some(((pred as i32 + s) & ((1 << bits) - 1)) as u8)
+}
+
+fn pred_normal_a(p: &Node) -> u16 {
+    if normal::usable(p.normal) {
+        normal::oct_encode_fast(p.normal)
+    } else {
+        normal::oct_encode_fast([0.0, 0.0, 1.0])
+    }
+}
+
+fn pred_normal_b(p: &Node, a: [f32; 3]) -> u16 {
+    let n = p.normal;
+    if !normal::usable(n) {
+        return pred_normal_a(p);
+    }
+    let l2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+    let d = 2.0 * (n[0] * a[0] + n[1] * a[1] + n[2] * a[2]) / l2;
+    let r = [d * n[0] - a[0], d * n[1] - a[1], d * n[2] - a[2]];
+    if normal::usable(r) {
+        normal::oct_encode_fast(r)
+    } else {
+        pred_normal_a(p)
+    }
+}
+
+fn pred_color_b(p: &Node, area_a: f32, area_b: f32, ca: [u8; 4]) -> [u8; 4] {
+    if !(area_b > 0.0) {
+        return p.color;
+    }
+    let (ap, aa, ab) = (p.area as f64, area_a as f64, area_b as f64);
+    let mut out = [0u8; 4];
+    for i in 0..4 {
+        let v = (ap * p.color[i] as f64 - aa * ca[i] as f64) / ab;
+        // NaN (hostile parent area) clamps to 0 via `as`; no panic.
+        out[i] = v.round().clamp(0.0, 255.0) as u8;
+    }
+    out
+}
+
+fn quant4(c: [u8; 4]) -> [u8; 4] {
+    color_codes(c)
+}
+
+fn areas(p: &Node, code: u16) -> (f32, f32) {
+    let a = p.area * (code as f32 / AREA_ONE as f32);
+    (a, (p.area - a).max(0.0))
+}
+
+fn channels(params: CodecParams) -> usize {
+    if params.alpha {
+        4
+    } else {
+        3
+    }
+}
+
+/// Payload size for `n` parents.
+fn payload_len(params: CodecParams, n: usize) -> Option<usize> {
+    let m = n.checked_mul(2)?;
+    m.checked_mul(5 + channels(params))?.checked_add(n.checked_mul(2)?)
+}
+
+/// Encodes sibling pairs relative to their decoded parents; returns them as decoded.
+/// On error `out` is left as it was.
+pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mut Vec<u8>) -> Result<Vec<Node>> {
+    if children.len() != 2 * parents.len() {
+        return Err(Error::Misuse(format!("{} children for {} parents", children.len(), parents.len())));
+    }
+    let n = parents.len();
+    let m = 2 * n;
+    let ch = channels(params);
+    let len = payload_len(params, n).ok_or_else(|| Error::Misuse("block too large".into()))?;
+    let mut buf = vec![0u8; len];
+    let (states, rest) = buf.split_at_mut(2 * m);
+    let (norms, rest) = rest.split_at_mut(2 * m);
+    let (cones, rest) = rest.split_at_mut(m);
+    let (cols, area_bytes) = rest.split_at_mut(ch * m);
+    for (k, pair) in children.chunks_exact(2).enumerate() {
+        let p = &parents[k];
+        check_parent(p, k)?;
+        let (a, b) = (&pair[0], &pair[1]);
+        check_child(a, 2 * k, params)?;
+        check_child(b, 2 * k + 1, params)?;
+        let sum = a.area as f64 + b.area as f64;
+        let code = if sum > 0.0 { (a.area as f64 / sum * AREA_ONE as f64).round().clamp(0.0, AREA_ONE as f64) as u16 } else { AREA_ONE / 2 };
+        area_bytes[k] = code as u8;
+        area_bytes[n + k] = (code >> 8) as u8;
+        let (area_a, area_b) = areas(p, code);
+        let mut dec_a_normal = [0f32; 3];
+        let mut dec_a_color = [0u8; 4];
+        for (h, c) in pair.iter().enumerate() {
+            let i = 2 * k + h;
+            let s = sphere_state(p, c, i)?;
+            states[i] = s as u8;
+            states[m + i] = (s >> 8) as u8;
+            let (nc, cone) = normal::encode_cone(c.normal, c.cone);
+            let pred = if h == 0 { pred_normal_a(p) } else { pred_normal_b(p, dec_a_normal) };
+            norms[i] = zz(nc as u8, pred as u8, 8);
+            norms[m + i] = zz((nc >> 8) as u8, (pred >> 8) as u8, 8);
+            cones[i] = cone;
+            let q = quant4(c.color);
+            let pc = if h == 0 { quant4(p.color) } else { quant4(pred_color_b(p, area_a, area_b, dec_a_color)) };
+            for j in 0..ch {
+                cols[j * m + i] = zz(q[j], pc[j], color::BITS[j]);
+            }
+            if h == 0 {
+                dec_a_normal = normal::oct_decode(nc);
+                dec_a_color = [0, 1, 2, 3].map(|j| if j < 3 || params.alpha { color::dequant(q[j], color::BITS[j]) } else { 255 });
+            }
+        }
+    }
+    let mut dec = Vec::with_capacity(m);
+    // Decoding what we wrote is the simplest way to return exactly what a reader gets.
+    decode(params, parents, &buf, 0, &mut dec)
+        .map_err(|e| Error::Misuse(format!("default encoder produced an undecodable block (bug): {e}")))?;
+    out.extend_from_slice(&buf);
+    Ok(dec)
+}
+
+/// Decodes the children of `parents` from a default-profile payload.
+pub fn decode(params: CodecParams, parents: &[Node], bytes: &[u8], offset: u64, out: &mut Vec<Node>) -> Result<()> {
+    let n = parents.len();
+    let need = payload_len(params, n).ok_or_else(|| Error::malformed(offset, "parent count overflows"))?;
+    if bytes.len() != need {
+        return Err(Error::malformed(
+            offset,
+            format!("default block holds {} bytes, {n} sibling pairs need {need}", bytes.len()),
+        ));
+    }
+    let m = 2 * n;
+    let ch = channels(params);
+    let (states, rest) = bytes.split_at(2 * m);
+    let (norms, rest) = rest.split_at(2 * m);
+    let (cones, rest) = rest.split_at(m);
+    let (cols, area_bytes) = rest.split_at(ch * m);
+    // Stream start offsets, for error positions.
+    let col_off = offset + 5 * m as u64;
+    let area_off = col_off + (ch * m) as u64;
+    let t = posrad::tables();
+    out.reserve(m);
+    for (k, p) in parents.iter().enumerate() {
+        let code = area_bytes[k] as u16 | (area_bytes[n + k] as u16) << 8;
+        if code > AREA_ONE {
+            return Err(Error::malformed(area_off + k as u64, format!("default block: area code {code} > {AREA_ONE}")));
+        }
+        let (area_a, area_b) = areas(p, code);
+        let mut dec_a: Option<Node> = None;
+        for h in 0..2 {
+            let i = 2 * k + h;
+            let s = states[i] as u16 | (states[m + i] as u16) << 8;
+            let (center, radius) = posrad::decode_state(t, s as usize, p.center, p.radius).ok_or_else(|| {
+                Error::malformed(offset + i as u64, format!("default block: position/radius state {s} ≥ {}", posrad::STATE_COUNT))
+            })?;
+            let pred = match &dec_a {
+                None => pred_normal_a(p),
+                Some(a) => pred_normal_b(p, a.normal),
+            };
+            let u = unzz(norms[i], pred as u8, 8).unwrap_or(0);
+            let v = unzz(norms[m + i], (pred >> 8) as u8, 8).unwrap_or(0);
+            let nrm = normal::oct_decode(u as u16 | (v as u16) << 8);
+            let pc = match &dec_a {
+                None => quant4(p.color),
+                Some(a) => quant4(pred_color_b(p, area_a, area_b, a.color)),
+            };
+            let mut color = [255u8; 4];
+            for j in 0..ch {
+                let q = unzz(cols[j * m + i], pc[j], color::BITS[j]).ok_or_else(|| {
+                    Error::malformed(col_off + (j * m + i) as u64, format!("default block: colour residual {} out of range", cols[j * m + i]))
+                })?;
+                color[j] = color::dequant(q, color::BITS[j]);
+            }
+            let node = Node {
+                center,
+                radius,
+                normal: nrm,
+                cone: normal::cone_decode(cones[i]),
+                area: if h == 0 { area_a } else { area_b },
+                color,
+            };
+            out.push(node);
+            if h == 0 {
+                dec_a = Some(node);
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn zigzag_round_trip() {
+        for bits in [4u32, 5, 6, 8] {
+            for code in 0..(1u32 << bits) {
+                for pred in 0..(1u32 << bits) {
+                    let z = zz(code as u8, pred as u8, bits);
+                    assert!((z as u32) < (1 << bits));
+                    assert_eq!(unzz(z, pred as u8, bits), Some(code as u8));
+                }
+            }
+        }
+        assert_eq!(zz(3, 3, 5), 0);
+        assert_eq!(zz(2, 3, 5), 1);
+        assert_eq!(zz(4, 3, 5), 2);
+        assert_eq!(unzz(32, 0, 5), None);
+    }
+
+    #[test]
+    fn mirrored_pair_predicts_exactly() {
+        let na = [0.6f32, 0.0, 0.8];
+        let nb = [-0.6f32, 0.0, 0.8];
+        let p = Node { center: [0.0; 3], radius: 1.0, normal: [0.0, 0.0, 1.0], cone: 0.7, area: 2.0, color: [100, 100, 100, 255] };
+        let a = Node { center: [0.5, 0.0, 0.0], radius: 0.5, normal: na, cone: 0.0, area: 1.0, color: [80, 60, 40, 255] };
+        let b = Node { center: [-0.5, 0.0, 0.0], radius: 0.5, normal: nb, cone: 0.0, area: 1.0, color: [120, 140, 160, 255] };
+        let mut out = Vec::new();
+        let dec = encode(CodecParams::default(), &[p], &[a, b], &mut out).unwrap();
+        assert_eq!(out.len(), 2 * 8 + 2);
+        assert_eq!(dec[0].area + dec[1].area, 2.0);
+        // B's normal residual is tiny (reflection predictor).
+        assert!(out[4 + 1] <= 2 && out[6 + 1] <= 2, "{:?}", out);
+        let mut again = Vec::new();
+        decode(CodecParams::default(), &[p], &out, 0, &mut again).unwrap();
+        assert_eq!(again, dec);
+    }
 }
