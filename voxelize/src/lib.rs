@@ -1,1 +1,20 @@
-//! voxelize library.
+//! # voxelize
+//!
+//! Turns textured meshes (OBJ/MTL, glTF/GLB, PLY) into the surface samples of the SCT
+//! toolchain (thesis §5.2): a scan-line voxelization in one uniform grid, or the QSplat
+//! vertex-patch sampler.
+//!
+//! - [`load()`] reads a file into a [`mesh::LoadedScene`] (reused by the preview renderer and
+//!   `inspect --against`);
+//! - [`sample`] holds the samplers and the density choice (EQ 15–17);
+//! - [`run`] does the whole job of the `sct-voxelize` binary.
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod error;
+pub mod load;
+pub mod mesh;
+pub mod polygon;
+
+pub use error::{Error, LoadError};
+pub use load::{load, LoadOptions};

@@ -1,0 +1,416 @@
+//! glTF 2.0 (.gltf with external or data-URI resources, .glb) via the gltf crate.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use gltf::accessor::{DataType, Dimensions};
+use gltf::mesh::Mode;
+
+use super::{finish_primitive, from_dynamic, LoadOptions};
+use crate::error::LoadError;
+use crate::mesh::{self as m, *};
+
+/// Extensions we implement or may safely ignore when a file lists them as required.
+const HANDLED: &[&str] = &[
+    "KHR_texture_transform",
+    "EXT_mesh_gpu_instancing",
+    "KHR_materials_unlit",
+    "KHR_materials_emissive_strength",
+    "KHR_materials_ior",
+    "KHR_materials_specular",
+    "KHR_materials_transmission",
+    "KHR_materials_volume",
+    "KHR_materials_clearcoat",
+    "KHR_materials_sheen",
+    "KHR_lights_punctual",
+];
+
+fn unsupported_hint(ext: &str) -> &'static str {
+    match ext {
+        "KHR_draco_mesh_compression" => "Draco-compressed geometry is not decoded; decompress it first (e.g. `gltf-transform copy in.gltf out.glb` without Draco, or `gltf-pipeline -i in.gltf -o out.gltf`)",
+        "EXT_meshopt_compression" | "KHR_meshopt_compression" => "meshoptimizer-compressed buffers are not decoded; decompress them first (e.g. `gltfpack -noq` or `gltf-transform copy`)",
+        "KHR_mesh_quantization" => "quantized (integer) vertex attributes are not supported; dequantize first (e.g. `gltf-transform dequantize in.gltf out.glb`)",
+        "KHR_texture_basisu" | "EXT_texture_webp" | "EXT_texture_avif" => "this texture encoding is not decoded; convert textures to PNG or JPEG",
+        _ => "not implemented by sct-voxelize",
+    }
+}
+
+pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
+    let perr = |loc: &str, msg: String| LoadError::parse(path, "glTF", loc, msg);
+    let gltf::Gltf { document, mut blob } =
+        gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| perr("document", e.to_string()))?;
+    let mut root = document.into_json();
+    for ext in &root.extensions_required {
+        if !HANDLED.contains(&ext.as_str()) {
+            return Err(LoadError::UnsupportedExtension { path: path.to_path_buf(), extension: ext.clone(), hint: unsupported_hint(ext) });
+        }
+    }
+    // The crate's validator rejects required extensions it does not know even when we
+    // implement them (EXT_mesh_gpu_instancing); having checked them above, drop them and run
+    // its validation for everything else (indices in range, required fields …).
+    root.extensions_required.clear();
+    let document = gltf::Document::from_json(root).map_err(|e| perr("document validation", e.to_string()))?;
+    let base = path.parent().unwrap_or_else(|| Path::new("."));
+    let mut scene = LoadedScene::default();
+
+    // Buffers: a missing one is fatal (the geometry is in it).
+    let mut buffers: Vec<gltf::buffer::Data> = Vec::new();
+    for b in document.buffers() {
+        let what = match b.source() {
+            gltf::buffer::Source::Bin => "GLB BIN chunk".to_string(),
+            gltf::buffer::Source::Uri(u) if u.starts_with("data:") => "data URI".to_string(),
+            gltf::buffer::Source::Uri(u) => format!("file {u:?}"),
+        };
+        let data = gltf::buffer::Data::from_source_and_blob(b.source(), Some(base), &mut blob)
+            .map_err(|e| perr(&format!("buffer {}", b.index()), format!("cannot load {what}: {e}")))?;
+        if data.len() < b.length() {
+            return Err(perr(&format!("buffer {}", b.index()), format!("{what} has {} bytes, the file declares {}", data.len(), b.length())));
+        }
+        if let gltf::buffer::Source::Uri(u) = b.source() {
+            if !u.starts_with("data:") {
+                scene.files.push(base.join(u));
+            }
+        }
+        buffers.push(data);
+    }
+    for v in document.views() {
+        let blen = buffers.get(v.buffer().index()).map_or(0, |d| d.len());
+        if v.offset().checked_add(v.length()).is_none_or(|end| end > blen) {
+            return Err(perr(&format!("bufferView {}", v.index()), format!("range {}+{} exceeds buffer {} ({} bytes)", v.offset(), v.length(), v.buffer().index(), blen)));
+        }
+    }
+
+    // Images: a missing or undecodable one is a warning (colour falls back to the factor).
+    let mut image_map: Vec<Option<usize>> = Vec::new();
+    for img in document.images() {
+        if !opts.load_textures {
+            image_map.push(None);
+            continue;
+        }
+        let name = match img.source() {
+            gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => uri.to_string(),
+            _ => format!("embedded image {}", img.index()),
+        };
+        match gltf::image::Data::from_source(img.source(), Some(base), &buffers) {
+            Ok(d) => match image_data_to_rgba(d, name.clone()) {
+                Some(i) => {
+                    scene.images.push(i);
+                    image_map.push(Some(scene.images.len() - 1));
+                }
+                None => {
+                    scene.warnings.push(format!("{}: image {name}: unsupported pixel format; using the base colour factor", path.display()));
+                    image_map.push(None);
+                }
+            },
+            Err(e) => {
+                scene.warnings.push(format!("{}: image {name}: {e}; using the base colour factor", path.display()));
+                image_map.push(None);
+            }
+        }
+    }
+
+    for mat in document.materials() {
+        let pbr = mat.pbr_metallic_roughness();
+        let mut out = Material {
+            name: mat.name().unwrap_or("").to_string(),
+            base_color: pbr.base_color_factor(),
+            texture: None,
+            alpha_texture: None,
+            alpha_mode: match mat.alpha_mode() {
+                gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
+                gltf::material::AlphaMode::Mask => AlphaMode::Mask(mat.alpha_cutoff().unwrap_or(0.5)),
+                gltf::material::AlphaMode::Blend => AlphaMode::Blend,
+            },
+            double_sided: mat.double_sided(),
+        };
+        if !out.base_color.iter().all(|c| c.is_finite()) {
+            return Err(LoadError::NonFinite { path: path.to_path_buf(), element: "baseColorFactor of material".into(), index: mat.index().unwrap_or(0) as u64 });
+        }
+        if let Some(info) = pbr.base_color_texture() {
+            let tex = info.texture();
+            let img = image_map.get(tex.source().index()).copied().flatten();
+            if let Some(image) = img {
+                let mut tex_coord = info.tex_coord();
+                let mut transform = UV_IDENTITY;
+                if let Some(t) = info.texture_transform() {
+                    let [ox, oy] = t.offset();
+                    let r = t.rotation();
+                    let [sx, sy] = t.scale();
+                    let (s, c) = r.sin_cos();
+                    // KHR_texture_transform: uv' = T · R · S · uv.
+                    transform = [[c * sx, s * sy, ox], [-s * sx, c * sy, oy]];
+                    if let Some(tc) = t.tex_coord() {
+                        tex_coord = tc;
+                    }
+                }
+                let wrap = |w: gltf::texture::WrappingMode| match w {
+                    gltf::texture::WrappingMode::ClampToEdge => Wrap::ClampToEdge,
+                    gltf::texture::WrappingMode::MirroredRepeat => Wrap::MirroredRepeat,
+                    gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
+                };
+                let sampler = tex.sampler();
+                out.texture = Some(TextureRef { image, tex_coord, transform, wrap_s: wrap(sampler.wrap_s()), wrap_t: wrap(sampler.wrap_t()) });
+            }
+        }
+        scene.materials.push(out);
+    }
+
+    // Meshes are converted once, on first use, and shared by every node that uses them.
+    let mut mesh_map: HashMap<usize, usize> = HashMap::new();
+    let roots: Vec<gltf::Node> = match document.default_scene().or_else(|| document.scenes().next()) {
+        Some(s) => s.nodes().collect(),
+        None => {
+            // No scene: every node that is nobody's child is a root.
+            let mut is_child = vec![false; document.nodes().len()];
+            for n in document.nodes() {
+                for c in n.children() {
+                    if let Some(f) = is_child.get_mut(c.index()) {
+                        *f = true;
+                    }
+                }
+            }
+            document.nodes().filter(|n| !is_child.get(n.index()).copied().unwrap_or(false)).collect()
+        }
+    };
+    let mut stack: Vec<(gltf::Node, Mat4, u32)> = roots.into_iter().rev().map(|n| (n, IDENTITY, 0)).collect();
+    let mut visits = 0u64;
+    while let Some((node, parent, depth)) = stack.pop() {
+        visits += 1;
+        if depth > 1024 || visits > 10_000_000 {
+            return Err(perr(&format!("node {}", node.index()), "node hierarchy too deep or cyclic".into()));
+        }
+        let local = node_matrix(&node);
+        let world = mat_mul(&parent, &local);
+        if !world.iter().flatten().all(|v| v.is_finite()) {
+            return Err(LoadError::NonFinite { path: path.to_path_buf(), element: "transform of node".into(), index: node.index() as u64 });
+        }
+        if let Some(gm) = node.mesh() {
+            let mi = match mesh_map.get(&gm.index()) {
+                Some(&i) => i,
+                None => {
+                    let mesh = convert_mesh(path, &gm, &buffers, &mut scene)?;
+                    scene.meshes.push(mesh);
+                    let i = scene.meshes.len() - 1;
+                    mesh_map.insert(gm.index(), i);
+                    i
+                }
+            };
+            match node.extension_value("EXT_mesh_gpu_instancing") {
+                Some(ext) => {
+                    for t in gpu_instances(path, &document, &buffers, ext, node.index())? {
+                        scene.instances.push(Instance { mesh: mi, transform: mat_mul(&world, &t) });
+                    }
+                }
+                None => scene.instances.push(Instance { mesh: mi, transform: world }),
+            }
+        }
+        for c in node.children().collect::<Vec<_>>().into_iter().rev() {
+            stack.push((c, world, depth + 1));
+        }
+    }
+    if scene.instances.is_empty() {
+        scene.warnings.push(format!("{}: the scene places no mesh", path.display()));
+    }
+    Ok(scene)
+}
+
+fn node_matrix(node: &gltf::Node) -> Mat4 {
+    match node.transform() {
+        gltf::scene::Transform::Matrix { matrix } => matrix.map(|c| c.map(f64::from)),
+        gltf::scene::Transform::Decomposed { translation, rotation, scale } => {
+            let q = rotation.map(f64::from);
+            let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+            let q = if n > 0.0 { q.map(|v| v / n) } else { [0.0, 0.0, 0.0, 1.0] };
+            trs_matrix(translation.map(f64::from), q, scale.map(f64::from))
+        }
+    }
+}
+
+fn image_data_to_rgba(d: gltf::image::Data, source: String) -> Option<m::Image> {
+    use gltf::image::Format as F;
+    let (w, h) = (d.width, d.height);
+    let px = d.pixels;
+    let n = (w as usize).checked_mul(h as usize)?;
+    let rgba: Vec<[u8; 4]> = match d.format {
+        F::R8 => px.iter().map(|&r| [r, r, r, 255]).collect(),
+        F::R8G8 => px.chunks_exact(2).map(|c| [c[0], c[0], c[0], c[1]]).collect(),
+        F::R8G8B8 => px.chunks_exact(3).map(|c| [c[0], c[1], c[2], 255]).collect(),
+        F::R8G8B8A8 => px.chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect(),
+        F::R16G16B16 => px.chunks_exact(6).map(|c| [c[1], c[3], c[5], 255]).collect(),
+        F::R16G16B16A16 => px.chunks_exact(8).map(|c| [c[1], c[3], c[5], c[7]]).collect(),
+        _ => {
+            let _ = from_dynamic; // other formats are rare in base-colour textures
+            return None;
+        }
+    };
+    (rgba.len() == n).then_some(m::Image { width: w, height: h, rgba, source })
+}
+
+fn check_accessor(path: &Path, acc: &gltf::Accessor, what: &str, dt: &[DataType], dims: &[Dimensions]) -> Result<(), LoadError> {
+    if !dt.contains(&acc.data_type()) || !dims.contains(&acc.dimensions()) {
+        return Err(LoadError::parse(
+            path,
+            "glTF",
+            format!("accessor {} ({what})", acc.index()),
+            format!("unsupported component layout {:?} {:?} (quantized attributes need KHR_mesh_quantization, which is not supported)", acc.data_type(), acc.dimensions()),
+        ));
+    }
+    if let Some(s) = acc.sparse() {
+        if s.count() == 0 {
+            return Err(LoadError::parse(path, "glTF", format!("accessor {} ({what})", acc.index()), "sparse count 0"));
+        }
+    }
+    Ok(())
+}
+
+fn convert_mesh(path: &Path, gm: &gltf::Mesh, buffers: &[gltf::buffer::Data], scene: &mut LoadedScene) -> Result<Mesh, LoadError> {
+    let mut out = Mesh { name: gm.name().map(str::to_string).unwrap_or_else(|| format!("mesh {}", gm.index())), primitives: Vec::new() };
+    for prim in gm.primitives() {
+        let what = format!("mesh {} primitive {}", gm.index(), prim.index());
+        let loc = |s: &str| format!("{s} of {what}");
+        let mode = prim.mode();
+        if matches!(mode, Mode::Points | Mode::Lines | Mode::LineLoop | Mode::LineStrip) {
+            scene.stats.skipped_primitives += 1;
+            scene.warnings.push(format!("{}: {what}: {mode:?} primitive skipped (only surfaces are sampled)", path.display()));
+            continue;
+        }
+        let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+        let Some(pacc) = prim.get(&gltf::Semantic::Positions) else {
+            return Err(LoadError::parse(path, "glTF", what, "primitive has no POSITION"));
+        };
+        if pacc.count() == 0 {
+            continue;
+        }
+        check_accessor(path, &pacc, "POSITION", &[DataType::F32], &[Dimensions::Vec3])?;
+        let positions: Vec<[f32; 3]> = reader
+            .read_positions()
+            .ok_or_else(|| LoadError::parse(path, "glTF", loc("POSITION"), "accessor data missing or out of its buffer view"))?
+            .collect();
+        if positions.len() != pacc.count() {
+            return Err(LoadError::parse(path, "glTF", loc("POSITION"), "accessor data shorter than its count"));
+        }
+        let nv = positions.len();
+        let mut p = Primitive { positions, material: prim.material().index(), ..Default::default() };
+        if let Some(nacc) = prim.get(&gltf::Semantic::Normals).filter(|a| a.count() > 0) {
+            check_accessor(path, &nacc, "NORMAL", &[DataType::F32], &[Dimensions::Vec3])?;
+            if let Some(it) = reader.read_normals() {
+                let n: Vec<[f32; 3]> = it.collect();
+                if n.len() == nv {
+                    p.normals = Some(n);
+                }
+            }
+        }
+        if let Some(cacc) = prim.get(&gltf::Semantic::Colors(0)).filter(|a| a.count() > 0) {
+            check_accessor(path, &cacc, "COLOR_0", &[DataType::F32, DataType::U8, DataType::U16], &[Dimensions::Vec3, Dimensions::Vec4])?;
+            if let Some(it) = reader.read_colors(0) {
+                let c: Vec<[f32; 4]> = it.into_rgba_f32().collect();
+                if c.len() == nv {
+                    p.colors = Some(c);
+                }
+            }
+        }
+        for set in 0..8u32 {
+            let Some(tacc) = prim.get(&gltf::Semantic::TexCoords(set)).filter(|a| a.count() > 0) else { break };
+            check_accessor(path, &tacc, "TEXCOORD", &[DataType::F32, DataType::U8, DataType::U16], &[Dimensions::Vec2])?;
+            match reader.read_tex_coords(set) {
+                Some(it) => {
+                    let t: Vec<[f32; 2]> = it.into_f32().collect();
+                    if t.len() != nv {
+                        break;
+                    }
+                    p.uvs.push(t);
+                }
+                None => break,
+            }
+        }
+        let indices: Vec<u32> = match prim.indices() {
+            Some(iacc) => {
+                if iacc.count() == 0 {
+                    Vec::new()
+                } else {
+                    check_accessor(path, &iacc, "indices", &[DataType::U8, DataType::U16, DataType::U32], &[Dimensions::Scalar])?;
+                    let v: Vec<u32> = reader
+                        .read_indices()
+                        .ok_or_else(|| LoadError::parse(path, "glTF", loc("indices"), "accessor data missing or out of its buffer view"))?
+                        .into_u32()
+                        .collect();
+                    if v.len() != iacc.count() {
+                        return Err(LoadError::parse(path, "glTF", loc("indices"), "accessor data shorter than its count"));
+                    }
+                    v
+                }
+            }
+            None => (0..nv as u32).collect(),
+        };
+        for (i, &v) in indices.iter().enumerate() {
+            if v as usize >= nv {
+                return Err(LoadError::IndexOutOfRange { path: path.to_path_buf(), element: loc("indices"), index: i as u64, value: v.into(), count: nv as u64 });
+            }
+        }
+        p.triangles = match mode {
+            Mode::Triangles => indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+            Mode::TriangleStrip => (0..indices.len().saturating_sub(2))
+                .map(|i| if i % 2 == 0 { [indices[i], indices[i + 1], indices[i + 2]] } else { [indices[i + 1], indices[i], indices[i + 2]] })
+                .collect(),
+            Mode::TriangleFan => (1..indices.len().saturating_sub(1)).map(|i| [indices[0], indices[i], indices[i + 1]]).collect(),
+            _ => Vec::new(),
+        };
+        finish_primitive(path, &what, &mut p, &mut scene.stats)?;
+        out.primitives.push(p);
+    }
+    Ok(out)
+}
+
+/// EXT_mesh_gpu_instancing: per-instance TRS read from accessors (float only).
+fn gpu_instances(path: &Path, doc: &gltf::Document, buffers: &[gltf::buffer::Data], ext: &serde_json::Value, node: usize) -> Result<Vec<Mat4>, LoadError> {
+    let loc = format!("EXT_mesh_gpu_instancing of node {node}");
+    let perr = |msg: String| LoadError::parse(path, "glTF", loc.clone(), msg);
+    let attrs = ext.get("attributes").and_then(|a| a.as_object()).ok_or_else(|| perr("no attributes".into()))?;
+    let get = |name: &str, dims: Dimensions| -> Result<Option<Vec<Vec<f32>>>, LoadError> {
+        let Some(idx) = attrs.get(name) else { return Ok(None) };
+        let idx = idx.as_u64().ok_or_else(|| perr(format!("{name} is not an accessor index")))? as usize;
+        let acc = doc.accessors().nth(idx).ok_or_else(|| perr(format!("{name} accessor {idx} does not exist")))?;
+        check_accessor(path, &acc, name, &[DataType::F32], &[dims])?;
+        if acc.count() == 0 {
+            return Ok(Some(Vec::new()));
+        }
+        let v: Vec<Vec<f32>> = match dims {
+            Dimensions::Vec4 => gltf::accessor::Iter::<[f32; 4]>::new(acc.clone(), |b| buffers.get(b.index()).map(|d| &d.0[..]))
+                .ok_or_else(|| perr(format!("{name} data out of its buffer view")))?
+                .map(|x| x.to_vec())
+                .collect(),
+            _ => gltf::accessor::Iter::<[f32; 3]>::new(acc.clone(), |b| buffers.get(b.index()).map(|d| &d.0[..]))
+                .ok_or_else(|| perr(format!("{name} data out of its buffer view")))?
+                .map(|x| x.to_vec())
+                .collect(),
+        };
+        if v.len() != acc.count() {
+            return Err(perr(format!("{name} data shorter than its count")));
+        }
+        Ok(Some(v))
+    };
+    let t = get("TRANSLATION", Dimensions::Vec3)?;
+    let r = get("ROTATION", Dimensions::Vec4)?;
+    let s = get("SCALE", Dimensions::Vec3)?;
+    let n = [&t, &r, &s].iter().filter_map(|a| a.as_ref().map(Vec::len)).max().unwrap_or(0);
+    for (name, a) in [("TRANSLATION", &t), ("ROTATION", &r), ("SCALE", &s)] {
+        if let Some(a) = a {
+            if a.len() != n {
+                return Err(perr(format!("{name} has {} items, other attributes {n}", a.len())));
+            }
+        }
+    }
+    let mut out = Vec::with_capacity(n);
+    for i in 0..n {
+        let tt = t.as_ref().map_or([0.0; 3], |v| [v[i][0], v[i][1], v[i][2]].map(f64::from));
+        let rr = r.as_ref().map_or([0.0, 0.0, 0.0, 1.0], |v| [v[i][0], v[i][1], v[i][2], v[i][3]].map(f64::from));
+        let ss = s.as_ref().map_or([1.0; 3], |v| [v[i][0], v[i][1], v[i][2]].map(f64::from));
+        if !tt.iter().chain(rr.iter()).chain(ss.iter()).all(|x| x.is_finite()) {
+            return Err(LoadError::NonFinite { path: path.to_path_buf(), element: loc.clone(), index: i as u64 });
+        }
+        let qn = (rr[0] * rr[0] + rr[1] * rr[1] + rr[2] * rr[2] + rr[3] * rr[3]).sqrt();
+        let rr = if qn > 0.0 { rr.map(|x| x / qn) } else { [0.0, 0.0, 0.0, 1.0] };
+        out.push(trs_matrix(tt, rr, ss));
+    }
+    Ok(out)
+}

@@ -1,0 +1,208 @@
+//! Mesh loaders: OBJ/MTL (tobj), glTF/GLB (gltf), PLY (ply-rs-bw). Entry point [`load`].
+
+mod gltf_load;
+mod obj;
+mod ply;
+
+use std::path::{Path, PathBuf};
+
+use crate::error::LoadError;
+use crate::mesh::{is_degenerate, Image, LoadStats, LoadedScene, Primitive};
+
+/// Options for [`load`].
+#[derive(Clone, Debug)]
+pub struct LoadOptions {
+    /// Bind this image as the base-colour texture of every material (for OBJ files shipped
+    /// without an MTL, such as spot). Applied to primitives that have UVs.
+    pub texture_override: Option<PathBuf>,
+    /// Decode textures (false: colours come from factors and vertex colours only).
+    pub load_textures: bool,
+    /// Largest input file accepted, in bytes (a guard against reading a device or a
+    /// runaway file into memory).
+    pub max_file_bytes: u64,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        LoadOptions { texture_override: None, load_textures: true, max_file_bytes: 8 << 30 }
+    }
+}
+
+/// Loads a mesh file, choosing the loader by extension (.obj, .gltf, .glb, .ply; the glTF
+/// binary magic and the `ply` magic are also recognised).
+pub fn load(path: &Path, opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
+    let bytes = read_file(path, opts.max_file_bytes)?;
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    let kind = match ext.as_deref() {
+        Some("obj") => Kind::Obj,
+        Some("gltf") | Some("glb") => Kind::Gltf,
+        Some("ply") => Kind::Ply,
+        _ if bytes.starts_with(b"glTF") => Kind::Gltf,
+        _ if bytes.starts_with(b"ply") => Kind::Ply,
+        _ => return Err(LoadError::UnknownFormat { path: path.to_path_buf() }),
+    };
+    // Third-party parsers are not all panic-free on hostile input; a panic becomes a typed
+    // error naming the file instead of aborting the tool.
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| match kind {
+        Kind::Obj => obj::load(path, &bytes, opts),
+        Kind::Gltf => gltf_load::load(path, &bytes, opts),
+        Kind::Ply => ply::load(path, &bytes, opts),
+    }));
+    let mut scene = match result {
+        Ok(r) => r?,
+        Err(panic) => {
+            let message = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "unknown panic".into());
+            return Err(LoadError::ParserPanic { path: path.to_path_buf(), format: kind.name(), message });
+        }
+    };
+    if let Some(tex) = &opts.texture_override {
+        bind_texture_override(&mut scene, tex, opts)?;
+    }
+    scene.files.insert(0, path.to_path_buf());
+    Ok(scene)
+}
+
+#[derive(Clone, Copy)]
+enum Kind {
+    Obj,
+    Gltf,
+    Ply,
+}
+
+impl Kind {
+    fn name(self) -> &'static str {
+        match self {
+            Kind::Obj => "OBJ",
+            Kind::Gltf => "glTF",
+            Kind::Ply => "PLY",
+        }
+    }
+}
+
+pub(crate) fn read_file(path: &Path, max: u64) -> Result<Vec<u8>, LoadError> {
+    let io = |source| LoadError::Io { path: path.to_path_buf(), source };
+    let meta = std::fs::metadata(path).map_err(io)?;
+    if meta.is_dir() {
+        return Err(io(std::io::Error::new(std::io::ErrorKind::InvalidInput, "is a directory")));
+    }
+    if meta.len() > max {
+        return Err(LoadError::Limit {
+            path: path.to_path_buf(),
+            what: format!("file is {} bytes, more than the limit of {max}", meta.len()),
+        });
+    }
+    std::fs::read(path).map_err(io)
+}
+
+/// Decodes an image file to 8-bit RGBA (any format the `image` crate was built with).
+pub(crate) fn decode_image(bytes: &[u8], source: String) -> Result<Image, String> {
+    let img = image::load_from_memory(bytes).map_err(|e| e.to_string())?;
+    Ok(from_dynamic(img, source))
+}
+
+pub(crate) fn from_dynamic(img: image::DynamicImage, source: String) -> Image {
+    let rgba = img.into_rgba8();
+    let (width, height) = rgba.dimensions();
+    let rgba = rgba.pixels().map(|p| p.0).collect();
+    Image { width, height, rgba, source }
+}
+
+fn bind_texture_override(scene: &mut LoadedScene, tex: &Path, opts: &LoadOptions) -> Result<(), LoadError> {
+    let bytes = read_file(tex, opts.max_file_bytes)?;
+    let img = decode_image(&bytes, tex.display().to_string()).map_err(|m| {
+        LoadError::parse(tex, "image", "file", m)
+    })?;
+    scene.images.push(img);
+    scene.files.push(tex.to_path_buf());
+    let image = scene.images.len() - 1;
+    let tref = crate::mesh::TextureRef {
+        image,
+        tex_coord: 0,
+        transform: crate::mesh::UV_IDENTITY,
+        wrap_s: crate::mesh::Wrap::Repeat,
+        wrap_t: crate::mesh::Wrap::Repeat,
+    };
+    // Every primitive gets a textured material: its own with the texture bound, or a white
+    // one (the texture alone decides the colour, as the model's author intended).
+    let mut rebound = std::collections::HashMap::new();
+    for mesh in &mut scene.meshes {
+        for p in &mut mesh.primitives {
+            if p.uvs.is_empty() {
+                continue;
+            }
+            let key = p.material;
+            let new = *rebound.entry(key).or_insert_with(|| {
+                let mut m = key
+                    .and_then(|k| scene.materials.get(k).cloned())
+                    .unwrap_or_else(|| crate::mesh::Material { base_color: [1.0; 4], ..Default::default() });
+                m.texture = Some(tref.clone());
+                scene.materials.push(m);
+                scene.materials.len() - 1
+            });
+            p.material = Some(new);
+        }
+    }
+    Ok(())
+}
+
+/// Checks a primitive's data (finite values; indices were checked by the loader) and drops
+/// zero-area triangles, counting them.
+pub(crate) fn finish_primitive(
+    path: &Path,
+    what: &str,
+    p: &mut Primitive,
+    stats: &mut LoadStats,
+) -> Result<(), LoadError> {
+    for (i, v) in p.positions.iter().enumerate() {
+        if !v.iter().all(|c| c.is_finite()) {
+            return Err(LoadError::NonFinite { path: path.to_path_buf(), element: format!("position of {what}"), index: i as u64 });
+        }
+    }
+    if let Some(n) = &mut p.normals {
+        // Bad normals are not worth refusing a file for: zero or non-finite ones are
+        // replaced by computed normals at sampling time (zeroed here).
+        for v in n.iter_mut() {
+            if !v.iter().all(|c| c.is_finite()) {
+                *v = [0.0; 3];
+            }
+        }
+    }
+    for (k, set) in p.uvs.iter_mut().enumerate() {
+        for (i, v) in set.iter().enumerate() {
+            if !v.iter().all(|c| c.is_finite()) {
+                return Err(LoadError::NonFinite { path: path.to_path_buf(), element: format!("TEXCOORD_{k} of {what}"), index: i as u64 });
+            }
+        }
+    }
+    if let Some(c) = &p.colors {
+        for (i, v) in c.iter().enumerate() {
+            if !v.iter().all(|c| c.is_finite()) {
+                return Err(LoadError::NonFinite { path: path.to_path_buf(), element: format!("colour of {what}"), index: i as u64 });
+            }
+        }
+    }
+    let n = p.positions.len() as u64;
+    for (i, t) in p.triangles.iter().enumerate() {
+        for &v in t {
+            if u64::from(v) >= n {
+                return Err(LoadError::IndexOutOfRange {
+                    path: path.to_path_buf(),
+                    element: format!("triangle of {what}"),
+                    index: i as u64,
+                    value: v.into(),
+                    count: n,
+                });
+            }
+        }
+    }
+    stats.triangles_read += p.triangles.len() as u64;
+    let before = p.triangles.len();
+    let pos = &p.positions;
+    p.triangles.retain(|t| !is_degenerate(pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]));
+    stats.degenerate_triangles += (before - p.triangles.len()) as u64;
+    Ok(())
+}

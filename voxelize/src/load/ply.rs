@@ -1,0 +1,177 @@
+//! PLY (ASCII and binary) via ply-rs-bw: faces and triangle strips, vertex colours (uchar
+//! or float), normals, UVs; a file without faces is a point cloud.
+
+use std::io::{BufRead, Cursor};
+use std::path::Path;
+
+use ply_rs_bw::parser::Parser;
+use ply_rs_bw::ply::{DefaultElement, Encoding, Property};
+
+use super::{finish_primitive, LoadOptions};
+use crate::error::LoadError;
+use crate::mesh::*;
+
+fn scalar(p: &Property) -> Option<f64> {
+    Some(match *p {
+        Property::Char(v) => v.into(),
+        Property::UChar(v) => v.into(),
+        Property::Short(v) => v.into(),
+        Property::UShort(v) => v.into(),
+        Property::Int(v) => v.into(),
+        Property::UInt(v) => v.into(),
+        Property::Float(v) => v.into(),
+        Property::Double(v) => v,
+        _ => return None,
+    })
+}
+
+fn list(p: &Property) -> Option<Vec<i64>> {
+    Some(match p {
+        Property::ListChar(v) => v.iter().map(|&x| x.into()).collect(),
+        Property::ListUChar(v) => v.iter().map(|&x| x.into()).collect(),
+        Property::ListShort(v) => v.iter().map(|&x| x.into()).collect(),
+        Property::ListUShort(v) => v.iter().map(|&x| x.into()).collect(),
+        Property::ListInt(v) => v.iter().map(|&x| x.into()).collect(),
+        Property::ListUInt(v) => v.iter().map(|&x| x.into()).collect(),
+        _ => return None,
+    })
+}
+
+/// A colour channel: integers are 8-bit sRGB, floats are [0, 1] sRGB.
+fn channel(p: &Property) -> Option<f32> {
+    let v = scalar(p)?;
+    let unit = match p {
+        Property::Float(_) | Property::Double(_) => v,
+        Property::UShort(_) => v / 65535.0,
+        _ => v / 255.0,
+    };
+    Some(unit.clamp(0.0, 1.0) as f32)
+}
+
+pub(super) fn load(path: &Path, bytes: &[u8], _opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
+    let perr = |loc: String, msg: String| LoadError::parse(path, "PLY", loc, msg);
+    let parser = Parser::<DefaultElement>::new();
+    let mut cur = Cursor::new(bytes);
+    let header = parser.read_header(&mut cur).map_err(|e| perr("header".into(), e.to_string()))?;
+    // A declared count can never exceed the bytes left (each element takes at least one
+    // byte, one line in ASCII): refuse before the parser allocates for it.
+    let remaining = bytes.len() as u64 - cur.position().min(bytes.len() as u64);
+    for (name, e) in &header.elements {
+        if e.count as u64 > remaining {
+            return Err(perr(format!("element {name}"), format!("header declares {} elements but only {remaining} bytes follow (truncated file?)", e.count)));
+        }
+    }
+    let _ = cur.fill_buf();
+    let payload = parser.read_payload(&mut cur, &header).map_err(|e| {
+        let enc = match header.encoding {
+            Encoding::Ascii => "ascii",
+            _ => "binary",
+        };
+        perr(format!("{enc} payload after byte {}", cur.position()), format!("{e} (truncated or malformed file?)"))
+    })?;
+    for (name, e) in &header.elements {
+        let got = payload.get(name).map_or(0, Vec::len);
+        if got != e.count {
+            return Err(perr(format!("element {name}"), format!("header declares {} elements, file holds {got} (truncated?)", e.count)));
+        }
+    }
+    let verts = payload.get("vertex").map(Vec::as_slice).unwrap_or(&[]);
+    if verts.is_empty() {
+        return Err(perr("element vertex".into(), "no vertices".into()));
+    }
+    let get = |e: &DefaultElement, names: &[&str]| names.iter().find_map(|n| e.get(*n)).and_then(scalar);
+    let mut positions = Vec::with_capacity(verts.len());
+    for (i, v) in verts.iter().enumerate() {
+        let (Some(x), Some(y), Some(z)) = (get(v, &["x"]), get(v, &["y"]), get(v, &["z"])) else {
+            return Err(perr(format!("vertex {i}"), "missing x, y or z".into()));
+        };
+        let p = [x as f32, y as f32, z as f32];
+        if !p.iter().all(|c| c.is_finite()) {
+            return Err(LoadError::NonFinite { path: path.to_path_buf(), element: "vertex".into(), index: i as u64 });
+        }
+        positions.push(p);
+    }
+    let first = &verts[0];
+    let has = |names: &[&str]| names.iter().any(|n| first.contains_key(*n));
+    let normals = if has(&["nx"]) && has(&["ny"]) && has(&["nz"]) {
+        Some(verts.iter().map(|v| [get(v, &["nx"]), get(v, &["ny"]), get(v, &["nz"])].map(|c| c.unwrap_or(0.0) as f32)).collect::<Vec<_>>())
+    } else {
+        None
+    };
+    const R: &[&str] = &["red", "r", "diffuse_red"];
+    const G: &[&str] = &["green", "g", "diffuse_green"];
+    const B: &[&str] = &["blue", "b", "diffuse_blue"];
+    const A: &[&str] = &["alpha", "a", "diffuse_alpha"];
+    let colors = if has(R) && has(G) && has(B) {
+        let ch = |v: &DefaultElement, names: &[&str]| names.iter().find_map(|n| v.get(*n)).and_then(channel);
+        Some(
+            verts
+                .iter()
+                .map(|v| {
+                    let lut = |c: Option<f32>| srgb_to_linear(c.unwrap_or(1.0));
+                    [lut(ch(v, R)), lut(ch(v, G)), lut(ch(v, B)), ch(v, A).unwrap_or(1.0)]
+                })
+                .collect::<Vec<_>>(),
+        )
+    } else {
+        None
+    };
+    const U: &[&str] = &["u", "s", "texture_u", "texture_s"];
+    const V: &[&str] = &["v", "t", "texture_v", "texture_t"];
+    let uvs = if has(U) && has(V) {
+        Some(verts.iter().map(|v| [get(v, U).unwrap_or(0.0) as f32, 1.0 - get(v, V).unwrap_or(0.0) as f32]).collect::<Vec<_>>())
+    } else {
+        None
+    };
+
+    let n = positions.len() as i64;
+    let mut triangles: Vec<[u32; 3]> = Vec::new();
+    let mut polygons = 0u64;
+    let idx_of = |e: &DefaultElement| e.get("vertex_indices").or_else(|| e.get("vertex_index")).and_then(list);
+    let check = |elem: &str, i: usize, v: i64| -> Result<u32, LoadError> {
+        if v < 0 || v >= n {
+            return Err(LoadError::IndexOutOfRange { path: path.to_path_buf(), element: elem.into(), index: i as u64, value: v as u64, count: n as u64 });
+        }
+        Ok(v as u32)
+    };
+    for (fi, f) in payload.get("face").map(Vec::as_slice).unwrap_or(&[]).iter().enumerate() {
+        let Some(idx) = idx_of(f) else {
+            return Err(perr(format!("face {fi}"), "no vertex_indices list".into()));
+        };
+        let idx: Vec<u32> = idx.iter().map(|&v| check("face", fi, v)).collect::<Result<_, _>>()?;
+        match idx.len() {
+            0..=2 => {}
+            3 => triangles.push([idx[0], idx[1], idx[2]]),
+            _ => {
+                polygons += 1;
+                let corners: Vec<[f32; 3]> = idx.iter().map(|&v| positions[v as usize]).collect();
+                for t in crate::polygon::triangulate(&corners) {
+                    triangles.push(t.map(|k| idx[k as usize]));
+                }
+            }
+        }
+    }
+    for (si, s) in payload.get("tristrips").map(Vec::as_slice).unwrap_or(&[]).iter().enumerate() {
+        let Some(idx) = idx_of(s) else {
+            return Err(perr(format!("tristrips {si}"), "no vertex_indices list".into()));
+        };
+        // -1 restarts the strip; winding alternates within a strip.
+        for run in idx.split(|&v| v < 0) {
+            let run: Vec<u32> = run.iter().map(|&v| check("tristrips", si, v)).collect::<Result<_, _>>()?;
+            for i in 0..run.len().saturating_sub(2) {
+                triangles.push(if i % 2 == 0 { [run[i], run[i + 1], run[i + 2]] } else { [run[i + 1], run[i], run[i + 2]] });
+            }
+        }
+    }
+    let mut scene = LoadedScene::default();
+    scene.stats.polygons_triangulated = polygons;
+    if triangles.is_empty() {
+        scene.points = Some(PointCloud { positions, normals, colors });
+        return Ok(scene);
+    }
+    let mut prim = Primitive { positions, normals, colors, uvs: uvs.into_iter().collect(), triangles, material: None };
+    finish_primitive(path, "faces", &mut prim, &mut scene.stats)?;
+    scene.meshes.push(Mesh { name: super::obj::file_stem(path), primitives: vec![prim] });
+    scene.instances.push(Instance { mesh: 0, transform: IDENTITY });
+    Ok(scene)
+}

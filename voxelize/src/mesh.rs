@@ -1,0 +1,522 @@
+//! The loaded scene: what every loader produces and what the samplers, the preview
+//! renderer's reference rasterizer and `inspect --against` consume.
+//!
+//! Conventions:
+//! - colours are **linear** RGBA in [0, 1] (8-bit sRGB inputs are decoded on load; textures
+//!   keep their 8-bit sRGB texels and are decoded per lookup), output colours are re-encoded
+//!   to sRGB by the sampler;
+//! - a [`Mesh`] lives in its own local frame; an [`Instance`] places it in the world by a
+//!   general affine matrix (column-major, glTF convention);
+//! - triangles are counter-clockwise seen from the front; zero-area triangles have already
+//!   been removed and counted in [`LoadStats::degenerate_triangles`].
+
+use std::path::PathBuf;
+
+/// Column-major 4×4 affine matrix (`m[col][row]`), as glTF stores it.
+pub type Mat4 = [[f64; 4]; 4];
+
+/// The identity matrix.
+pub const IDENTITY: Mat4 =
+    [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
+
+/// How a sampler treats texture coordinates outside [0, 1] (glTF sampler wrap modes).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Wrap {
+    /// Tile.
+    #[default]
+    Repeat,
+    /// Tile, every other copy mirrored.
+    MirroredRepeat,
+    /// Clamp to the edge texel.
+    ClampToEdge,
+}
+
+/// A decoded texture image: 8-bit sRGB RGBA, rows top to bottom (v = 0 is the top row, the
+/// glTF convention; OBJ's v is flipped by the OBJ loader).
+#[derive(Clone, Debug)]
+pub struct Image {
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// `width * height` RGBA texels.
+    pub rgba: Vec<[u8; 4]>,
+    /// Where it came from (file path or "embedded image N").
+    pub source: String,
+}
+
+/// A texture binding of a material.
+#[derive(Clone, Debug)]
+pub struct TextureRef {
+    /// Index into [`LoadedScene::images`].
+    pub image: usize,
+    /// Which UV set ([`Primitive::uvs`] index) it reads.
+    pub tex_coord: u32,
+    /// Affine UV transform applied before lookup (KHR_texture_transform): `uv' = M · (u, v, 1)`,
+    /// rows of a 2×3 matrix.
+    pub transform: [[f32; 3]; 2],
+    /// Wrap mode along u.
+    pub wrap_s: Wrap,
+    /// Wrap mode along v.
+    pub wrap_t: Wrap,
+}
+
+/// Identity UV transform.
+pub const UV_IDENTITY: [[f32; 3]; 2] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+
+/// glTF alpha mode; OBJ and PLY map `d`/alpha to `Blend` when below 1.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub enum AlphaMode {
+    /// Alpha ignored (forced to 1).
+    #[default]
+    Opaque,
+    /// Alpha below the cutoff drops the sample, otherwise alpha is 1.
+    Mask(f32),
+    /// Alpha kept; alpha 0 drops the sample.
+    Blend,
+}
+
+/// A material: base colour factor × texture × vertex colour.
+#[derive(Clone, Debug)]
+pub struct Material {
+    /// Name as in the file.
+    pub name: String,
+    /// Linear RGBA factor.
+    pub base_color: [f32; 4],
+    /// Base-colour texture.
+    pub texture: Option<TextureRef>,
+    /// Separate alpha (opacity) texture, luminance used (OBJ `map_d`).
+    pub alpha_texture: Option<TextureRef>,
+    /// Alpha handling.
+    pub alpha_mode: AlphaMode,
+    /// Rendered from both sides.
+    pub double_sided: bool,
+}
+
+impl Default for Material {
+    fn default() -> Self {
+        Material {
+            name: String::from("default"),
+            base_color: [0.8, 0.8, 0.8, 1.0],
+            texture: None,
+            alpha_texture: None,
+            alpha_mode: AlphaMode::Opaque,
+            double_sided: false,
+        }
+    }
+}
+
+/// Triangles sharing one material and one vertex layout.
+#[derive(Clone, Debug, Default)]
+pub struct Primitive {
+    /// Vertex positions (local frame).
+    pub positions: Vec<[f32; 3]>,
+    /// Per-vertex normals, if the file has them (not necessarily unit length).
+    pub normals: Option<Vec<[f32; 3]>>,
+    /// Per-vertex linear RGBA colours.
+    pub colors: Option<Vec<[f32; 4]>>,
+    /// UV sets (glTF TEXCOORD_n is `uvs[n]`).
+    pub uvs: Vec<Vec<[f32; 2]>>,
+    /// Triangles (indices into the vertex arrays, all in range).
+    pub triangles: Vec<[u32; 3]>,
+    /// Index into [`LoadedScene::materials`]; `None` = default material.
+    pub material: Option<usize>,
+}
+
+/// A named mesh: one or more primitives in one local frame.
+#[derive(Clone, Debug, Default)]
+pub struct Mesh {
+    /// Name (file name, object name or glTF mesh name).
+    pub name: String,
+    /// Primitives.
+    pub primitives: Vec<Primitive>,
+}
+
+impl Mesh {
+    /// Number of triangles over all primitives.
+    pub fn triangle_count(&self) -> usize {
+        self.primitives.iter().map(|p| p.triangles.len()).sum()
+    }
+}
+
+/// A placement of a mesh in the world.
+#[derive(Clone, Copy, Debug)]
+pub struct Instance {
+    /// Index into [`LoadedScene::meshes`].
+    pub mesh: usize,
+    /// Local-to-world matrix (column-major).
+    pub transform: Mat4,
+}
+
+/// A point sample set (a PLY without faces).
+#[derive(Clone, Debug, Default)]
+pub struct PointCloud {
+    /// Positions (world frame).
+    pub positions: Vec<[f32; 3]>,
+    /// Normals, if present.
+    pub normals: Option<Vec<[f32; 3]>>,
+    /// Linear RGBA colours, if present.
+    pub colors: Option<Vec<[f32; 4]>>,
+}
+
+/// Counts reported by the loaders.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct LoadStats {
+    /// Triangles read (after polygon triangulation, before dropping degenerate ones), counted
+    /// once per mesh, not per instance.
+    pub triangles_read: u64,
+    /// Zero-area triangles dropped.
+    pub degenerate_triangles: u64,
+    /// Polygons with more than three corners triangulated (CDT).
+    pub polygons_triangulated: u64,
+    /// Point or line primitives skipped.
+    pub skipped_primitives: u64,
+}
+
+/// Everything a mesh file describes, resolved and validated.
+#[derive(Clone, Debug, Default)]
+pub struct LoadedScene {
+    /// Meshes in local frames.
+    pub meshes: Vec<Mesh>,
+    /// Placements; a mesh appears in the scene once per instance.
+    pub instances: Vec<Instance>,
+    /// Materials.
+    pub materials: Vec<Material>,
+    /// Decoded images.
+    pub images: Vec<Image>,
+    /// A point cloud, when the file has vertices but no faces.
+    pub points: Option<PointCloud>,
+    /// Non-fatal problems (missing MTL, missing texture, skipped primitives …).
+    pub warnings: Vec<String>,
+    /// Counts.
+    pub stats: LoadStats,
+    /// Files read (the input and every resource it referenced that was found).
+    pub files: Vec<PathBuf>,
+}
+
+impl LoadedScene {
+    /// The material of a primitive (the default one when it has none).
+    pub fn material(&self, p: &Primitive) -> Material {
+        p.material.and_then(|m| self.materials.get(m)).cloned().unwrap_or_default()
+    }
+
+    /// Total triangle count over all instances (what a renderer draws).
+    pub fn instanced_triangle_count(&self) -> u64 {
+        self.instances
+            .iter()
+            .map(|i| self.meshes.get(i.mesh).map_or(0, |m| m.triangle_count() as u64))
+            .sum()
+    }
+
+    /// Total world-space surface area over all instances.
+    pub fn world_area(&self) -> f64 {
+        let mut total = 0.0;
+        for inst in &self.instances {
+            let Some(mesh) = self.meshes.get(inst.mesh) else { continue };
+            for p in &mesh.primitives {
+                for t in &p.triangles {
+                    let [a, b, c] = t.map(|i| transform_point(&inst.transform, p.positions[i as usize]));
+                    total += 0.5 * norm(cross(sub(b, a), sub(c, a)));
+                }
+            }
+        }
+        total
+    }
+
+    /// World-space axis-aligned bounds (min, max) over instances and points; `None` if empty.
+    pub fn world_bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        let mut any = false;
+        let mut add = |p: [f64; 3]| {
+            any = true;
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        };
+        for inst in &self.instances {
+            let Some(mesh) = self.meshes.get(inst.mesh) else { continue };
+            for p in &mesh.primitives {
+                for v in &p.positions {
+                    add(transform_point(&inst.transform, *v));
+                }
+            }
+        }
+        if let Some(pc) = &self.points {
+            for v in &pc.positions {
+                add(v.map(f64::from));
+            }
+        }
+        any.then_some((lo, hi))
+    }
+}
+
+/// Applies an affine matrix to a point.
+pub fn transform_point(m: &Mat4, p: [f32; 3]) -> [f64; 3] {
+    let [x, y, z] = p.map(f64::from);
+    [
+        m[0][0] * x + m[1][0] * y + m[2][0] * z + m[3][0],
+        m[0][1] * x + m[1][1] * y + m[2][1] * z + m[3][1],
+        m[0][2] * x + m[1][2] * y + m[2][2] * z + m[3][2],
+    ]
+}
+
+/// Applies the inverse-transpose (cofactor matrix; scale is irrelevant since normals are
+/// renormalised) of the upper 3×3 of `m` to a normal.
+pub fn transform_normal(m: &Mat4, n: [f32; 3]) -> [f64; 3] {
+    let c0 = [m[0][0], m[0][1], m[0][2]];
+    let c1 = [m[1][0], m[1][1], m[1][2]];
+    let c2 = [m[2][0], m[2][1], m[2][2]];
+    // Cofactor matrix columns: (c1×c2, c2×c0, c0×c1) are the rows of det·M⁻¹, so
+    // M⁻ᵀ n ∝ n.x (c1×c2) + n.y (c2×c0) + n.z (c0×c1), times sign(det) to keep orientation.
+    let [x, y, z] = n.map(f64::from);
+    let a = cross(c1, c2);
+    let b = cross(c2, c0);
+    let c = cross(c0, c1);
+    let s = if determinant(m) < 0.0 { -1.0 } else { 1.0 };
+    [
+        s * (x * a[0] + y * b[0] + z * c[0]),
+        s * (x * a[1] + y * b[1] + z * c[1]),
+        s * (x * a[2] + y * b[2] + z * c[2]),
+    ]
+}
+
+/// Determinant of the upper 3×3.
+pub fn determinant(m: &Mat4) -> f64 {
+    let c0 = [m[0][0], m[0][1], m[0][2]];
+    let c1 = [m[1][0], m[1][1], m[1][2]];
+    let c2 = [m[2][0], m[2][1], m[2][2]];
+    dot(c0, cross(c1, c2))
+}
+
+/// Matrix product `a · b`.
+pub fn mat_mul(a: &Mat4, b: &Mat4) -> Mat4 {
+    let mut r = [[0.0; 4]; 4];
+    for (c, col) in r.iter_mut().enumerate() {
+        for (row, v) in col.iter_mut().enumerate() {
+            *v = (0..4).map(|k| a[k][row] * b[c][k]).sum();
+        }
+    }
+    r
+}
+
+/// Decomposes `m` into a similarity (translation, unit quaternion, uniform scale > 0) when it
+/// is one within a relative tolerance of 1e-6; `None` for non-uniform scale, shear,
+/// reflection or projective matrices (those are baked into world space instead).
+pub fn to_similarity(m: &Mat4) -> Option<sct_format::Similarity> {
+    if m[0][3].abs() > 1e-12 || m[1][3].abs() > 1e-12 || m[2][3].abs() > 1e-12 || (m[3][3] - 1.0).abs() > 1e-12 {
+        return None;
+    }
+    let det = determinant(m);
+    if !(det > 0.0) || !det.is_finite() {
+        return None;
+    }
+    let s = det.cbrt();
+    let cols = [0, 1, 2].map(|c| [m[c][0] / s, m[c][1] / s, m[c][2] / s]);
+    for i in 0..3 {
+        for j in 0..3 {
+            let d = dot(cols[i], cols[j]) - if i == j { 1.0 } else { 0.0 };
+            if d.abs() > 1e-6 {
+                return None;
+            }
+        }
+    }
+    // Rotation matrix r[row][col] from the columns; standard robust quaternion extraction.
+    let r = |row: usize, col: usize| cols[col][row];
+    let tr = r(0, 0) + r(1, 1) + r(2, 2);
+    let q = if tr > 0.0 {
+        let w4 = 2.0 * (1.0 + tr).sqrt();
+        [(r(2, 1) - r(1, 2)) / w4, (r(0, 2) - r(2, 0)) / w4, (r(1, 0) - r(0, 1)) / w4, w4 / 4.0]
+    } else if r(0, 0) > r(1, 1) && r(0, 0) > r(2, 2) {
+        let x4 = 2.0 * (1.0 + r(0, 0) - r(1, 1) - r(2, 2)).sqrt();
+        [x4 / 4.0, (r(0, 1) + r(1, 0)) / x4, (r(0, 2) + r(2, 0)) / x4, (r(2, 1) - r(1, 2)) / x4]
+    } else if r(1, 1) > r(2, 2) {
+        let y4 = 2.0 * (1.0 + r(1, 1) - r(0, 0) - r(2, 2)).sqrt();
+        [(r(0, 1) + r(1, 0)) / y4, y4 / 4.0, (r(1, 2) + r(2, 1)) / y4, (r(0, 2) - r(2, 0)) / y4]
+    } else {
+        let z4 = 2.0 * (1.0 + r(2, 2) - r(0, 0) - r(1, 1)).sqrt();
+        [(r(0, 2) + r(2, 0)) / z4, (r(1, 2) + r(2, 1)) / z4, z4 / 4.0, (r(1, 0) - r(0, 1)) / z4]
+    };
+    let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    Some(sct_format::Similarity {
+        translation: [m[3][0], m[3][1], m[3][2]],
+        rotation: q.map(|v| v / n),
+        scale: s,
+    })
+}
+
+/// Matrix of a glTF TRS.
+pub fn trs_matrix(t: [f64; 3], q: [f64; 4], s: [f64; 3]) -> Mat4 {
+    let [x, y, z, w] = q;
+    let r = [
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + z * w), 2.0 * (x * z - y * w)],
+        [2.0 * (x * y - z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + x * w)],
+        [2.0 * (x * z + y * w), 2.0 * (y * z - x * w), 1.0 - 2.0 * (x * x + y * y)],
+    ];
+    [
+        [r[0][0] * s[0], r[0][1] * s[0], r[0][2] * s[0], 0.0],
+        [r[1][0] * s[1], r[1][1] * s[1], r[1][2] * s[1], 0.0],
+        [r[2][0] * s[2], r[2][1] * s[2], r[2][2] * s[2], 0.0],
+        [t[0], t[1], t[2], 1.0],
+    ]
+}
+
+/// Decodes one 8-bit sRGB channel to linear.
+pub fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Encodes a linear channel in [0, 1] as 8-bit sRGB.
+pub fn linear_to_srgb8(c: f32) -> u8 {
+    let c = if c.is_finite() { c.clamp(0.0, 1.0) } else { 0.0 };
+    let s = if c <= 0.003_130_8 { c * 12.92 } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 };
+    (s * 255.0 + 0.5) as u8
+}
+
+/// Lookup table: 8-bit sRGB → linear.
+pub fn srgb_lut() -> &'static [f32; 256] {
+    static LUT: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
+    LUT.get_or_init(|| std::array::from_fn(|i| srgb_to_linear(i as f32 / 255.0)))
+}
+
+impl Image {
+    /// Bilinear lookup honouring wrap modes; returns linear RGBA (texel centres at half
+    /// integers, the GL convention).
+    pub fn sample(&self, uv: [f32; 2], wrap_s: Wrap, wrap_t: Wrap) -> [f32; 4] {
+        let (w, h) = (self.width as i64, self.height as i64);
+        if w == 0 || h == 0 || self.rgba.len() < (w * h) as usize {
+            return [1.0; 4];
+        }
+        let u = if uv[0].is_finite() { uv[0] } else { 0.0 };
+        let v = if uv[1].is_finite() { uv[1] } else { 0.0 };
+        let x = u as f64 * w as f64 - 0.5;
+        let y = v as f64 * h as f64 - 0.5;
+        let x0 = x.floor();
+        let y0 = y.floor();
+        let fx = (x - x0) as f32;
+        let fy = (y - y0) as f32;
+        let lut = srgb_lut();
+        let texel = |xi: i64, yi: i64| -> [f32; 4] {
+            let xi = wrap_index(xi, w, wrap_s);
+            let yi = wrap_index(yi, h, wrap_t);
+            let t = self.rgba[(yi * w + xi) as usize];
+            [lut[t[0] as usize], lut[t[1] as usize], lut[t[2] as usize], t[3] as f32 / 255.0]
+        };
+        // Clamp the integer coordinate before conversion so huge UVs cannot overflow.
+        let xi = x0.clamp(-1e15, 1e15) as i64;
+        let yi = y0.clamp(-1e15, 1e15) as i64;
+        let a = texel(xi, yi);
+        let b = texel(xi + 1, yi);
+        let c = texel(xi, yi + 1);
+        let d = texel(xi + 1, yi + 1);
+        std::array::from_fn(|k| {
+            let top = a[k] + (b[k] - a[k]) * fx;
+            let bot = c[k] + (d[k] - c[k]) * fx;
+            top + (bot - top) * fy
+        })
+    }
+}
+
+fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
+    match wrap {
+        Wrap::ClampToEdge => i.clamp(0, n - 1),
+        Wrap::Repeat => i.rem_euclid(n),
+        Wrap::MirroredRepeat => {
+            let p = i.rem_euclid(2 * n);
+            if p < n {
+                p
+            } else {
+                2 * n - 1 - p
+            }
+        }
+    }
+}
+
+impl TextureRef {
+    /// Applies the UV transform.
+    pub fn transform_uv(&self, uv: [f32; 2]) -> [f32; 2] {
+        let m = &self.transform;
+        [m[0][0] * uv[0] + m[0][1] * uv[1] + m[0][2], m[1][0] * uv[0] + m[1][1] * uv[1] + m[1][2]]
+    }
+}
+
+pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+pub(crate) fn norm(a: [f64; 3]) -> f64 {
+    dot(a, a).sqrt()
+}
+
+/// Whether a triangle has (numerically) zero area: its doubled area is below 1e-12 of its
+/// longest squared edge, so slivers a float cannot orient are dropped, real thin ones kept.
+pub fn is_degenerate(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> bool {
+    let (a, b, c) = (a.map(f64::from), b.map(f64::from), c.map(f64::from));
+    let e = [sub(b, a), sub(c, b), sub(a, c)];
+    let longest = e.iter().map(|v| dot(*v, *v)).fold(0.0, f64::max);
+    let cr = norm(cross(e[0], sub(c, a)));
+    !(cr > 1e-12 * longest) || longest == 0.0
+}
+
+/// Per-corner normals for a primitive without normals: area-weighted face normals averaged
+/// over the faces that share the corner's *position* (welded, so split UV seams stay
+/// smooth) and whose normal is within `crease_deg` of this face's (thesis §5.2.2:
+/// "mean vertex surface normals ... with thresholding for discontinuities").
+pub fn corner_normals(p: &Primitive, crease_deg: f32) -> Vec<[[f32; 3]; 3]> {
+    use std::collections::HashMap;
+    let face: Vec<[f64; 3]> = p
+        .triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| p.positions[i as usize].map(f64::from));
+            cross(sub(b, a), sub(c, a)) // length = 2 × area: area weighting for free
+        })
+        .collect();
+    let mut by_pos: HashMap<[u32; 3], Vec<u32>> = HashMap::new();
+    for (ti, t) in p.triangles.iter().enumerate() {
+        for &i in t {
+            let key = p.positions[i as usize].map(f32::to_bits);
+            by_pos.entry(key).or_default().push(ti as u32);
+        }
+    }
+    let cos_crease = f64::from(crease_deg.to_radians().cos());
+    p.triangles
+        .iter()
+        .enumerate()
+        .map(|(ti, t)| {
+            let nf = face[ti];
+            let lf = norm(nf);
+            t.map(|i| {
+                let key = p.positions[i as usize].map(f32::to_bits);
+                let mut acc = [0.0; 3];
+                if let Some(list) = by_pos.get(&key) {
+                    for &o in list {
+                        let no = face[o as usize];
+                        let lo = norm(no);
+                        if o as usize == ti || dot(nf, no) >= cos_crease * lf * lo {
+                            acc = [acc[0] + no[0], acc[1] + no[1], acc[2] + no[2]];
+                        }
+                    }
+                }
+                let l = norm(acc);
+                if l > 0.0 {
+                    acc.map(|v| (v / l) as f32)
+                } else if lf > 0.0 {
+                    nf.map(|v| (v / lf) as f32)
+                } else {
+                    [0.0, 0.0, 1.0]
+                }
+            })
+        })
+        .collect()
+}
