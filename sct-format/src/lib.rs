@@ -40,3 +40,5 @@ pub use node::Node;
 pub use read::SctReader;
 pub use tree::SceneTree;
 pub use write::{write_scene, write_scene_file, Scene, WriteOptions};
+pub mod traverse;
+pub mod validate;

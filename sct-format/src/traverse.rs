@@ -1,0 +1,624 @@
+//! Abstract scene-graph traversal (thesis §5.10.2, §5.11.2).
+//!
+//! The thesis hides groups, instances and inlines behind "scene node specifiers" so that a
+//! client sees one binary scene tree. [`Traversal`] does the graph half of that: it walks the
+//! scene graph from the root, composes instance transforms and push-down tints, follows
+//! inlines into other files (hash-checked, cycle- and depth-bounded), and yields one
+//! [`Reached`] per scene tree it arrives at, with the world transform to apply to that
+//! tree's nodes. The client then reads the tree's levels itself (progressively, if it
+//! likes) and maps every node through [`TraversalState::apply`].
+//!
+//! The iterator is lazy: nothing below a group is expanded until the iterator is advanced
+//! past the group, so a renderer can [`Traversal::skip_children`] of a group it culled, or
+//! install a [`Traversal::set_cull`] predicate that sees each pending child's world bound
+//! (a group leaf, or an inline's recorded bound) *before* it is expanded or its file opened.
+//!
+//! # Paths
+//!
+//! Every node is named by its path in the *abstract* binary tree: `root`, then `/0` or `/1`
+//! per step to the first or second child. Instances and inlines add no step (they are the
+//! same abstract node as their child); leaf `j` of a group's tree *is* the virtual root of
+//! the group's child `j` (§5.10.5), so the child's root has the leaf's path. A scene tree
+//! reached at path `P` has its node `root/…` at `P/…`; this is the path the validator reports.
+//!
+//! # Attribute propagation (§5.11.2)
+//!
+//! Position, radius (× s), cone axis (rotated) and area (× s²) always follow the instance
+//! transform: our files store the fitting transform explicitly, so "push-down size" (fit the
+//! child into the instance root) and "pull-up size" (keep the child's own size) differ only in
+//! how the writer chose the transform, not in how it is applied. Colour is pull-up by default
+//! (colours are used unchanged); an instance with push-down colour and a tint multiplies the
+//! tint (`t / 255` per channel, RGBA) into every colour below it, composing multiplicatively
+//! with outer tints, clipped to [0, 255]. A tint on a pull-up instance is ignored.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use crate::error::Error;
+use crate::graph::{GraphNode, InstanceAttrs, Propagation, Similarity};
+use crate::limits::Limits;
+use crate::node::Node;
+use crate::read::SctReader;
+
+/// The push-down state accumulated from the root to a graph node.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TraversalState {
+    /// Local-to-world transform.
+    pub transform: Similarity,
+    /// Per-channel RGBA colour multiplier from push-down tints (1.0 = unchanged).
+    pub tint: [f32; 4],
+}
+
+impl Default for TraversalState {
+    fn default() -> Self {
+        TraversalState::IDENTITY
+    }
+}
+
+impl TraversalState {
+    /// No transform, no tint.
+    pub const IDENTITY: TraversalState = TraversalState { transform: Similarity::IDENTITY, tint: [1.0; 4] };
+
+    /// The state below an instance with `transform` and `attrs`.
+    pub fn push_instance(&self, transform: &Similarity, attrs: &InstanceAttrs) -> TraversalState {
+        let mut tint = self.tint;
+        if let (Propagation::PushDown, Some(t)) = (attrs.color, attrs.tint) {
+            for (m, &c) in tint.iter_mut().zip(&t) {
+                *m *= c as f32 / 255.0;
+            }
+        }
+        TraversalState { transform: self.transform.compose(transform), tint }
+    }
+
+    /// True when some tint changes colours.
+    pub fn is_tinted(&self) -> bool {
+        self.tint != [1.0; 4]
+    }
+
+    /// Maps a node from the tree's frame to the world: transform, then tint.
+    pub fn apply(&self, n: &Node) -> Node {
+        let mut out = if self.transform == Similarity::IDENTITY { *n } else { self.transform.apply_node(n) };
+        out.color = tint_color(out.color, self.tint);
+        out
+    }
+}
+
+/// Multiplies a colour by a per-channel tint, rounding to nearest and clipping.
+pub fn tint_color(c: [u8; 4], tint: [f32; 4]) -> [u8; 4] {
+    if tint == [1.0; 4] {
+        return c;
+    }
+    let mut out = [0u8; 4];
+    for i in 0..4 {
+        out[i] = (c[i] as f32 * tint[i]).round().clamp(0.0, 255.0) as u8;
+    }
+    out
+}
+
+/// Appends one abstract-tree step (`0` or `1`) to `path`.
+pub fn child_path(path: &str, step: usize) -> String {
+    format!("{path}/{step}")
+}
+
+/// The abstract path of every leaf of `tree` (breadth-first leaf order), each prefixed by
+/// `base`. Leaf `j` of a group's tree is the virtual root of the group's child `j`.
+pub fn leaf_paths(tree: &crate::SceneTree, base: &str) -> Vec<String> {
+    let parents = tree.parents();
+    let mut out = Vec::with_capacity(tree.leaf_count());
+    let mut steps = Vec::new();
+    for leaf in tree.leaves() {
+        steps.clear();
+        let mut i = leaf;
+        while let Some(&p) = parents.get(i).filter(|&&p| p != crate::tree::NO_CHILD) {
+            let p = p as usize;
+            steps.push(if tree.children(p).is_some_and(|c| c[0] == i) { 0 } else { 1 });
+            i = p;
+        }
+        let mut s = base.to_string();
+        for &st in steps.iter().rev() {
+            s.push('/');
+            s.push(if st == 0 { '0' } else { '1' });
+        }
+        out.push(s);
+    }
+    out
+}
+
+/// The bound of graph node `node` of `file` in that file's frame: a tree's or group's root,
+/// an inline's recorded bound, an instance's child bound transformed (and tinted).
+pub fn graph_bound(file: &SctReader, node: u32) -> Option<Node> {
+    let g = file.graph();
+    let mut state = TraversalState::IDENTITY;
+    let mut at = node;
+    // Instance chains only point backwards, so this loop ends after at most `nodes` steps.
+    for _ in 0..=g.nodes.len() {
+        match g.nodes.get(at as usize)? {
+            GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => {
+                let t = file.trees().get(*tree as usize)?;
+                return (t.header.node_count > 0).then(|| state.apply(&t.header.root));
+            }
+            GraphNode::Inline { bound, .. } => return Some(state.apply(bound)),
+            GraphNode::Instance { child, transform, attrs } => {
+                state = state.push_instance(transform, attrs);
+                at = *child;
+            }
+        }
+    }
+    None
+}
+
+/// What kind of scene tree was reached.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ReachedKind {
+    /// A geometry tree: its leaves are surface samples.
+    Tree,
+    /// A group's tree: leaf `j` bounds graph node `children[j]`, which the traversal visits
+    /// next (unless skipped or culled).
+    Group {
+        /// The group's child graph nodes.
+        children: Vec<u32>,
+    },
+}
+
+/// One scene tree reached by the traversal.
+#[derive(Clone, Debug)]
+pub struct Reached {
+    /// Abstract path of the tree's root (see the module docs).
+    pub path: String,
+    /// The file holding the tree.
+    pub file: Arc<SctReader>,
+    /// That file's path.
+    pub file_path: PathBuf,
+    /// The graph node (in `file`) that owns the tree.
+    pub graph_node: u32,
+    /// Tree index in `file`.
+    pub tree: usize,
+    /// World transform and tint for the tree's nodes.
+    pub state: TraversalState,
+    /// Geometry or group tree.
+    pub kind: ReachedKind,
+    /// Number of inlines followed to get here.
+    pub inline_depth: u32,
+}
+
+impl Reached {
+    /// The tree's root in world space (from the tree header; no block is read).
+    pub fn world_root(&self) -> Option<Node> {
+        let t = self.file.trees().get(self.tree)?;
+        (t.header.node_count > 0).then(|| self.state.apply(&t.header.root))
+    }
+}
+
+/// Why a branch of the traversal could not be followed. The traversal goes on with the other
+/// branches.
+#[derive(Debug, thiserror::Error)]
+pub enum TraverseErrorKind {
+    /// The inline target does not exist or cannot be opened.
+    #[error("inline target {target} cannot be opened: {source}")]
+    InlineMissing {
+        /// Resolved target path.
+        target: PathBuf,
+        /// The I/O error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The inline target's BLAKE3 hash differs from the recorded one.
+    #[error("inline target {target} has BLAKE3 {found}, the inline records {expected}")]
+    InlineHash {
+        /// Resolved target path.
+        target: PathBuf,
+        /// Recorded hash (hex).
+        expected: String,
+        /// Hash of the file (hex).
+        found: String,
+    },
+    /// The inline target is already being traversed on this branch.
+    #[error("inline cycle: {}", chain.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" -> "))]
+    InlineCycle {
+        /// The files on the branch, ending with the repeated one.
+        chain: Vec<PathBuf>,
+    },
+    /// More nested inlines than [`Limits::max_inline_depth`].
+    #[error("inline nesting deeper than the limit of {limit}")]
+    InlineDepth {
+        /// The limit.
+        limit: u32,
+    },
+    /// The inline target (or a group tree) could not be read.
+    #[error("{0}")]
+    Read(#[from] Error),
+}
+
+/// A traversal failure at `path`.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {kind}")]
+pub struct TraverseError {
+    /// Abstract path of the node that failed.
+    pub path: String,
+    /// The file whose graph holds the failing node.
+    pub file: PathBuf,
+    /// Graph node index in that file.
+    pub graph_node: u32,
+    /// What went wrong.
+    pub kind: TraverseErrorKind,
+}
+
+/// The inline chain of one branch, for cycle detection (a persistent stack shared by
+/// siblings).
+#[derive(Debug)]
+struct Chain {
+    path: PathBuf,
+    parent: Option<Arc<Chain>>,
+    depth: u32,
+}
+
+impl Chain {
+    fn contains(self: &Arc<Self>, p: &Path) -> bool {
+        let mut c = Some(self);
+        while let Some(x) = c {
+            if x.path == p {
+                return true;
+            }
+            c = x.parent.as_ref();
+        }
+        false
+    }
+    fn to_vec(self: &Arc<Self>) -> Vec<PathBuf> {
+        let mut v = Vec::new();
+        let mut c = Some(self);
+        while let Some(x) = c {
+            v.push(x.path.clone());
+            c = x.parent.as_ref();
+        }
+        v.reverse();
+        v
+    }
+}
+
+struct Pending {
+    file: Arc<SctReader>,
+    chain: Arc<Chain>,
+    node: u32,
+    path: String,
+    state: TraversalState,
+    /// World bound known before expansion (group leaf or inline bound), for culling.
+    bound: Option<Node>,
+}
+
+/// Options of a traversal.
+#[derive(Clone, Debug)]
+pub struct TraverseOptions {
+    /// Limits for every file opened (inline depth included).
+    pub limits: Limits,
+    /// Check each inline target's BLAKE3 hash (reads the whole target once per file).
+    pub verify_inline_hashes: bool,
+}
+
+impl Default for TraverseOptions {
+    fn default() -> Self {
+        TraverseOptions { limits: Limits::default(), verify_inline_hashes: true }
+    }
+}
+
+type CullFn = Box<dyn FnMut(&Node, &str) -> bool + Send>;
+
+/// A lazy depth-first walk of a scene graph and the files it inlines; an iterator of
+/// [`Reached`] trees (or [`TraverseError`]s for branches that cannot be followed).
+pub struct Traversal {
+    opts: TraverseOptions,
+    stack: Vec<Pending>,
+    /// Children of the last yielded group, pushed on the next call unless skipped.
+    deferred: Option<Pending>,
+    /// Open files by canonical path, with their hash once verified.
+    files: HashMap<PathBuf, (Arc<SctReader>, Option<[u8; 32]>)>,
+    cull: Option<CullFn>,
+}
+
+impl std::fmt::Debug for Traversal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Traversal").field("pending", &self.stack.len()).finish_non_exhaustive()
+    }
+}
+
+impl Traversal {
+    /// Opens `path` and starts a traversal at its graph root.
+    pub fn open(path: &Path, opts: TraverseOptions) -> Result<Traversal, Error> {
+        let canon = std::fs::canonicalize(path).map_err(|e| Error::io(path, e))?;
+        let file = Arc::new(SctReader::open(&canon, &opts.limits)?);
+        Ok(Self::from_reader(file, canon, opts))
+    }
+
+    /// Starts a traversal at the graph root of an open file; `canonical_path` locates its
+    /// inlines (their paths are relative to its directory).
+    pub fn from_reader(file: Arc<SctReader>, canonical_path: PathBuf, opts: TraverseOptions) -> Traversal {
+        let root = file.graph().root;
+        let chain = Arc::new(Chain { path: canonical_path.clone(), parent: None, depth: 0 });
+        let mut files = HashMap::new();
+        files.insert(canonical_path, (file.clone(), None));
+        let stack = vec![Pending { file, chain, node: root, path: "root".into(), state: TraversalState::IDENTITY, bound: None }];
+        Traversal { opts, stack, deferred: None, files, cull: None }
+    }
+
+    /// Installs a predicate called with each pending node's world bound and path before it
+    /// is expanded (group children, inline targets); returning false skips the subtree.
+    pub fn set_cull(&mut self, cull: impl FnMut(&Node, &str) -> bool + Send + 'static) {
+        self.cull = Some(Box::new(cull));
+    }
+
+    /// Do not visit the children of the group yielded last.
+    pub fn skip_children(&mut self) {
+        self.deferred = None;
+    }
+
+    fn expand_group(&mut self, g: Pending) -> Result<(), TraverseError> {
+        let GraphNode::Group { children, tree } = &g.file.graph().nodes[g.node as usize] else { return Ok(()) };
+        let err = |kind| TraverseError { path: g.path.clone(), file: g.chain.path.clone(), graph_node: g.node, kind };
+        let t = g.file.read_tree(*tree as usize).map_err(|e| err(TraverseErrorKind::Read(e)))?;
+        let paths = leaf_paths(&t, &g.path);
+        let leaves: Vec<usize> = t.leaves().collect();
+        // Push in reverse so child 0 is visited first.
+        for (j, &c) in children.iter().enumerate().rev() {
+            let (Some(&leaf), Some(path)) = (leaves.get(j), paths.get(j)) else { continue };
+            self.stack.push(Pending {
+                file: g.file.clone(),
+                chain: g.chain.clone(),
+                node: c,
+                path: path.clone(),
+                state: g.state,
+                bound: Some(g.state.apply(&t.nodes()[leaf])),
+            });
+        }
+        Ok(())
+    }
+
+    fn follow_inline(&mut self, p: &Pending, rel: &str, hash: &[u8; 32]) -> Result<Pending, TraverseErrorKind> {
+        let dir = p.chain.path.parent().unwrap_or(Path::new("."));
+        let target = dir.join(rel);
+        let canon =
+            std::fs::canonicalize(&target).map_err(|source| TraverseErrorKind::InlineMissing { target: target.clone(), source })?;
+        // The cycle check comes before the hash check: a file that (transitively) inlines
+        // itself can never record its own hash correctly, and the cycle is the real fault.
+        if p.chain.contains(&canon) {
+            let mut chain = p.chain.to_vec();
+            chain.push(canon);
+            return Err(TraverseErrorKind::InlineCycle { chain });
+        }
+        if p.chain.depth + 1 > self.opts.limits.max_inline_depth {
+            return Err(TraverseErrorKind::InlineDepth { limit: self.opts.limits.max_inline_depth });
+        }
+        let entry = match self.files.get(&canon) {
+            Some(e) => e.clone(),
+            None => {
+                let f = SctReader::open(&canon, &self.opts.limits).map_err(|e| match e {
+                    Error::Io { source, .. } => TraverseErrorKind::InlineMissing { target: canon.clone(), source },
+                    e => TraverseErrorKind::Read(e),
+                })?;
+                let e = (Arc::new(f), None);
+                self.files.insert(canon.clone(), e.clone());
+                e
+            }
+        };
+        let (file, known) = entry;
+        if self.opts.verify_inline_hashes {
+            let found = match known {
+                Some(h) => h,
+                None => {
+                    let h = *blake3::hash(file.bytes()).as_bytes();
+                    self.files.insert(canon.clone(), (file.clone(), Some(h)));
+                    h
+                }
+            };
+            if &found != hash {
+                return Err(TraverseErrorKind::InlineHash { target: canon, expected: hex(hash), found: hex(&found) });
+            }
+        }
+        let root = file.graph().root;
+        let depth = p.chain.depth + 1;
+        Ok(Pending {
+            file,
+            chain: Arc::new(Chain { path: canon, parent: Some(p.chain.clone()), depth }),
+            node: root,
+            path: p.path.clone(),
+            state: p.state,
+            bound: None,
+        })
+    }
+}
+
+/// Lowercase hex of a hash.
+pub fn hex(h: &[u8]) -> String {
+    h.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+impl Iterator for Traversal {
+    type Item = Result<Reached, TraverseError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if let Some(g) = self.deferred.take() {
+            if let Err(e) = self.expand_group(g) {
+                return Some(Err(e));
+            }
+        }
+        while let Some(p) = self.stack.pop() {
+            if let (Some(b), Some(cull)) = (&p.bound, self.cull.as_mut()) {
+                if !cull(b, &p.path) {
+                    continue;
+                }
+            }
+            let Some(node) = p.file.graph().nodes.get(p.node as usize).cloned() else {
+                let kind = TraverseErrorKind::Read(Error::malformed(0, format!("graph node {} does not exist", p.node)));
+                return Some(Err(TraverseError { path: p.path, file: p.chain.path.clone(), graph_node: p.node, kind }));
+            };
+            match node {
+                GraphNode::Tree { tree } => {
+                    return Some(Ok(Reached {
+                        path: p.path.clone(),
+                        file: p.file.clone(),
+                        file_path: p.chain.path.clone(),
+                        graph_node: p.node,
+                        tree: tree as usize,
+                        state: p.state,
+                        kind: ReachedKind::Tree,
+                        inline_depth: p.chain.depth,
+                    }))
+                }
+                GraphNode::Group { children, tree } => {
+                    let r = Reached {
+                        path: p.path.clone(),
+                        file: p.file.clone(),
+                        file_path: p.chain.path.clone(),
+                        graph_node: p.node,
+                        tree: tree as usize,
+                        state: p.state,
+                        kind: ReachedKind::Group { children },
+                        inline_depth: p.chain.depth,
+                    };
+                    self.deferred = Some(p);
+                    return Some(Ok(r));
+                }
+                GraphNode::Instance { child, transform, attrs } => {
+                    let state = p.state.push_instance(&transform, &attrs);
+                    self.stack.push(Pending { node: child, state, bound: None, ..p });
+                }
+                GraphNode::Inline { path, hash, bound } => {
+                    let world = p.state.apply(&bound);
+                    if let (None, Some(cull)) = (&p.bound, self.cull.as_mut()) {
+                        if !cull(&world, &p.path) {
+                            continue;
+                        }
+                    }
+                    match self.follow_inline(&p, &path, &hash) {
+                        Ok(next) => self.stack.push(next),
+                        Err(kind) => {
+                            return Some(Err(TraverseError { path: p.path, file: p.chain.path.clone(), graph_node: p.node, kind }))
+                        }
+                    }
+                }
+            }
+        }
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::parent_of;
+    use crate::graph::{Generator, SceneGraph};
+    use crate::write::{write_scene_file, Scene, WriteOptions};
+    use crate::{Profile, SceneTree};
+
+    fn leaf(x: f32, c: u8) -> Node {
+        Node { center: [x, 0.0, 0.0], radius: 0.5, normal: [0.0, 0.0, 1.0], cone: 0.0, area: 1.0, color: [c, c, c, 255] }
+    }
+
+    /// A 3-leaf tree: root -> (p, c), p -> (a, b).
+    fn tree3(x: f32) -> SceneTree {
+        let (a, b, c) = (leaf(x, 10), leaf(x + 1.0, 20), leaf(x + 3.0, 30));
+        let p = parent_of(&a, &b);
+        let r = parent_of(&p, &c);
+        SceneTree::from_bfs(vec![r, p, c, a, b], vec![true, true, false, false, false]).unwrap()
+    }
+
+    fn write(path: &Path, graph: SceneGraph, trees: Vec<SceneTree>) {
+        let scene = Scene { generator: Generator::default(), graph, trees };
+        write_scene_file(path, &scene, &WriteOptions { profile: Profile::Raw, ..Default::default() }).unwrap();
+    }
+
+    fn hash_of(p: &Path) -> [u8; 32] {
+        *blake3::hash(&std::fs::read(p).unwrap()).as_bytes()
+    }
+
+    #[test]
+    fn composes_state() {
+        let t = Similarity { translation: [1.0, 0.0, 0.0], rotation: [0.0, 0.0, 0.0, 1.0], scale: 2.0 };
+        let attrs = InstanceAttrs { size: Propagation::PullUp, color: Propagation::PushDown, tint: Some([255, 0, 128, 255]) };
+        let s = TraversalState::IDENTITY.push_instance(&t, &attrs).push_instance(&t, &attrs);
+        let n = s.apply(&leaf(1.0, 200));
+        assert_eq!(n.center, [7.0, 0.0, 0.0]);
+        assert_eq!(n.radius, 2.0);
+        assert_eq!(n.area, 16.0);
+        assert_eq!(n.color, [200, 0, 50, 255]);
+        // Pull-up colour ignores the tint.
+        let pull = InstanceAttrs { tint: Some([0; 4]), ..Default::default() };
+        assert!(!TraversalState::IDENTITY.push_instance(&t, &pull).is_tinted());
+    }
+
+    #[test]
+    fn walks_group_instances_and_inline() {
+        let dir = tempfile::tempdir().unwrap();
+        let sub = dir.path().join("sub");
+        std::fs::create_dir(&sub).unwrap();
+        let inner = sub.join("inner.sct");
+        write(&inner, SceneGraph { nodes: vec![GraphNode::Tree { tree: 0 }], root: 0 }, vec![tree3(0.0)]);
+        let bound = tree3(0.0).nodes()[0];
+        let t = Similarity { translation: [10.0, 0.0, 0.0], rotation: [0.0, 0.0, 0.0, 1.0], scale: 1.0 };
+        // Group tree over 3 children; leaf j bounds child j: the plain tree, the instance, the inline.
+        let b = [bound, t.apply_node(&bound), bound];
+        let p = parent_of(&b[1], &b[2]);
+        let r = parent_of(&p, &b[0]);
+        let gtree = SceneTree::from_bfs(vec![r, p, b[0], b[1], b[2]], vec![true, true, false, false, false]).unwrap();
+        let nodes = vec![
+            GraphNode::Tree { tree: 0 },
+            GraphNode::Instance { child: 0, transform: t, attrs: InstanceAttrs::default() },
+            GraphNode::Inline { path: "sub/inner.sct".into(), hash: hash_of(&inner), bound },
+            GraphNode::Group { children: vec![0, 1, 2], tree: 1 },
+        ];
+        let top = dir.path().join("top.sct");
+        write(&top, SceneGraph { nodes, root: 3 }, vec![tree3(0.0), gtree]);
+        let items: Vec<Reached> = Traversal::open(&top, TraverseOptions::default()).unwrap().map(|r| r.unwrap()).collect();
+        let summary: Vec<(String, usize, u32)> = items.iter().map(|r| (r.path.clone(), r.tree, r.inline_depth)).collect();
+        // Leaves in BFS order: node 2 (path root/1), then nodes 3, 4 (root/0/0, root/0/1).
+        assert_eq!(
+            summary,
+            vec![("root".into(), 1, 0), ("root/1".into(), 0, 0), ("root/0/0".into(), 0, 0), ("root/0/1".into(), 0, 1)]
+        );
+        assert!(matches!(items[0].kind, ReachedKind::Group { .. }));
+        assert_eq!(items[2].state.transform, t);
+        assert_eq!(items[2].world_root().unwrap().center, t.apply_node(&bound).center);
+
+        // Culling by path skips the inline before it is opened.
+        let mut tr = Traversal::open(&top, TraverseOptions::default()).unwrap();
+        tr.set_cull(|_, p| p != "root/0/1");
+        assert_eq!(tr.count(), 3);
+        // skip_children leaves only the group.
+        let mut tr = Traversal::open(&top, TraverseOptions::default()).unwrap();
+        assert!(tr.next().unwrap().is_ok());
+        tr.skip_children();
+        assert!(tr.next().is_none());
+        assert_eq!(graph_bound(&SctReader::open(&top, &Limits::default()).unwrap(), 1).unwrap().center, t.apply_node(&bound).center);
+    }
+
+    #[test]
+    fn inline_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let bound = tree3(0.0).nodes()[0];
+        // Self-inline: a cycle, reported before (impossible) hash agreement.
+        let a = dir.path().join("a.sct");
+        write(&a, SceneGraph { nodes: vec![GraphNode::Inline { path: "a.sct".into(), hash: [0; 32], bound }], root: 0 }, vec![]);
+        let e: Vec<_> = Traversal::open(&a, TraverseOptions::default()).unwrap().collect();
+        assert!(matches!(&e[..], [Err(TraverseError { kind: TraverseErrorKind::InlineCycle { .. }, .. })]), "{e:?}");
+        // Missing target and wrong hash.
+        let inner = dir.path().join("inner.sct");
+        write(&inner, SceneGraph { nodes: vec![GraphNode::Tree { tree: 0 }], root: 0 }, vec![tree3(0.0)]);
+        let nodes = vec![
+            GraphNode::Inline { path: "nope.sct".into(), hash: [0; 32], bound },
+            GraphNode::Inline { path: "inner.sct".into(), hash: [1; 32], bound },
+            GraphNode::Group { children: vec![0, 1], tree: 0 },
+        ];
+        let gt = SceneTree::from_bfs(vec![parent_of(&bound, &bound), bound, bound], vec![true, false, false]).unwrap();
+        let b = dir.path().join("b.sct");
+        write(&b, SceneGraph { nodes, root: 2 }, vec![gt]);
+        let e: Vec<_> = Traversal::open(&b, TraverseOptions::default()).unwrap().collect();
+        assert_eq!(e.len(), 3);
+        assert!(matches!(&e[1], Err(TraverseError { kind: TraverseErrorKind::InlineMissing { .. }, .. })));
+        assert!(matches!(&e[2], Err(TraverseError { kind: TraverseErrorKind::InlineHash { .. }, .. })));
+        // Depth limit.
+        let mut opts = TraverseOptions::default();
+        opts.limits.max_inline_depth = 0;
+        opts.verify_inline_hashes = false;
+        let e: Vec<_> = Traversal::open(&b, opts).unwrap().collect();
+        assert!(matches!(&e[2], Err(TraverseError { kind: TraverseErrorKind::InlineDepth { .. }, .. })));
+    }
+}
