@@ -15,6 +15,27 @@
 //! - [`write`] and [`read`] write and read SCT files; [`raw`] mirrors the on-disk tables.
 //! - [`Limits`] caps what a hostile file can make a reader allocate; every failure is an
 //!   [`Error`].
+//!
+//! ```
+//! use sct_format::{geometry, Generator, Limits, Node, Profile, Scene, SceneTree, SctReader, WriteOptions};
+//!
+//! // Two leaf samples and their parent (thesis EQ 9-14), stored breadth first.
+//! let a = Node { center: [0.0, 0.0, 0.0], radius: 0.5, normal: [0.0, 0.0, 1.0], cone: 0.0, area: 1.0, color: [255, 0, 0, 255] };
+//! let b = Node { center: [1.0, 0.0, 0.0], ..a };
+//! let root = geometry::parent_of(&a, &b);
+//! let tree = SceneTree::from_bfs(vec![root, a, b], vec![true, false, false])?;
+//!
+//! let mut bytes = Vec::new();
+//! let scene = Scene::single_tree(Generator { tool: "doc".into(), ..Default::default() }, tree);
+//! sct_format::write_scene(&scene, &WriteOptions { profile: Profile::Canopy, ..Default::default() }, &mut bytes)?;
+//!
+//! let reader = SctReader::from_bytes(bytes, &Limits::default())?;
+//! let decoded = reader.read_tree(0)?;
+//! assert_eq!(decoded.leaf_count(), 2);
+//! // Lossy profiles guarantee the decoded sphere contains the original.
+//! assert!(geometry::sphere_contains(&decoded.nodes()[1], &a, 1e-4));
+//! # Ok::<(), sct_format::Error>(())
+//! ```
 #![deny(unsafe_code)]
 #![warn(missing_docs)]
 
@@ -29,7 +50,9 @@ pub mod node;
 pub mod raw;
 pub mod read;
 pub mod samples;
+pub mod traverse;
 pub mod tree;
+pub mod validate;
 pub mod write;
 
 pub use codec::Profile;
@@ -40,5 +63,3 @@ pub use node::Node;
 pub use read::SctReader;
 pub use tree::SceneTree;
 pub use write::{write_scene, write_scene_file, Scene, WriteOptions};
-pub mod traverse;
-pub mod validate;
