@@ -1,0 +1,389 @@
+//! Scene tree construction (thesis §5.3.2): top-down BSP partition at the centre of the
+//! largest extent, duplicate welding (§5.3.4), breadth-first layout, bottom-up attributes
+//! (§5.1 via [`sct_format::geometry`]).
+//!
+//! Memory layout, chosen to keep the peak near the size of the output tree:
+//! - `items`: 16 bytes per sample (centre + source index), partitioned in place;
+//! - `slots`: one `u32` per tree node in an implicit pre-order layout: a subtree over the
+//!   `m` items `[lo, hi)` whose root is slot `s` owns slots `[s, s + 2m - 1)`; its left
+//!   child over `[lo, mid)` is slot `s + 1` and its right child slot `s + 2(mid - lo)`. The
+//!   root slot stores `mid` for an internal node and `hi` for a leaf (possibly welded), so
+//!   disjoint subtrees write disjoint slices and rayon needs no synchronisation;
+//! - the output nodes in breadth-first order, whose internal nodes are filled level by
+//!   level from the bottom.
+//!
+//! Everything is deterministic: the partition of a range depends only on its contents, so
+//! the result is identical for any number of threads.
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+use sct_format::geometry::parent_of;
+use sct_format::{Node, SceneTree};
+
+use crate::error::BuildError;
+
+/// Below this many items a subtree is built on the current thread (rayon overhead).
+const PAR_ITEMS: usize = 16 * 1024;
+/// Parents computed per rayon task in the bottom-up pass.
+const PAR_NODES: usize = 8 * 1024;
+
+/// How close samples must be to be welded into one leaf.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Weld {
+    /// Never weld; coincident samples are split arbitrarily (but deterministically).
+    Off,
+    /// Weld a set whose centres' bounding box is at most this wide on every axis
+    /// (0 welds exact duplicates only).
+    Absolute(f32),
+    /// Like `Absolute`, with the tolerance this fraction of the mean leaf radius.
+    RelativeToMeanRadius(f32),
+}
+
+/// Options of [`build_tree`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BuildOptions {
+    /// Duplicate welding.
+    pub weld: Weld,
+    /// Depth limit above ⌈log2 n⌉: a centre split that would exceed it is moved to the
+    /// nearest split that keeps it (a median split in the worst case).
+    pub depth_slack: u32,
+}
+
+impl Default for BuildOptions {
+    fn default() -> Self {
+        BuildOptions { weld: Weld::RelativeToMeanRadius(0.01), depth_slack: 4 }
+    }
+}
+
+/// Figures about one build.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct BuildStats {
+    /// Input samples.
+    pub samples: u64,
+    /// Leaves after welding.
+    pub leaves: u64,
+    /// Nodes (2 × leaves − 1).
+    pub nodes: u64,
+    /// Levels below the root (a single leaf has depth 0).
+    pub depth: u32,
+    /// Samples removed by welding (`samples - leaves`).
+    pub welded: u64,
+    /// Welding tolerance actually used (absolute; negative when welding is off).
+    pub weld_tolerance: f64,
+    /// Splits moved away from the centre to respect the depth limit.
+    pub forced_splits: u64,
+    /// Seconds spent partitioning.
+    pub partition_s: f64,
+    /// Seconds spent laying the tree out breadth first.
+    pub layout_s: f64,
+    /// Seconds spent computing internal attributes.
+    pub attributes_s: f64,
+}
+
+#[derive(Clone, Copy)]
+struct Item {
+    c: [f32; 3],
+    idx: u32,
+}
+
+#[derive(Clone, Copy)]
+struct Aabb {
+    min: [f32; 3],
+    max: [f32; 3],
+}
+
+impl Aabb {
+    const EMPTY: Aabb = Aabb { min: [f32::INFINITY; 3], max: [f32::NEG_INFINITY; 3] };
+
+    #[inline]
+    fn add(&mut self, c: &[f32; 3]) {
+        for k in 0..3 {
+            self.min[k] = self.min[k].min(c[k]);
+            self.max[k] = self.max[k].max(c[k]);
+        }
+    }
+
+    fn of(items: &[Item]) -> Aabb {
+        let mut b = Aabb::EMPTY;
+        for it in items {
+            b.add(&it.c);
+        }
+        b
+    }
+
+    fn extent(&self) -> [f32; 3] {
+        [self.max[0] - self.min[0], self.max[1] - self.min[1], self.max[2] - self.min[2]]
+    }
+}
+
+struct Ctx {
+    tol: f32,
+    weld: bool,
+    max_depth: u32,
+}
+
+fn ceil_log2(n: usize) -> u32 {
+    if n <= 1 {
+        0
+    } else {
+        usize::BITS - (n - 1).leading_zeros()
+    }
+}
+
+/// Builds the scene tree over `samples` (leaf nodes, cone usually 0).
+///
+/// Returns the tree in breadth-first order and build figures. With `map`, also returns for
+/// every sample the breadth-first index of the leaf that holds it (after welding).
+pub fn build_tree(samples: &[Node], opts: &BuildOptions) -> Result<(SceneTree, BuildStats), BuildError> {
+    build_tree_impl(samples, opts, false).map(|(t, s, _)| (t, s))
+}
+
+/// [`build_tree`], plus the leaf of every sample (breadth-first node index).
+pub fn build_tree_with_map(
+    samples: &[Node],
+    opts: &BuildOptions,
+) -> Result<(SceneTree, BuildStats, Vec<u32>), BuildError> {
+    build_tree_impl(samples, opts, true)
+}
+
+fn build_tree_impl(
+    samples: &[Node],
+    opts: &BuildOptions,
+    want_map: bool,
+) -> Result<(SceneTree, BuildStats, Vec<u32>), BuildError> {
+    let n = samples.len();
+    if n == 0 {
+        return Err(BuildError::Input("no samples to build a tree from".into()));
+    }
+    // Slots and item indices are u32; SceneTree allows fewer than 2^32 - 1 nodes.
+    if n > (u32::MAX / 2) as usize {
+        return Err(BuildError::Input(format!("{n} samples exceed the 2^31 - 1 a tree can hold")));
+    }
+    if let Some(i) = samples.iter().position(|s| !s.is_finite()) {
+        return Err(BuildError::Input(format!("sample {i} has a non-finite or out-of-range attribute: {:?}", samples[i])));
+    }
+    let tol = match opts.weld {
+        Weld::Off => -1.0,
+        Weld::Absolute(t) => t.max(0.0),
+        Weld::RelativeToMeanRadius(f) => {
+            let mean = samples.par_iter().map(|s| s.radius as f64).sum::<f64>() / n as f64;
+            (mean * f.max(0.0) as f64) as f32
+        }
+    };
+    let mut stats = BuildStats { samples: n as u64, weld_tolerance: tol as f64, ..Default::default() };
+
+    // Pass 1: partition.
+    let t0 = Instant::now();
+    let mut items: Vec<Item> =
+        samples.par_iter().enumerate().map(|(i, s)| Item { c: s.center, idx: i as u32 }).collect();
+    let mut slots = vec![0u32; 2 * n - 1];
+    let ctx = Ctx { tol, weld: !matches!(opts.weld, Weld::Off), max_depth: ceil_log2(n) + opts.depth_slack };
+    let bbox = Aabb::of(&items);
+    let forced = partition(&ctx, &mut items, &mut slots, 0, bbox, 0);
+    stats.forced_splits = forced;
+    stats.partition_s = t0.elapsed().as_secs_f64();
+
+    // Pass 2: breadth-first layout; leaves get their (welded) sample, parents a placeholder.
+    let t1 = Instant::now();
+    let mut nodes: Vec<Node> = Vec::new();
+    let mut internal: Vec<bool> = Vec::new();
+    let mut map = if want_map { vec![u32::MAX; n] } else { Vec::new() };
+    // (lo, hi, slot) of every node of the current and the next level.
+    let mut level: Vec<(u32, u32, u32)> = vec![(0, n as u32, 0)];
+    let mut next: Vec<(u32, u32, u32)> = Vec::new();
+    let mut depth = 0u32;
+    let mut leaves = 0u64;
+    loop {
+        for &(lo, hi, slot) in &level {
+            let v = slots[slot as usize];
+            if v == hi {
+                let members = &items[lo as usize..hi as usize];
+                if want_map {
+                    for it in members {
+                        map[it.idx as usize] = nodes.len() as u32;
+                    }
+                }
+                nodes.push(weld(samples, members));
+                internal.push(false);
+                leaves += 1;
+            } else {
+                nodes.push(Node::default());
+                internal.push(true);
+                next.push((lo, v, slot + 1));
+                next.push((v, hi, slot + 2 * (v - lo)));
+            }
+        }
+        if next.is_empty() {
+            break;
+        }
+        depth += 1;
+        std::mem::swap(&mut level, &mut next);
+        next.clear();
+    }
+    drop(level);
+    drop(next);
+    drop(items);
+    drop(slots);
+    stats.layout_s = t1.elapsed().as_secs_f64();
+
+    // Pass 3: parents bottom-up, one level at a time (a level depends only on the next).
+    let t2 = Instant::now();
+    let tree = SceneTree::from_bfs(nodes, internal).map_err(|e| BuildError::Internal(e.to_string()))?;
+    let tree = compute_attributes(tree);
+    stats.attributes_s = t2.elapsed().as_secs_f64();
+
+    stats.leaves = leaves;
+    stats.nodes = tree.len() as u64;
+    stats.depth = depth;
+    stats.welded = n as u64 - leaves;
+    Ok((tree, stats, map))
+}
+
+/// Fills every internal node from its children, bottom level first.
+pub(crate) fn compute_attributes(mut tree: SceneTree) -> SceneTree {
+    let levels = tree.level_count();
+    for d in (0..levels.saturating_sub(1)).rev() {
+        let range = tree.level(d);
+        let child_start = tree.level(d + 1).start;
+        let flags: Vec<bool> = tree.internal_flags()[range.clone()].to_vec();
+        // Child offset of each chunk's first parent, so chunks run independently.
+        let chunk_firsts: Vec<usize> = flags
+            .chunks(PAR_NODES)
+            .scan(child_start, |acc, ch| {
+                let first = *acc;
+                *acc += 2 * ch.iter().filter(|&&b| b).count();
+                Some(first)
+            })
+            .collect();
+        let (head, tail) = tree.nodes_mut().split_at_mut(child_start);
+        let children: &[Node] = tail;
+        head[range.clone()]
+            .par_chunks_mut(PAR_NODES)
+            .zip(flags.par_chunks(PAR_NODES))
+            .zip(chunk_firsts.par_iter())
+            .for_each(|((parents, fl), &first)| {
+                let mut c = first - child_start;
+                for (p, &is_int) in parents.iter_mut().zip(fl) {
+                    if is_int {
+                        *p = parent_of(&children[c], &children[c + 1]);
+                        c += 2;
+                    }
+                }
+            });
+    }
+    tree
+}
+
+/// One leaf from the samples of `members` (Table 2): mean position, a radius that covers
+/// every member, the hierarchical merge of cones and colours, and the *sum* of areas (we
+/// keep the total surface area invariant, so EQ 13 holds for the whole tree).
+fn weld(samples: &[Node], members: &[Item]) -> Node {
+    let first = samples[members[0].idx as usize];
+    if members.len() == 1 {
+        return first;
+    }
+    let mut acc = first;
+    let mut mean = [0f64; 3];
+    for (i, it) in members.iter().enumerate() {
+        let s = &samples[it.idx as usize];
+        if i > 0 {
+            acc = parent_of(&acc, s);
+        }
+        for k in 0..3 {
+            mean[k] += s.center[k] as f64;
+        }
+    }
+    let inv = 1.0 / members.len() as f64;
+    let center = [(mean[0] * inv) as f32, (mean[1] * inv) as f32, (mean[2] * inv) as f32];
+    let mut r = 0f64;
+    for it in members {
+        let s = &samples[it.idx as usize];
+        let d: f64 = (0..3).map(|k| (s.center[k] as f64 - center[k] as f64).powi(2)).sum::<f64>().sqrt();
+        r = r.max(d + s.radius as f64);
+    }
+    let r = r * (1.0 + 1e-15);
+    let mut radius = r as f32;
+    if (radius as f64) < r {
+        radius = radius.next_up();
+    }
+    Node { center, radius, ..acc }
+}
+
+/// Partitions `items` (global offset `lo`) into the subtree whose slots are `slots`
+/// (`slots.len() == 2 * items.len() - 1`); returns the number of forced splits.
+fn partition(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: Aabb, depth: u32) -> u64 {
+    let m = items.len();
+    let hi = (lo + m) as u32;
+    if m == 1 {
+        slots[0] = hi;
+        return 0;
+    }
+    let ext = bbox.extent();
+    let widest = ext[0].max(ext[1]).max(ext[2]);
+    if ctx.weld && widest <= ctx.tol {
+        slots[0] = hi;
+        return 0;
+    }
+    let axis = if ext[0] >= ext[1] && ext[0] >= ext[2] {
+        0
+    } else if ext[1] >= ext[2] {
+        1
+    } else {
+        2
+    };
+    // Largest child the depth budget allows: a subtree at depth d + 1 may hold 2^(D - d - 1).
+    let cap = 1usize.checked_shl(ctx.max_depth.saturating_sub(depth + 1)).unwrap_or(usize::MAX);
+    let (mut l, mut lb, mut rb) = if widest > 0.0 {
+        let mid = 0.5 * (bbox.min[axis] + bbox.max[axis]);
+        split_at_plane(items, axis, mid)
+    } else {
+        (0, Aabb::EMPTY, Aabb::EMPTY)
+    };
+    let mut forced = 0;
+    if l == 0 || l == m || l > cap || m - l > cap {
+        // Degenerate or too unbalanced: split at the rank closest to the centre split that
+        // the depth budget allows (the median when everything coincides).
+        let target = if l == 0 || l == m { m / 2 } else { l };
+        let lo_ok = m.saturating_sub(cap).max(1);
+        let hi_ok = cap.min(m - 1);
+        l = target.clamp(lo_ok, hi_ok);
+        items.select_nth_unstable_by(l, |a, b| {
+            a.c[axis].total_cmp(&b.c[axis]).then(a.idx.cmp(&b.idx))
+        });
+        lb = Aabb::of(&items[..l]);
+        rb = Aabb::of(&items[l..]);
+        forced = 1;
+    }
+    slots[0] = (lo + l) as u32;
+    let (li, ri) = items.split_at_mut(l);
+    let (ls, rs) = slots[1..].split_at_mut(2 * l - 1);
+    let (fa, fb) = if m >= PAR_ITEMS {
+        rayon::join(
+            || partition(ctx, li, ls, lo, lb, depth + 1),
+            || partition(ctx, ri, rs, lo + l, rb, depth + 1),
+        )
+    } else {
+        (partition(ctx, li, ls, lo, lb, depth + 1), partition(ctx, ri, rs, lo + l, rb, depth + 1))
+    };
+    forced + fa + fb
+}
+
+/// In-place two-pointer partition: centres below `mid` on `axis` first. Returns the left
+/// count and both sides' boxes, classifying every item exactly once.
+fn split_at_plane(items: &mut [Item], axis: usize, mid: f32) -> (usize, Aabb, Aabb) {
+    let (mut lb, mut rb) = (Aabb::EMPTY, Aabb::EMPTY);
+    let mut i = 0usize;
+    let mut j = items.len();
+    while i < j {
+        if items[i].c[axis] < mid {
+            lb.add(&items[i].c);
+            i += 1;
+        } else {
+            j -= 1;
+            items.swap(i, j);
+            rb.add(&items[j].c);
+        }
+    }
+    (i, lb, rb)
+}
