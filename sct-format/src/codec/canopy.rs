@@ -44,6 +44,15 @@ use crate::node::Node;
 /// constant adds 1e-4 for the f32 evaluation of centre and radius.
 pub const CONTAINMENT_SLACK: f32 = 0.3657;
 
+/// Number of legal position/radius states (see the state rule in `spec/SCT-profiles.md`).
+pub const STATE_COUNT: usize = posrad::STATE_COUNT;
+
+/// Worst-case angle between a normal and its decoded axis, degrees.
+pub const MAX_NORMAL_ERROR_DEG: f64 = normal::MAX_NORMAL_ERROR_DEG;
+
+/// Worst-case colour error per channel (R, G, B, A) in 8-bit steps.
+pub const MAX_COLOR_ERROR: [u8; 4] = [color::MAX_ERR_5, color::MAX_ERR_6, color::MAX_ERR_5, color::MAX_ERR_4];
+
 /// Bytes per node record.
 pub fn node_bytes(params: CodecParams) -> usize {
     if params.alpha {

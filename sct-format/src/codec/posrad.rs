@@ -157,6 +157,7 @@ fn dist64(a: [f32; 3], b: [f32; 3]) -> f64 {
     (d(0) * d(0) + d(1) * d(1) + d(2) * d(2)).sqrt()
 }
 
+#[cfg(test)]
 /// True when sphere `(c_out, r_out)` contains `(c_in, r_in)` evaluated in f64 on the f32 values.
 #[inline]
 pub fn contains(c_out: [f32; 3], r_out: f32, c_in: [f32; 3], r_in: f32) -> bool {

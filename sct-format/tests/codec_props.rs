@@ -1,0 +1,198 @@
+//! Property tests of the lossy node codecs (canopy and default).
+//!
+//! Tolerances: sphere containment is checked with none (f64 arithmetic on the stored f32
+//! values, exactly the encoder's criterion); cone containment with 1e-9 rad for the f64
+//! atan2 angle; stick-out with 1e-6 of the parent radius for the f64 distance of f32 values.
+
+use proptest::prelude::*;
+use sct_format::codec::{canopy, decode_children, encode_children, CodecParams, Profile};
+use sct_format::{Error, Node};
+
+fn d64(a: [f32; 3], b: [f32; 3]) -> f64 {
+    let d = |i: usize| a[i] as f64 - b[i] as f64;
+    (d(0) * d(0) + d(1) * d(1) + d(2) * d(2)).sqrt()
+}
+
+fn angle(a: [f32; 3], b: [f32; 3]) -> f64 {
+    let a = a.map(|v| v as f64);
+    let b = b.map(|v| v as f64);
+    let c = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt().atan2(a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+}
+
+fn unit(v: [f32; 3]) -> [f32; 3] {
+    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if l < 1e-3 {
+        [0.0, 0.0, 1.0]
+    } else {
+        v.map(|x| x / l)
+    }
+}
+
+fn vec3(r: f32) -> impl Strategy<Value = [f32; 3]> {
+    [-r..r, -r..r, -r..r]
+}
+
+prop_compose! {
+    fn parent()(c in vec3(100.0), r in 1e-3f32..100.0, n in vec3(1.0), cone in 0f32..3.14159,
+                area in 1e-3f32..1e3, col in any::<[u8; 4]>()) -> Node {
+        Node { center: c, radius: r, normal: unit(n), cone, area, color: [col[0], col[1], col[2], 255] }
+    }
+}
+
+prop_compose! {
+    /// A child at fraction `t` of the free space inside `p` (t ≤ 1: contained; up to 1.15:
+    /// slightly outside, as f32 rounding or a loose builder can produce).
+    fn child(p: Node, alpha: bool)(dir in vec3(1.0), k in 0f32..1.0, t in 0f32..1.15, n in vec3(1.0),
+                  cone in 0f32..3.2, area in 0f32..1e3, col in any::<[u8; 4]>()) -> (Node, bool) {
+        let r = p.radius * k;
+        let u = unit(dir);
+        let dist = (p.radius - r) * t;
+        let center = [0, 1, 2].map(|i| p.center[i] + u[i] * dist);
+        let cone = cone.min(std::f32::consts::PI);
+        let n = Node { center, radius: r, normal: unit(n), cone, area,
+                       color: [col[0], col[1], col[2], if alpha { col[3] } else { 255 }] };
+        let inside = d64(center, p.center) + r as f64 <= p.radius as f64;
+        (n, inside)
+    }
+}
+
+fn pairs(alpha: bool) -> impl Strategy<Value = (Vec<Node>, Vec<(Node, bool)>)> {
+    prop::collection::vec(parent(), 1..8).prop_flat_map(move |ps| {
+        let kids: Vec<_> = ps.iter().flat_map(|p| [child(*p, alpha), child(*p, alpha)]).collect();
+        (Just(ps), kids)
+    })
+}
+
+fn check(profile: Profile, alpha: bool, ps: &[Node], kids: &[(Node, bool)]) -> Result<(), TestCaseError> {
+    let params = CodecParams { alpha };
+    let children: Vec<Node> = kids.iter().map(|k| k.0).collect();
+    let mut out = vec![0xAB]; // encoders append
+    let res = encode_children(profile, params, ps, &children, &mut out);
+    let dec = match res {
+        Ok(d) => d,
+        Err(Error::Misuse(_)) => {
+            // Only a child outside its parent may be refused.
+            prop_assert!(kids.iter().any(|k| !k.1), "a contained child was refused");
+            prop_assert_eq!(out.len(), 1);
+            return Ok(());
+        }
+        Err(e) => return Err(TestCaseError::fail(format!("unexpected error {e}"))),
+    };
+    prop_assert_eq!(out[0], 0xAB);
+    let mut again = Vec::new();
+    decode_children(profile, params, ps, &out[1..], 0, &mut again).map_err(|e| TestCaseError::fail(e.to_string()))?;
+    prop_assert_eq!(&again, &dec, "decode(encode) differs from the returned nodes");
+    let slack = profile.containment_slack() as f64;
+    let cmax = canopy::MAX_COLOR_ERROR;
+    for (i, (c, d)) in children.iter().zip(&dec).enumerate() {
+        let p = &ps[i / 2];
+        prop_assert!(d.is_finite());
+        prop_assert!(d64(d.center, c.center) + c.radius as f64 <= d.radius as f64, "child {i} not contained: {c:?} -> {d:?}");
+        prop_assert!(
+            d64(d.center, p.center) + d.radius as f64 <= p.radius as f64 * (1.0 + slack + 1e-6),
+            "child {i} sticks out of its parent by more than the slack"
+        );
+        let e = angle(c.normal, d.normal);
+        prop_assert!(e.to_degrees() <= canopy::MAX_NORMAL_ERROR_DEG, "normal error {}", e.to_degrees());
+        prop_assert!(e + c.cone as f64 <= d.cone as f64 + 1e-9 || d.cone == std::f32::consts::PI, "cone not contained");
+        for j in 0..4 {
+            prop_assert!((c.color[j] as i32 - d.color[j] as i32).unsigned_abs() <= cmax[j] as u32, "colour {j}");
+        }
+        if profile == Profile::Canopy {
+            prop_assert_eq!(c.area, d.area);
+        }
+    }
+    if profile == Profile::Default {
+        for (k, p) in ps.iter().enumerate() {
+            let s = dec[2 * k].area as f64 + dec[2 * k + 1].area as f64;
+            prop_assert!((s - p.area as f64).abs() <= p.area as f64 * 1e-6, "areas do not sum to the parent's");
+            let (a, b) = (children[2 * k].area as f64, children[2 * k + 1].area as f64);
+            if a + b > 0.0 {
+                let f = dec[2 * k].area as f64 / p.area as f64;
+                prop_assert!((f - a / (a + b)).abs() <= 1.0 / 8192.0 + 1e-6, "area fraction error");
+            }
+        }
+    }
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(2000))]
+
+    #[test]
+    fn canopy_props((ps, kids) in pairs(false)) { check(Profile::Canopy, false, &ps, &kids)?; }
+
+    #[test]
+    fn canopy_alpha_props((ps, kids) in pairs(true)) { check(Profile::Canopy, true, &ps, &kids)?; }
+
+    #[test]
+    fn default_props((ps, kids) in pairs(false)) { check(Profile::Default, false, &ps, &kids)?; }
+
+    #[test]
+    fn default_alpha_props((ps, kids) in pairs(true)) { check(Profile::Default, true, &ps, &kids)?; }
+
+    /// Arbitrary bytes, of arbitrary and of exactly the expected length, never panic.
+    #[test]
+    fn arbitrary_bytes_never_panic(ps in prop::collection::vec(parent(), 0..6), junk in prop::collection::vec(any::<u8>(), 0..300), alpha in any::<bool>()) {
+        let params = CodecParams { alpha };
+        for profile in [Profile::Canopy, Profile::Default] {
+            let mut out = Vec::new();
+            let _ = decode_children(profile, params, &ps, &junk, 5, &mut out);
+            // Exact length, so the per-field checks run too.
+            let need = match profile {
+                Profile::Canopy => ps.len() * 2 * canopy::node_bytes(params),
+                _ => ps.len() * (2 * if alpha { 9 } else { 8 } + 2),
+            };
+            let bytes: Vec<u8> = junk.iter().copied().cycle().take(need).collect();
+            if bytes.len() == need {
+                let mut out = Vec::new();
+                if decode_children(profile, params, &ps, &bytes, 5, &mut out).is_ok() {
+                    prop_assert_eq!(out.len(), 2 * ps.len());
+                }
+            }
+        }
+    }
+}
+
+/// Wrong lengths are `Malformed` at the block's offset.
+#[test]
+fn wrong_length_is_malformed_with_offset() {
+    let p = Node { radius: 1.0, normal: [0.0, 0.0, 1.0], color: [0, 0, 0, 255], ..Node::default() };
+    for profile in [Profile::Canopy, Profile::Default] {
+        let mut out = Vec::new();
+        let e = decode_children(profile, CodecParams::default(), &[p], &[0u8; 3], 1234, &mut out);
+        assert!(matches!(e, Err(Error::Malformed { offset: 1234, .. })), "{profile:?}: {e:?}");
+    }
+}
+
+/// Measures the worst stick-out over many contained children (deterministic LCG), reports
+/// it, and checks it against the documented slack.
+#[test]
+fn measured_stick_out_within_slack() {
+    let mut s = 0x1234_5678_9abc_def0u64;
+    let mut rnd = move || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((s >> 11) as f64 / (1u64 << 53) as f64) as f32
+    };
+    let p = Node { center: [0.3, -0.2, 0.1], radius: 1.0, normal: [0.0, 0.0, 1.0], cone: 0.0, area: 1.0, color: [0, 0, 0, 255] };
+    let mut worst = 0f64;
+    let mut worst_pos = 0f64;
+    for _ in 0..20_000 {
+        let mut kids = Vec::new();
+        for _ in 0..2 {
+            let k = rnd();
+            let u = unit([rnd() * 2.0 - 1.0, rnd() * 2.0 - 1.0, rnd() * 2.0 - 1.0]);
+            let dist = (1.0 - k) * rnd().sqrt();
+            kids.push(Node { center: [0, 1, 2].map(|i| p.center[i] + u[i] * dist), radius: k, ..p });
+        }
+        let mut out = Vec::new();
+        let dec = encode_children(Profile::Canopy, CodecParams::default(), &[p], &kids, &mut out).expect("contained");
+        for (c, d) in kids.iter().zip(&dec) {
+            worst = worst.max(d64(d.center, p.center) + d.radius as f64 - 1.0);
+            worst_pos = worst_pos.max(d64(d.center, c.center));
+        }
+    }
+    eprintln!("worst stick-out {worst:.4} parent radii, worst centre error {worst_pos:.4}");
+    assert!(worst <= canopy::CONTAINMENT_SLACK as f64);
+}
