@@ -11,3 +11,5 @@ pub mod tree;
 
 pub use error::BuildError;
 pub use tree::{build_tree, build_tree_with_map, BuildOptions, BuildStats, Weld};
+pub mod pipeline;
+pub mod scene;

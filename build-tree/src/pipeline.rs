@@ -1,0 +1,206 @@
+//! The whole `sct-build-tree` run: read samples, build and compose, write atomically.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use sct_format::graph::{Generator, SourceRef};
+use sct_format::samples::SamplesFile;
+use sct_format::write::{write_scene_file, Scene, WriteOptions};
+use sct_format::{Limits, Profile};
+
+use crate::error::BuildError;
+use crate::scene::{read_scene_file, Composer};
+use crate::tree::{BuildOptions, Weld};
+
+/// What to build.
+#[derive(Clone, Debug)]
+pub struct Config {
+    /// Samples file.
+    pub samples: PathBuf,
+    /// Output SCT file.
+    pub output: PathBuf,
+    /// Optional scene description.
+    pub scene: Option<PathBuf>,
+    /// Node profile.
+    pub profile: Profile,
+    /// zstd level override.
+    pub compression_level: Option<i32>,
+    /// Tree options.
+    pub build: BuildOptions,
+}
+
+/// Summary of a run (the `--json` output).
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct Report {
+    /// Output path.
+    pub output: String,
+    /// Node profile.
+    pub profile: String,
+    /// Input samples over all meshes.
+    pub samples: u64,
+    /// Leaves over all geometry trees.
+    pub leaves: u64,
+    /// Nodes over all trees (geometry and group).
+    pub nodes: u64,
+    /// Deepest tree depth.
+    pub depth: u32,
+    /// Samples removed by welding.
+    pub welded: u64,
+    /// Trees written.
+    pub trees: u64,
+    /// Group trees among them.
+    pub groups: u64,
+    /// Instance graph nodes.
+    pub instances: u64,
+    /// Graph nodes.
+    pub graph_nodes: u64,
+    /// File size.
+    pub bytes: u64,
+    /// `bytes / leaves`.
+    pub bytes_per_leaf: f64,
+    /// Stored bytes per section tag.
+    pub sections: Vec<(String, u64)>,
+    /// Seconds per phase.
+    pub seconds: Phases,
+    /// Peak resident memory (VmHWM) in bytes, when the OS reports it.
+    pub peak_memory_bytes: Option<u64>,
+    /// `peak_memory_bytes / samples`.
+    pub peak_bytes_per_sample: Option<f64>,
+}
+
+/// Seconds per phase.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct Phases {
+    /// Reading and parsing the samples file.
+    pub read: f64,
+    /// Partitioning (all trees).
+    pub partition: f64,
+    /// Breadth-first layout (all trees).
+    pub layout: f64,
+    /// Hierarchical attributes (all trees).
+    pub attributes: f64,
+    /// Scene composition other than the above (instances, inlines).
+    pub compose: f64,
+    /// Encoding, compression and writing.
+    pub write: f64,
+    /// Wall clock of the whole run.
+    pub total: f64,
+}
+
+/// Runs a build; `phase` is told what is happening (for a progress display).
+pub fn run(cfg: &Config, phase: &mut dyn FnMut(&str)) -> Result<Report, BuildError> {
+    let t0 = Instant::now();
+    let mut rep = Report { output: cfg.output.display().to_string(), profile: cfg.profile.name().into(), ..Default::default() };
+    let limits = Limits::default();
+
+    phase("reading samples");
+    let samples = SamplesFile::read_file(&cfg.samples, &limits).map_err(|e| match e {
+        sct_format::Error::Io { .. } => BuildError::Io(format!("{}: {e}", cfg.samples.display())),
+        other => BuildError::Input(format!("{}: {other}", cfg.samples.display())),
+    })?;
+    rep.samples = samples.samples.len() as u64;
+    rep.seconds.read = t0.elapsed().as_secs_f64();
+
+    phase("building trees");
+    let t1 = Instant::now();
+    let out_dir = cfg.output.parent().map(Path::to_path_buf).unwrap_or_default();
+    let composer = Composer::new(&samples, cfg.build, &out_dir, limits.clone());
+    let scene_file = cfg.scene.as_deref().map(read_scene_file).transpose()?;
+    let composed = match &scene_file {
+        Some(s) => composer.compose_file(s)?,
+        None => composer.compose_source()?,
+    };
+    let compose_total = t1.elapsed().as_secs_f64();
+    for s in &composed.mesh_stats {
+        rep.seconds.partition += s.partition_s;
+        rep.seconds.layout += s.layout_s;
+        rep.seconds.attributes += s.attributes_s;
+        rep.depth = rep.depth.max(s.depth);
+        rep.welded += s.welded;
+    }
+    rep.seconds.compose =
+        (compose_total - rep.seconds.partition - rep.seconds.layout - rep.seconds.attributes).max(0.0);
+    rep.trees = composed.trees.len() as u64;
+    rep.groups = composed.groups;
+    rep.instances = composed.instances;
+    rep.graph_nodes = composed.graph.nodes.len() as u64;
+    rep.nodes = composed.trees.iter().map(|t| t.len() as u64).sum();
+    // Geometry leaves only: group-tree leaves are children's bounds, not samples.
+    let group_trees: std::collections::HashSet<u32> = composed
+        .graph
+        .nodes
+        .iter()
+        .filter_map(|n| match n {
+            sct_format::GraphNode::Group { tree, .. } => Some(*tree),
+            _ => None,
+        })
+        .collect();
+    rep.leaves = composed
+        .trees
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| !group_trees.contains(&(*i as u32)))
+        .map(|(_, t)| t.leaf_count() as u64)
+        .sum();
+
+    phase("writing");
+    let t2 = Instant::now();
+    let generator = generator(cfg, &composed.inlines)?;
+    let scene = Scene { generator, graph: composed.graph, trees: composed.trees };
+    drop(samples);
+    let wopts = WriteOptions { profile: cfg.profile, compression_level: cfg.compression_level, ..Default::default() };
+    let ws = write_scene_file(&cfg.output, &scene, &wopts).map_err(|e| match e {
+        sct_format::Error::Io { .. } => BuildError::Io(e.to_string()),
+        other => BuildError::Format(other),
+    })?;
+    rep.seconds.write = t2.elapsed().as_secs_f64();
+    rep.bytes = ws.bytes;
+    rep.sections = ws.sections;
+    rep.bytes_per_leaf = if rep.leaves > 0 { rep.bytes as f64 / rep.leaves as f64 } else { 0.0 };
+    rep.seconds.total = t0.elapsed().as_secs_f64();
+    rep.peak_memory_bytes = peak_memory();
+    rep.peak_bytes_per_sample = rep.peak_memory_bytes.filter(|_| rep.samples > 0).map(|p| p as f64 / rep.samples as f64);
+    Ok(rep)
+}
+
+fn generator(cfg: &Config, inlines: &[(String, String)]) -> Result<Generator, BuildError> {
+    let mut sources = vec![source(&cfg.samples)?];
+    if let Some(s) = &cfg.scene {
+        sources.push(source(s)?);
+    }
+    sources.extend(inlines.iter().map(|(path, blake3)| SourceRef { path: path.clone(), blake3: blake3.clone() }));
+    let weld = match cfg.build.weld {
+        Weld::Off => serde_json::json!("off"),
+        Weld::Absolute(t) => serde_json::json!({ "absolute": t }),
+        Weld::RelativeToMeanRadius(f) => serde_json::json!({ "relative_to_mean_radius": f }),
+    };
+    Ok(Generator {
+        tool: "sct-build-tree".into(),
+        version: env!("CARGO_PKG_VERSION").into(),
+        parameters: serde_json::json!({
+            "profile": cfg.profile.name(),
+            "compression_level": cfg.compression_level,
+            "weld": weld,
+            "depth_slack": cfg.build.depth_slack,
+            "splitter": "centre of largest extent",
+        }),
+        sources,
+    })
+}
+
+fn source(path: &Path) -> Result<SourceRef, BuildError> {
+    // Streamed, so hashing a large samples file costs no extra memory.
+    let io = |e: std::io::Error| BuildError::Io(format!("{}: {e}", path.display()));
+    let mut f = std::fs::File::open(path).map_err(io)?;
+    let mut h = blake3::Hasher::new();
+    std::io::copy(&mut f, &mut h).map_err(io)?;
+    Ok(SourceRef { path: path.display().to_string(), blake3: h.finalize().to_hex().to_string() })
+}
+
+/// Peak resident set size of this process (Linux `VmHWM`), in bytes.
+pub fn peak_memory() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
