@@ -1,1 +1,1265 @@
-//! Validation (being written).
+//! Validation of SCT files: every issue, not only the first (issue 5, thesis §5.11).
+//!
+//! [`validate_file`] runs in one of two modes:
+//!
+//! - **quick** (structure): magic and version, header and section table, every section's
+//!   CRC and every block's CRC, offsets and lengths inside the file, counts (level table,
+//!   block table, full-binary-tree node/leaf counts), generator JSON, scene-graph references,
+//!   group child counts, instance transforms (finite, unit quaternion, positive scale) and
+//!   inline targets (present, matching their recorded BLAKE3 hash, no cycles, nesting within
+//!   [`Limits::max_inline_depth`]). Inlined files are validated too, once each.
+//! - **deep** adds hierarchical consistency (§5.11.1): every block is decoded level by level
+//!   keeping only the previous level's internal nodes (plus one bit per node, to name the
+//!   path of a failing node), and every child is checked against its decoded parent; group
+//!   leaves are checked against the (transformed, tinted) bounds of the children they stand
+//!   for, and inline bounds against the root of the file they name.
+//!
+//! Each tree is checked once, in its own frame, even when it is instanced many times: the
+//! checks are invariant under similarity transforms (up to rounding), so checking every
+//! instance would only multiply the work. The transforms matter where frames meet (a group
+//! leaf over an instanced child), and there they are applied.
+//!
+//! # Tolerances
+//!
+//! - Containment ([`CheckId::ChildOutsideParent`]): the child sphere must lie inside the
+//!   parent sphere grown by [`Profile::containment_slack`] parent radii (raw 1e-5; canopy
+//!   0.3657, its worst legal stick-out). Group leaves and inline bounds use the raw slack.
+//! - Area ([`CheckId::AreaSum`]): `|parent - (a + b)| <= AREA_REL_TOL * max(parent, a + b)`.
+//!   A builder sums in f64 and rounds once (0.5 ulp ≈ 6e-8); the margin leaves room for
+//!   codecs that quantize area relative to the parent, while real inconsistencies are ≥ 1e-3.
+//! - Cone ([`CheckId::ConeContainment`]): [`cone_tolerance`] radians (raw 1e-6; lossy profiles
+//!   0.05 rad ≈ 2.9°: the decoded axis moves ≤ 0.64° and the decoded cone widens by < 1.35°).
+//! - Colour ([`CheckId::ColorMean`]): each channel of the parent within [`color_tolerance`]
+//!   8-bit steps of the area-weighted mean of its children (raw 1 for rounding; canopy
+//!   RGBA 9/5/9/17: the parent's and children's 5:6:5:4 quantization errors plus rounding).
+//! - Normal ([`CheckId::Normal`]): the cone axis has unit length within 1e-3 unless the cone
+//!   is the whole sphere.
+
+use std::collections::{HashMap, HashSet};
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::codec::{decode_children, CodecParams, Profile};
+use crate::container::{decompress, Container};
+use crate::error::Error;
+use crate::geometry::{cone_contains, merge_color, sphere_contains};
+use crate::graph::{Generator, GraphNode, InstanceAttrs, Propagation, SceneGraph, Similarity};
+use crate::limits::Limits;
+use crate::node::Node;
+use crate::raw::{
+    tags, BlockEntry, Cursor, LevelEntry, SectionEntry, TreeHeader, BLOCK_ENTRY_LEN, LEVEL_ENTRY_LEN, SCT_MAGIC, TREE_HEADER_LEN,
+};
+use crate::samples::read_similarity;
+use crate::traverse::{hex, leaf_paths, TraversalState};
+use crate::tree::SceneTree;
+use crate::write::kind;
+
+/// Relative area tolerance (see the module docs).
+pub const AREA_REL_TOL: f64 = 1e-4;
+/// Unit-length tolerance of quaternions (the reader's).
+pub const QUATERNION_TOL: f64 = 1e-6;
+/// Unit-length tolerance of cone axes.
+pub const NORMAL_TOL: f64 = 1e-3;
+
+/// Cone containment tolerance of a profile, radians.
+pub fn cone_tolerance(p: Profile) -> f32 {
+    match p {
+        Profile::Raw => 1e-6,
+        Profile::Canopy | Profile::Default => 0.05,
+    }
+}
+
+/// Per-channel RGBA colour tolerance of a profile, 8-bit steps.
+pub fn color_tolerance(p: Profile) -> [u8; 4] {
+    match p {
+        Profile::Raw => [1; 4],
+        Profile::Canopy | Profile::Default => [9, 5, 9, 17],
+    }
+}
+
+macro_rules! checks {
+    ($($(#[doc = $d:literal])* $v:ident = $s:literal,)*) => {
+        /// Stable identifier of a check (kebab-case in reports; never renamed).
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+        pub enum CheckId { $($(#[doc = $d])* $v,)* }
+        impl CheckId {
+            /// Every check, in report order.
+            pub const ALL: &'static [CheckId] = &[$(CheckId::$v,)*];
+            /// The kebab-case id.
+            pub fn as_str(self) -> &'static str { match self { $(CheckId::$v => $s,)* } }
+        }
+    };
+}
+
+checks! {
+    /// Not an SCT file (magic bytes).
+    Magic = "magic",
+    /// Unsupported major version.
+    Version = "version",
+    /// The file is shorter or longer than its header says, or a section or block lies past
+    /// the end of the file or its section.
+    Truncated = "truncated",
+    /// A CRC-32 (header, section table, section or block) does not match.
+    Checksum = "checksum",
+    /// Malformed header or section table (flags, unknown required section, GENR not first, …).
+    SectionTable = "section-table",
+    /// The generator (GENR) is not valid JSON of the expected shape.
+    Generator = "generator",
+    /// The scene graph is malformed: references, kinds, root, group child counts, inline paths.
+    Graph = "graph",
+    /// A tree's header, level table or block table is inconsistent.
+    TreeIndex = "tree-index",
+    /// A block cannot be decoded (corrupt payload, wrong flags, counts disagreeing with the index).
+    BlockDecode = "block-decode",
+    /// A count or size exceeds a configured limit.
+    Limit = "limit",
+    /// A node attribute or transform component is NaN or infinite, or a radius, area or cone
+    /// angle is out of range.
+    NonFinite = "non-finite",
+    /// A cone axis is not unit length.
+    Normal = "normal",
+    /// An instance rotation is not a unit quaternion.
+    Quaternion = "quaternion",
+    /// An instance scale is not positive.
+    Scale = "scale",
+    /// An inline target does not exist or cannot be opened.
+    InlineMissing = "inline-missing",
+    /// An inline target's BLAKE3 hash differs from the recorded one.
+    InlineHash = "inline-hash",
+    /// Inlines form a cycle.
+    InlineCycle = "inline-cycle",
+    /// Inlines nest deeper than the limit.
+    InlineDepth = "inline-depth",
+    /// An inline's recorded bound does not match the root of its target.
+    InlineBound = "inline-bound",
+    /// A child sphere is not inside its parent sphere (with the profile's slack).
+    ChildOutsideParent = "child-outside-parent",
+    /// A parent's area is not the sum of its children's.
+    AreaSum = "area-sum",
+    /// A parent's normal cone does not contain a child's.
+    ConeContainment = "cone-containment",
+    /// A parent's colour is not the area-weighted mean of its children's.
+    ColorMean = "color-mean",
+}
+
+impl std::fmt::Display for CheckId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl Serialize for CheckId {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.as_str())
+    }
+}
+
+/// One problem: where, which check, what.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct Issue {
+    /// Abstract node path (`root/1/0`, see [`crate::traverse`]), or `file`, `graph/N`,
+    /// `tree/N` for things without a node.
+    pub path: String,
+    /// The check that failed.
+    pub check: CheckId,
+    /// Human-readable details (values found and expected).
+    pub message: String,
+}
+
+impl std::fmt::Display for Issue {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} {}: {}", self.path, self.check, self.message)
+    }
+}
+
+/// How to validate.
+#[derive(Clone, Debug, Default)]
+pub struct ValidateOptions {
+    /// Decode every block and check hierarchical consistency.
+    pub deep: bool,
+    /// Limits for every file opened.
+    pub limits: Limits,
+}
+
+/// The outcome of a validation.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Report {
+    /// Whether the deep checks ran.
+    pub deep: bool,
+    /// Every issue found, in discovery order.
+    pub issues: Vec<Issue>,
+    /// Files validated (the file itself and its inlines), canonical paths.
+    pub files: Vec<PathBuf>,
+    /// Trees whose index was checked.
+    pub trees: u64,
+    /// Blocks whose CRC was checked (quick) or that were decoded (deep).
+    pub blocks: u64,
+    /// Nodes checked against their parent (deep).
+    pub nodes: u64,
+}
+
+impl Report {
+    /// True when no issue was found.
+    pub fn is_valid(&self) -> bool {
+        self.issues.is_empty()
+    }
+    /// The distinct check ids found, sorted.
+    pub fn check_ids(&self) -> Vec<CheckId> {
+        let mut v: Vec<CheckId> = self.issues.iter().map(|i| i.check).collect();
+        v.sort();
+        v.dedup();
+        v
+    }
+}
+
+/// Validates the file at `path` (and the files it inlines). Only an I/O failure on `path`
+/// itself is an error; everything wrong with the content is an [`Issue`].
+pub fn validate_file(path: &Path, opts: &ValidateOptions) -> Result<Report, Error> {
+    let canon = std::fs::canonicalize(path).map_err(|e| Error::io(path, e))?;
+    let data = map_file(&canon)?;
+    let mut v = Validator::new(opts);
+    v.stack.push(canon.clone());
+    v.report.files.push(canon.clone());
+    v.file(&data, Some(&canon), "root", "");
+    Ok(v.finish())
+}
+
+/// Validates a file held in memory (inlines cannot be resolved and are reported missing).
+pub fn validate_bytes(bytes: &[u8], opts: &ValidateOptions) -> Report {
+    let mut v = Validator::new(opts);
+    v.file(bytes, None, "root", "");
+    v.finish()
+}
+
+enum Bytes {
+    Mapped(memmap2::Mmap),
+    Owned(Vec<u8>),
+}
+
+impl std::ops::Deref for Bytes {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match self {
+            Bytes::Mapped(m) => m,
+            Bytes::Owned(v) => v,
+        }
+    }
+}
+
+fn map_file(path: &Path) -> Result<Bytes, Error> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    if len == 0 {
+        return Ok(Bytes::Owned(Vec::new()));
+    }
+    // SAFETY: read-only map; the SCT tools replace outputs by rename and never modify a file
+    // in place (same reasoning as `SctReader::open`).
+    #[allow(unsafe_code)]
+    let m = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| Error::io(path, e))?;
+    Ok(Bytes::Mapped(m))
+}
+
+/// Which check a reader error belongs to (`default` for malformed data of the part being read).
+fn classify(e: &Error, default: CheckId) -> CheckId {
+    match e {
+        Error::BadMagic { .. } => CheckId::Magic,
+        Error::UnsupportedVersion { .. } => CheckId::Version,
+        Error::Checksum { .. } => CheckId::Checksum,
+        Error::LimitExceeded { .. } => CheckId::Limit,
+        Error::UnknownRequiredSection { .. } => CheckId::SectionTable,
+        Error::Malformed { what, .. }
+            if what.contains("truncated") || what.contains("past the end") || what.contains("outside") || what.contains("unexpected end") =>
+        {
+            CheckId::Truncated
+        }
+        _ => default,
+    }
+}
+
+/// A tree's index, parsed leniently.
+struct TreeIdx {
+    section: SectionEntry,
+    header: TreeHeader,
+    profile: Profile,
+    params: CodecParams,
+    levels: Vec<LevelEntry>,
+    blocks: Vec<BlockEntry>,
+}
+
+impl TreeIdx {
+    fn level_blocks(&self, d: usize) -> std::ops::Range<usize> {
+        self.levels.get(d).map_or(0..0, |l| l.first_block as usize..l.first_block as usize + l.block_count as usize)
+    }
+    /// Internal nodes of block `b`, from the index alone.
+    fn internal_in_block(&self, b: usize) -> u64 {
+        let e = &self.blocks[b];
+        let end = self.level_blocks(e.level as usize).end;
+        let next = if b + 1 < end {
+            self.blocks[b + 1].internal_before
+        } else {
+            self.levels.get(e.level as usize + 1).map_or(0, |l| l.node_count / 2)
+        };
+        next.saturating_sub(e.internal_before)
+    }
+}
+
+type Problem = (CheckId, String);
+
+fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits) -> Result<TreeIdx, Problem> {
+    let at = e.offset;
+    let mal = |c: CheckId, s: String| (c, format!("{s} (tree section at byte {at})"));
+    let rd = |r: crate::Result<TreeHeader>| r.map_err(|e| (classify(&e, CheckId::TreeIndex), e.to_string()));
+    let mut c = Cursor::new(section, at);
+    let header = rd(TreeHeader::parse(&mut c))?;
+    let profile = Profile::from_id(header.profile).ok_or_else(|| mal(CheckId::TreeIndex, format!("unknown profile id {}", header.profile)))?;
+    if header.flags & !1 != 0 || header.root_internal > 1 {
+        return Err(mal(CheckId::TreeIndex, "reserved tree flag bits set".into()));
+    }
+    Limits::check("tree levels", header.level_count as u64, limits.max_tree_levels as u64)
+        .and_then(|_| Limits::check("tree nodes", header.node_count, limits.max_tree_nodes))
+        .map_err(|e| (CheckId::Limit, e.to_string()))?;
+    let trunc = |e: Error| (CheckId::Truncated, e.to_string());
+    let lv = c.take(header.level_count as usize * LEVEL_ENTRY_LEN, "level table").map_err(trunc)?;
+    let bl_len = (header.block_count as usize).checked_mul(BLOCK_ENTRY_LEN).ok_or_else(|| mal(CheckId::TreeIndex, "block count overflows".into()))?;
+    let bl = c.take(bl_len, "block table").map_err(trunc)?;
+    let mut lc = Cursor::new(lv, at + TREE_HEADER_LEN as u64);
+    let levels: Vec<LevelEntry> = (0..header.level_count).map(|_| LevelEntry::parse(&mut lc)).collect::<crate::Result<_>>().map_err(trunc)?;
+    let mut bc = Cursor::new(bl, lc.offset());
+    let blocks: Vec<BlockEntry> = (0..header.block_count).map(|_| BlockEntry::parse(&mut bc)).collect::<crate::Result<_>>().map_err(trunc)?;
+    let ti = |s: String| Err(mal(CheckId::TreeIndex, s));
+    let node_sum = levels.iter().try_fold(0u64, |s, l| s.checked_add(l.node_count));
+    if node_sum != Some(header.node_count) {
+        return ti(format!("levels hold {node_sum:?} nodes, the header says {}", header.node_count));
+    }
+    if header.node_count > 0 && header.node_count != header.leaf_count.saturating_mul(2).saturating_sub(1) {
+        return ti(format!("{} nodes cannot form a full binary tree of {} leaves", header.node_count, header.leaf_count));
+    }
+    if header.node_count == 0 && (header.level_count != 0 || header.block_count != 0) {
+        return ti("empty tree with levels or blocks".into());
+    }
+    let mut next_block = 0u32;
+    for (d, l) in levels.iter().enumerate() {
+        if d == 0 {
+            if l.node_count != 1 || l.block_count != 0 {
+                return ti("level 0 must hold exactly the root and no blocks".into());
+            }
+            if (header.root_internal == 1) != (levels.len() > 1) {
+                return ti("root internal flag disagrees with the level count".into());
+            }
+            continue;
+        }
+        if l.node_count == 0 || l.node_count % 2 != 0 || l.first_block != next_block || l.block_count == 0 {
+            return ti(format!("level {d} entry is inconsistent ({l:?})"));
+        }
+        next_block = match next_block.checked_add(l.block_count) {
+            Some(n) if n <= header.block_count => n,
+            _ => return ti(format!("level {d} refers to blocks past the block table")),
+        };
+        if l.node_count > levels[d - 1].node_count.saturating_mul(2) {
+            return ti(format!("level {d} has more nodes than its parents can have"));
+        }
+        let (mut first, mut before) = (0u64, 0u64);
+        for (k, b) in blocks[l.first_block as usize..next_block as usize].iter().enumerate() {
+            let bi = l.first_block as usize + k;
+            if b.offset.checked_add(b.stored_len as u64).is_none_or(|end| end > e.stored_len) {
+                return Err((CheckId::Truncated, format!("block {bi} (level {d}) extends past the end of its tree section")));
+            }
+            let ok = b.level == d as u32
+                && b.first_node == first
+                && b.node_count > 0
+                && b.node_count % 2 == 0
+                && b.internal_before >= before
+                && b.internal_before <= b.first_node
+                && b.flags & !1 == 0;
+            if !ok {
+                return ti(format!("block entry {bi} of level {d} is inconsistent ({b:?})"));
+            }
+            if b.raw_len as u64 > limits.max_decompressed_bytes {
+                return Err((CheckId::Limit, format!("block {bi} claims {} decompressed bytes", b.raw_len)));
+            }
+            first += b.node_count as u64;
+            before = b.internal_before;
+        }
+        if first != l.node_count {
+            return ti(format!("blocks of level {d} hold {first} nodes, the level {}", l.node_count));
+        }
+    }
+    if next_block != header.block_count {
+        return ti("block table has blocks no level uses".into());
+    }
+    Ok(TreeIdx { section: e.clone(), params: CodecParams { alpha: header.flags & 1 == 1 }, profile, header, levels, blocks })
+}
+
+/// A graph parsed leniently, with per-node transform problems.
+struct Graph {
+    graph: SceneGraph,
+    node_problems: HashMap<u32, Vec<Problem>>,
+}
+
+fn transform_problems(t: &Similarity) -> Vec<Problem> {
+    let finite = t.translation.iter().chain(t.rotation.iter()).all(|v| v.is_finite()) && t.scale.is_finite();
+    if !finite {
+        return vec![(CheckId::NonFinite, format!("instance transform has a non-finite component: {t:?}"))];
+    }
+    let mut out = Vec::new();
+    let len = t.rotation.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if (len - 1.0).abs() > QUATERNION_TOL {
+        out.push((CheckId::Quaternion, format!("rotation {:?} has length {len:.9}, expected 1 ± {QUATERNION_TOL:e}", t.rotation)));
+    }
+    if t.scale <= 0.0 {
+        out.push((CheckId::Scale, format!("scale {} is not positive", t.scale)));
+    }
+    out
+}
+
+fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, issues: &mut Vec<Problem>) -> Option<Graph> {
+    let mut c = Cursor::new(bytes, offset);
+    let fail = |e: Error, issues: &mut Vec<Problem>| {
+        issues.push((classify(&e, CheckId::Graph), e.to_string()));
+        None
+    };
+    let n = match c.count(5, "graph node count") {
+        Ok(n) => n,
+        Err(e) => return fail(e, issues),
+    };
+    if let Err(e) = Limits::check("graph nodes", n as u64, limits.max_graph_nodes) {
+        return fail(e, issues);
+    }
+    let root = match c.u32("graph root") {
+        Ok(r) => r,
+        Err(e) => return fail(e, issues),
+    };
+    let mut nodes = Vec::with_capacity(n);
+    let mut node_problems: HashMap<u32, Vec<Problem>> = HashMap::new();
+    for i in 0..n {
+        let mut probs = Vec::new();
+        let bad_ref = |r: u32, what: &str| -> Option<Problem> {
+            (r as usize >= i)
+                .then(|| (CheckId::Graph, format!("graph node {i}: {what} {r} is not an earlier node (references must point backwards)")))
+        };
+        let r: crate::Result<GraphNode> = (|| {
+            Ok(match c.u8("graph node kind")? {
+                kind::TREE => GraphNode::Tree { tree: c.u32("tree index")? },
+                kind::GROUP => {
+                    let tree = c.u32("group tree")?;
+                    let k = c.count(4, "group child count")?;
+                    let mut children = Vec::with_capacity(k);
+                    for _ in 0..k {
+                        let r = c.u32("group child")?;
+                        // Keep the slot (leaf j maps to child j) but point a bad reference nowhere.
+                        children.push(match bad_ref(r, "group child") {
+                            Some(p) => {
+                                probs.push(p);
+                                u32::MAX
+                            }
+                            None => r,
+                        });
+                    }
+                    GraphNode::Group { children, tree }
+                }
+                kind::INSTANCE => {
+                    let r = c.u32("instance child")?;
+                    let child = match bad_ref(r, "instance child") {
+                        Some(p) => {
+                            probs.push(p);
+                            u32::MAX
+                        }
+                        None => r,
+                    };
+                    let transform = read_similarity(&mut c)?;
+                    let flags = c.u8("instance flags")?;
+                    let tint = c.array::<4>("tint")?;
+                    if flags & !7 != 0 {
+                        probs.push((CheckId::Graph, format!("graph node {i}: reserved instance flag bits set ({flags:#04x})")));
+                    }
+                    probs.extend(transform_problems(&transform));
+                    let prop = |bit: u8| if flags & bit != 0 { Propagation::PushDown } else { Propagation::PullUp };
+                    let attrs = InstanceAttrs { size: prop(1), color: prop(2), tint: (flags & 4 != 0).then_some(tint) };
+                    GraphNode::Instance { child, transform, attrs }
+                }
+                kind::INLINE => {
+                    let path = c.string(limits.max_string_bytes, "inline path")?;
+                    let hash = c.array::<32>("inline hash")?;
+                    let bound = crate::codec::raw::read_node(&c.array("inline bound")?);
+                    if path.is_empty() || path.starts_with('/') || path.contains('\\') || path.contains('\0') {
+                        probs.push((CheckId::Graph, format!("graph node {i}: inline path {path:?} is not a relative '/'-separated path")));
+                    }
+                    if !bound.is_finite() {
+                        probs.push((CheckId::NonFinite, format!("graph node {i}: inline bound has non-finite attributes: {bound:?}")));
+                    }
+                    GraphNode::Inline { path, hash, bound }
+                }
+                k => return Err(Error::malformed(c.offset() - 1, format!("graph node {i} has unknown kind {k}"))),
+            })
+        })();
+        match r {
+            Ok(node) => nodes.push(node),
+            Err(e) => return fail(e, issues),
+        }
+        if !probs.is_empty() {
+            node_problems.insert(i as u32, probs);
+        }
+    }
+    if let Err(e) = c.finish("scene graph") {
+        issues.push((CheckId::Graph, e.to_string()));
+    }
+    if n == 0 || root as usize >= n {
+        issues.push((CheckId::Graph, format!("graph root {root} out of range ({n} nodes)")));
+        return None;
+    }
+    Some(Graph { graph: SceneGraph { nodes, root }, node_problems })
+}
+
+/// The bound of graph node `node` in its file's frame (instances applied, push-down tints
+/// included), from the parsed index.
+fn bound_of(g: &SceneGraph, trees: &[Option<TreeIdx>], node: u32) -> Option<Node> {
+    let mut state = TraversalState::IDENTITY;
+    let mut at = node;
+    for _ in 0..=g.nodes.len() {
+        match g.nodes.get(at as usize)? {
+            GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => {
+                let t = trees.get(*tree as usize)?.as_ref()?;
+                return (t.header.node_count > 0).then(|| state.apply(&t.header.root));
+            }
+            GraphNode::Inline { bound, .. } => return Some(state.apply(bound)),
+            GraphNode::Instance { child, transform, attrs } => {
+                state = state.push_instance(transform, attrs);
+                at = *child;
+            }
+        }
+    }
+    None
+}
+
+/// Issues found in a block, by node index within its level.
+struct BlockOut {
+    internal_nodes: Vec<Node>,
+    flags: Vec<bool>,
+    issues: Vec<(u64, CheckId, String)>,
+}
+
+fn decode_block(data: &[u8], idx: &TreeIdx, b: usize, parents: &[Node], limits: &Limits) -> Result<(Vec<Node>, Vec<bool>), Problem> {
+    let e = &idx.blocks[b];
+    let start = idx.section.offset + e.offset;
+    let stored = usize::try_from(start)
+        .ok()
+        .and_then(|s| data.get(s..s.checked_add(e.stored_len as usize)?))
+        .ok_or_else(|| (CheckId::Truncated, format!("block {b} lies outside the file")))?;
+    let computed = crc32fast::hash(stored);
+    if computed != e.crc {
+        return Err((CheckId::Checksum, format!("block {b} (level {}) CRC stored {:#010x}, computed {computed:#010x}", e.level, e.crc)));
+    }
+    let owned;
+    let payload: &[u8] = if e.flags & 1 != 0 {
+        owned = decompress(stored, e.raw_len as u64, start, limits).map_err(|er| (classify(&er, CheckId::BlockDecode), format!("block {b}: {er}")))?;
+        &owned
+    } else {
+        if e.raw_len != e.stored_len {
+            return Err((CheckId::BlockDecode, format!("uncompressed block {b} with raw length != stored length")));
+        }
+        stored
+    };
+    let n = e.node_count as usize;
+    let mask_len = n.div_ceil(8);
+    let mask = payload.get(..mask_len).ok_or_else(|| (CheckId::BlockDecode, format!("block {b} is shorter than its child-flag mask")))?;
+    let flags: Vec<bool> = (0..n).map(|i| mask[i / 8] >> (i % 8) & 1 == 1).collect();
+    if n % 8 != 0 && mask[mask_len - 1] >> (n % 8) != 0 {
+        return Err((CheckId::BlockDecode, format!("block {b}: padding bits of the child-flag mask are not zero")));
+    }
+    let mut nodes = Vec::with_capacity(n);
+    decode_children(idx.profile, idx.params, parents, &payload[mask_len..], start, &mut nodes)
+        .map_err(|er| (classify(&er, CheckId::BlockDecode), format!("block {b}: {er}")))?;
+    if nodes.len() != n {
+        return Err((CheckId::BlockDecode, format!("block {b} decoded to {} nodes, expected {n}", nodes.len())));
+    }
+    let here = flags.iter().filter(|&&f| f).count() as u64;
+    if here != idx.internal_in_block(b) {
+        return Err((CheckId::BlockDecode, format!("block {b} has {here} internal nodes, the index implies {}", idx.internal_in_block(b))));
+    }
+    Ok((nodes, flags))
+}
+
+fn non_finite_what(n: &Node) -> String {
+    let mut bad = Vec::new();
+    if !n.center.iter().all(|v| v.is_finite()) {
+        bad.push(format!("centre {:?}", n.center));
+    }
+    if !(n.radius.is_finite() && n.radius >= 0.0) {
+        bad.push(format!("radius {}", n.radius));
+    }
+    if !n.normal.iter().all(|v| v.is_finite()) {
+        bad.push(format!("normal {:?}", n.normal));
+    }
+    if !(n.cone.is_finite() && (0.0..=std::f32::consts::PI).contains(&n.cone)) {
+        bad.push(format!("cone {}", n.cone));
+    }
+    if !(n.area.is_finite() && n.area >= 0.0) {
+        bad.push(format!("area {}", n.area));
+    }
+    bad.join(", ")
+}
+
+fn normal_ok(n: &Node) -> bool {
+    if n.cone >= std::f32::consts::PI - 1e-6 {
+        return true;
+    }
+    let l = n.normal.iter().map(|&v| v as f64 * v as f64).sum::<f64>().sqrt();
+    (l - 1.0).abs() <= NORMAL_TOL
+}
+
+/// Checks a node on its own (finite, unit axis).
+fn check_node(n: &Node, at: u64, out: &mut Vec<(u64, CheckId, String)>) -> bool {
+    if !n.is_finite() {
+        out.push((at, CheckId::NonFinite, non_finite_what(n)));
+        return false;
+    }
+    if !normal_ok(n) {
+        out.push((at, CheckId::Normal, format!("cone axis {:?} is not unit length", n.normal)));
+    }
+    true
+}
+
+/// Checks `child` against `parent` (containment and cone).
+fn check_contained(p: &Node, c: &Node, slack: f32, cone_tol: f32, at: u64, out: &mut Vec<(u64, CheckId, String)>) {
+    if !sphere_contains(p, c, slack) {
+        let d = dist(p.center, c.center);
+        out.push((
+            at,
+            CheckId::ChildOutsideParent,
+            format!(
+                "child sphere (centre {:?}, radius {}) reaches {:.6} from the parent centre, parent radius {} (slack {slack} → {:.6})",
+                c.center,
+                c.radius,
+                d + c.radius as f64,
+                p.radius,
+                p.radius as f64 * (1.0 + slack as f64)
+            ),
+        ));
+    }
+    if !cone_contains(p.normal, p.cone, c.normal, c.cone, cone_tol) {
+        out.push((
+            at,
+            CheckId::ConeContainment,
+            format!("parent cone (axis {:?}, {:.6} rad) does not contain child cone (axis {:?}, {:.6} rad)", p.normal, p.cone, c.normal, c.cone),
+        ));
+    }
+}
+
+fn area_ok(parent: f32, sum: f64) -> bool {
+    let p = parent as f64;
+    (p - sum).abs() <= AREA_REL_TOL * p.abs().max(sum.abs()) + 1e-30
+}
+
+fn color_ok(a: [u8; 4], b: [u8; 4], tol: [u8; 4]) -> bool {
+    (0..4).all(|i| a[i].abs_diff(b[i]) <= tol[i])
+}
+
+fn dist(a: [f32; 3], b: [f32; 3]) -> f64 {
+    (0..3).map(|i| (a[i] as f64 - b[i] as f64).powi(2)).sum::<f64>().sqrt()
+}
+
+/// Checks a pair of decoded children against their decoded parent.
+fn check_pair(p: &Node, a: &Node, b: &Node, first: u64, profile: Profile, out: &mut Vec<(u64, CheckId, String)>) {
+    let slack = profile.containment_slack();
+    let (cone_tol, col_tol) = (cone_tolerance(profile), color_tolerance(profile));
+    let ok_a = check_node(a, first, out);
+    let ok_b = check_node(b, first + 1, out);
+    if !p.is_finite() {
+        return; // reported at the parent's own level
+    }
+    if ok_a {
+        check_contained(p, a, slack, cone_tol, first, out);
+    }
+    if ok_b {
+        check_contained(p, b, slack, cone_tol, first + 1, out);
+    }
+    if ok_a && ok_b {
+        let sum = a.area as f64 + b.area as f64;
+        // The parent is the failing node; it is reported at its first child's index with a
+        // marker so the path resolver names the parent.
+        if !area_ok(p.area, sum) {
+            out.push((first | PARENT_BIT, CheckId::AreaSum, format!("parent {:.6}, children {:.6} ({} + {})", p.area, sum, a.area, b.area)));
+        }
+        let mean = merge_color(a.color, a.area, b.color, b.area);
+        if !color_ok(p.color, mean, col_tol) {
+            out.push((
+                first | PARENT_BIT,
+                CheckId::ColorMean,
+                format!("parent {:?}, area-weighted mean of children {mean:?} (tolerance {col_tol:?})", p.color),
+            ));
+        }
+    }
+}
+
+/// Marks an issue index as "the parent of child `index`".
+const PARENT_BIT: u64 = 1 << 63;
+
+fn check_block(data: &[u8], idx: &TreeIdx, b: usize, parents: &[Node], limits: &Limits) -> Result<BlockOut, Problem> {
+    let (nodes, flags) = decode_block(data, idx, b, parents, limits)?;
+    let first = idx.blocks[b].first_node;
+    let mut issues = Vec::new();
+    for (k, p) in parents.iter().enumerate() {
+        check_pair(p, &nodes[2 * k], &nodes[2 * k + 1], first + 2 * k as u64, idx.profile, &mut issues);
+    }
+    let internal_nodes = nodes.iter().zip(&flags).filter(|(_, &f)| f).map(|(n, _)| *n).collect();
+    Ok(BlockOut { internal_nodes, flags, issues })
+}
+
+/// One bit per node of one level, with a rank directory to map "k-th internal node" to its
+/// index (for naming paths of failing nodes).
+#[derive(Default)]
+struct LevelBits {
+    words: Vec<u64>,
+    len: u64,
+    /// Set bits before each word.
+    before: Vec<u64>,
+}
+
+impl LevelBits {
+    fn push(&mut self, f: bool) {
+        if self.len % 64 == 0 {
+            self.words.push(0);
+        }
+        if f {
+            *self.words.last_mut().unwrap_or(&mut 0) |= 1 << (self.len % 64);
+        }
+        self.len += 1;
+    }
+    fn finish(&mut self) {
+        let mut s = 0;
+        self.before = self.words.iter().map(|w| { let b = s; s += w.count_ones() as u64; b }).collect();
+    }
+    /// Index of the `rank`-th set bit.
+    fn select(&self, rank: u64) -> Option<u64> {
+        let w = self.before.partition_point(|&b| b <= rank).checked_sub(1)?;
+        let mut word = self.words[w];
+        for _ in 0..(rank - self.before[w]) {
+            word &= word.wrapping_sub(1);
+        }
+        (word != 0).then(|| w as u64 * 64 + word.trailing_zeros() as u64)
+    }
+}
+
+/// Path of node `i` of level `d` below `prefix`.
+fn node_path(levels: &[LevelBits], d: usize, mut i: u64, prefix: &str) -> String {
+    let mut steps = Vec::with_capacity(d);
+    for lvl in (1..=d).rev() {
+        steps.push(i % 2);
+        match levels.get(lvl - 1).and_then(|l| l.select(i / 2)) {
+            Some(p) => i = p,
+            None => return format!("{prefix}/?level{d}[{i}]"),
+        }
+    }
+    let mut s = prefix.to_string();
+    for st in steps.iter().rev() {
+        s.push_str(if *st == 0 { "/0" } else { "/1" });
+    }
+    s
+}
+
+struct Validator<'o> {
+    opts: &'o ValidateOptions,
+    report: Report,
+    /// Canonical paths of the files on the current inline branch.
+    stack: Vec<PathBuf>,
+    /// Files already validated, with their root bound.
+    done: HashMap<PathBuf, Option<Node>>,
+}
+
+impl<'o> Validator<'o> {
+    fn new(opts: &'o ValidateOptions) -> Self {
+        Validator { opts, report: Report { deep: opts.deep, ..Default::default() }, stack: Vec::new(), done: HashMap::new() }
+    }
+
+    fn finish(self) -> Report {
+        self.report
+    }
+
+    fn issue(&mut self, path: impl Into<String>, check: CheckId, label: &str, message: impl std::fmt::Display) {
+        let message = if label.is_empty() { message.to_string() } else { format!("{label}: {message}") };
+        self.report.issues.push(Issue { path: path.into(), check, message });
+    }
+
+    /// Validates one file whose graph root sits at abstract path `prefix`; `label` names the
+    /// file in messages (empty for the top file). Returns the root bound.
+    fn file(&mut self, data: &[u8], path: Option<&Path>, prefix: &str, label: &str) -> Option<Node> {
+        let limits = self.opts.limits.clone();
+        let known = [tags::GENR, tags::GRPH, tags::TREE];
+        let c = match Container::parse(data, SCT_MAGIC, "SCT scene", &known, &limits) {
+            Ok(c) => c,
+            Err(e) => {
+                self.issue("file", classify(&e, CheckId::SectionTable), label, &e);
+                return None;
+            }
+        };
+        let mut bad_crc = HashSet::new();
+        for (i, e) in c.sections.iter().enumerate() {
+            if let Err(er) = c.verify(e) {
+                self.issue("file", CheckId::Checksum, label, format!("section {i}: {er}"));
+                bad_crc.insert(i);
+            }
+        }
+        if c.sections.first().map(|e| e.tag) != Some(tags::GENR) {
+            self.issue("file", CheckId::SectionTable, label, "the first section must be the generator (GENR)");
+        }
+        let sec_index = |tag: [u8; 4]| c.sections.iter().position(|e| e.tag == tag);
+        // Generator.
+        match c.single(tags::GENR) {
+            Err(e) => self.issue("file", CheckId::SectionTable, label, e),
+            Ok(e) if !bad_crc.contains(&sec_index(tags::GENR).unwrap_or(usize::MAX)) => {
+                match c.section_bytes(e, &limits).map_err(|er| (classify(&er, CheckId::Generator), er.to_string())).and_then(|b| {
+                    serde_json::from_slice::<Generator>(&b).map_err(|er| (CheckId::Generator, format!("generator JSON: {er}")))
+                }) {
+                    Ok(_) => {}
+                    Err((k, m)) => self.issue("file", k, label, m),
+                }
+            }
+            Ok(_) => {}
+        }
+        // Trees.
+        let tree_secs: Vec<(usize, &SectionEntry)> = c.sections.iter().enumerate().filter(|(_, e)| e.tag == tags::TREE).collect();
+        let mut trees: Vec<Option<TreeIdx>> = Vec::with_capacity(tree_secs.len());
+        for (t, (si, e)) in tree_secs.iter().enumerate() {
+            self.report.trees += 1;
+            if bad_crc.contains(si) {
+                trees.push(None);
+                continue;
+            }
+            let parsed = c.stored(e).map_err(|er| (CheckId::Truncated, er.to_string())).and_then(|s| parse_tree_index(s, e, &limits));
+            match parsed {
+                Ok(idx) => {
+                    if idx.header.node_count > 0 && !idx.header.root.is_finite() {
+                        self.issue(format!("tree/{t}"), CheckId::NonFinite, label, format!("root: {}", non_finite_what(&idx.header.root)));
+                    }
+                    trees.push(Some(idx));
+                }
+                Err((k, m)) => {
+                    self.issue(format!("tree/{t}"), k, label, m);
+                    trees.push(None);
+                }
+            }
+        }
+        // Block CRCs (quick mode; deep mode checks them while decoding).
+        if !self.opts.deep {
+            for (t, idx) in trees.iter().enumerate() {
+                let Some(idx) = idx else { continue };
+                let bad: Vec<Problem> = (0..idx.blocks.len())
+                    .into_par_iter()
+                    .filter_map(|b| {
+                        let e = &idx.blocks[b];
+                        let s = (idx.section.offset + e.offset) as usize;
+                        match data.get(s..s + e.stored_len as usize) {
+                            None => Some((CheckId::Truncated, format!("block {b} lies outside the file"))),
+                            Some(bytes) if crc32fast::hash(bytes) != e.crc => Some((
+                                CheckId::Checksum,
+                                format!("block {b} (level {}) CRC stored {:#010x}, computed {:#010x}", e.level, e.crc, crc32fast::hash(bytes)),
+                            )),
+                            _ => None,
+                        }
+                    })
+                    .collect();
+                self.report.blocks += idx.blocks.len() as u64;
+                for (k, m) in bad {
+                    self.issue(format!("tree/{t}"), k, label, m);
+                }
+            }
+        }
+        // Graph.
+        let grph = match c.single(tags::GRPH) {
+            Err(e) => {
+                self.issue("file", CheckId::SectionTable, label, e);
+                None
+            }
+            Ok(_) if bad_crc.contains(&sec_index(tags::GRPH).unwrap_or(usize::MAX)) => None,
+            Ok(e) => match c.section_bytes(e, &limits) {
+                Err(er) => {
+                    self.issue("graph", classify(&er, CheckId::Graph), label, er);
+                    None
+                }
+                Ok(b) => {
+                    let mut probs = Vec::new();
+                    let g = parse_graph(&b, e.offset, &limits, &mut probs);
+                    for (k, m) in probs {
+                        self.issue("graph", k, label, m);
+                    }
+                    g
+                }
+            },
+        };
+        let mut tree_paths: Vec<Option<String>> = vec![None; trees.len()];
+        let root_bound = match &grph {
+            Some(g) => {
+                self.walk(data, path, g, &trees, &mut tree_paths, prefix, label);
+                bound_of(&g.graph, &trees, g.graph.root)
+            }
+            None => None,
+        };
+        if self.opts.deep {
+            for (t, idx) in trees.iter().enumerate() {
+                let Some(idx) = idx else { continue };
+                let p = tree_paths[t].clone().unwrap_or_else(|| format!("tree/{t}"));
+                self.check_tree(data, idx, &p, label);
+            }
+        }
+        root_bound
+    }
+
+    /// Walks the graph from the root, naming each node by its abstract path, checking group
+    /// leaves against their children and following inlines.
+    #[allow(clippy::too_many_arguments)]
+    fn walk(&mut self, data: &[u8], path: Option<&Path>, g: &Graph, trees: &[Option<TreeIdx>], tree_paths: &mut [Option<String>], prefix: &str, label: &str) {
+        let nodes = &g.graph.nodes;
+        let mut visited = vec![false; nodes.len()];
+        let mut stack = vec![(g.graph.root, prefix.to_string())];
+        while let Some((n, p)) = stack.pop() {
+            let Some(slot) = visited.get_mut(n as usize) else { continue };
+            if std::mem::replace(slot, true) {
+                continue;
+            }
+            if let Some(probs) = g.node_problems.get(&n) {
+                for (k, m) in probs.clone() {
+                    self.issue(p.clone(), k, label, format!("graph node {n}: {m}"));
+                }
+            }
+            let tree_ok = |t: u32, me: &mut Self| -> Option<usize> {
+                if (t as usize) < trees.len() {
+                    Some(t as usize)
+                } else {
+                    me.issue(p.clone(), CheckId::Graph, label, format!("graph node {n} refers to tree {t}, the file has {}", trees.len()));
+                    None
+                }
+            };
+            match &nodes[n as usize] {
+                GraphNode::Tree { tree } => {
+                    if let Some(t) = tree_ok(*tree, self) {
+                        tree_paths[t].get_or_insert_with(|| p.clone());
+                    }
+                }
+                GraphNode::Group { children, tree } => {
+                    let Some(t) = tree_ok(*tree, self) else { continue };
+                    tree_paths[t].get_or_insert_with(|| p.clone());
+                    let mut child_paths: Vec<String> = (0..children.len()).map(|j| format!("{p}/child{j}")).collect();
+                    if let Some(idx) = &trees[t] {
+                        if idx.header.leaf_count != children.len() as u64 {
+                            self.issue(
+                                p.clone(),
+                                CheckId::Graph,
+                                label,
+                                format!("group (graph node {n}) has {} children, its tree {t} has {} leaves", children.len(), idx.header.leaf_count),
+                            );
+                        } else if let Ok(gt) = self.decode_small_tree(data, idx) {
+                            child_paths = leaf_paths(&gt, &p);
+                            if self.opts.deep {
+                                self.check_group(&g.graph, trees, &gt, children, &child_paths, idx.profile, label);
+                            }
+                        }
+                    }
+                    for (j, &c) in children.iter().enumerate().rev() {
+                        if c != u32::MAX {
+                            stack.push((c, child_paths[j].clone()));
+                        }
+                    }
+                }
+                GraphNode::Instance { child, .. } => {
+                    if *child != u32::MAX {
+                        stack.push((*child, p.clone()));
+                    }
+                }
+                GraphNode::Inline { path: rel, hash, bound } => {
+                    self.inline(path, rel, hash, bound, &p, n, label);
+                }
+            }
+        }
+        for (i, v) in visited.iter().enumerate() {
+            if !v {
+                if let Some(probs) = g.node_problems.get(&(i as u32)) {
+                    for (k, m) in probs.clone() {
+                        self.issue(format!("graph/{i}"), k, label, format!("unreachable graph node {i}: {m}"));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Decodes a (group) tree completely; group trees have one leaf per child, so small.
+    fn decode_small_tree(&self, data: &[u8], idx: &TreeIdx) -> Result<SceneTree, Problem> {
+        let mut nodes = vec![idx.header.root];
+        let mut flags = vec![idx.header.root_internal == 1];
+        let mut parents: Vec<Node> = if flags[0] { vec![idx.header.root] } else { Vec::new() };
+        for d in 1..idx.levels.len() {
+            let mut next = Vec::new();
+            for b in idx.level_blocks(d) {
+                let e = &idx.blocks[b];
+                let lo = (e.first_node / 2) as usize;
+                let ps = parents.get(lo..lo + e.node_count as usize / 2).ok_or((CheckId::BlockDecode, "missing parents".to_string()))?;
+                let (ns, fs) = decode_block(data, idx, b, ps, &self.opts.limits)?;
+                next.extend(ns.iter().zip(&fs).filter(|(_, &f)| f).map(|(n, _)| *n));
+                nodes.extend(ns);
+                flags.extend(fs);
+            }
+            parents = next;
+        }
+        SceneTree::from_bfs(nodes, flags).map_err(|e| (CheckId::BlockDecode, e.to_string()))
+    }
+
+    /// Group leaf `j` must stand for child `j`: contain its bound and carry its area, cone
+    /// and colour (§5.10.5 virtual roots; instance transforms and push-down tints applied).
+    #[allow(clippy::too_many_arguments)]
+    fn check_group(&mut self, g: &SceneGraph, trees: &[Option<TreeIdx>], gt: &SceneTree, children: &[u32], paths: &[String], profile: Profile, label: &str) {
+        let leaves: Vec<usize> = gt.leaves().collect();
+        let slack = Profile::Raw.containment_slack().max(profile.containment_slack());
+        for (j, &c) in children.iter().enumerate() {
+            let (Some(&li), Some(cb)) = (leaves.get(j), bound_of(g, trees, c)) else { continue };
+            let leaf = gt.nodes()[li];
+            if !leaf.is_finite() || !cb.is_finite() {
+                continue; // reported by the node checks
+            }
+            let mut out = Vec::new();
+            check_contained(&leaf, &cb, slack, cone_tolerance(profile), 0, &mut out);
+            if !area_ok(leaf.area, cb.area as f64) {
+                out.push((0, CheckId::AreaSum, format!("group leaf area {:.6}, child {:.6} (instance scale² applied)", leaf.area, cb.area)));
+            }
+            if !color_ok(leaf.color, cb.color, color_tolerance(profile)) {
+                out.push((0, CheckId::ColorMean, format!("group leaf colour {:?}, child {:?} (push-down tint applied)", leaf.color, cb.color)));
+            }
+            for (_, k, m) in out {
+                self.issue(paths[j].clone(), k, label, format!("group leaf {j} vs graph node {c}: {m}"));
+            }
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn inline(&mut self, from: Option<&Path>, rel: &str, hash: &[u8; 32], bound: &Node, p: &str, n: u32, label: &str) {
+        let Some(from) = from else {
+            self.issue(p, CheckId::InlineMissing, label, format!("graph node {n}: inline {rel:?} cannot be resolved for a file held in memory"));
+            return;
+        };
+        let target = from.parent().unwrap_or(Path::new(".")).join(rel);
+        let canon = match std::fs::canonicalize(&target) {
+            Ok(c) => c,
+            Err(e) => {
+                self.issue(p, CheckId::InlineMissing, label, format!("graph node {n}: inline target {} is missing: {e}", target.display()));
+                return;
+            }
+        };
+        if self.stack.contains(&canon) {
+            let chain: Vec<String> = self.stack.iter().chain(std::iter::once(&canon)).map(|p| p.display().to_string()).collect();
+            self.issue(p, CheckId::InlineCycle, label, format!("graph node {n}: inline cycle {}", chain.join(" -> ")));
+            return;
+        }
+        let depth = self.stack.len() as u32; // inlines followed to reach the target
+        if depth > self.opts.limits.max_inline_depth {
+            self.issue(p, CheckId::InlineDepth, label, format!("graph node {n}: inlines nest deeper than {}", self.opts.limits.max_inline_depth));
+            return;
+        }
+        let data = match map_file(&canon) {
+            Ok(d) => d,
+            Err(e) => {
+                self.issue(p, CheckId::InlineMissing, label, format!("graph node {n}: inline target cannot be read: {e}"));
+                return;
+            }
+        };
+        let found = blake3::hash(&data);
+        if found.as_bytes() != hash {
+            self.issue(
+                p,
+                CheckId::InlineHash,
+                label,
+                format!("graph node {n}: inline target {} has BLAKE3 {}, recorded {}", canon.display(), found.to_hex(), hex(hash)),
+            );
+        }
+        let root = match self.done.get(&canon) {
+            Some(r) => *r,
+            None => {
+                self.report.files.push(canon.clone());
+                self.stack.push(canon.clone());
+                let sub = if label.is_empty() { rel.to_string() } else { format!("{label} > {rel}") };
+                let r = self.file(&data, Some(&canon), p, &sub);
+                self.stack.pop();
+                self.done.insert(canon.clone(), r);
+                r
+            }
+        };
+        if let (true, Some(r)) = (self.opts.deep, root) {
+            let ok = sphere_contains(bound, &r, Profile::Raw.containment_slack())
+                && area_ok(bound.area, r.area as f64)
+                && cone_contains(bound.normal, bound.cone, r.normal, r.cone, cone_tolerance(Profile::Raw))
+                && color_ok(bound.color, r.color, color_tolerance(Profile::Raw));
+            if !ok {
+                self.issue(p, CheckId::InlineBound, label, format!("graph node {n}: recorded bound {bound:?} does not match the root of {rel}: {r:?}"));
+            }
+        }
+    }
+
+    /// Deep check of one tree, level by level.
+    fn check_tree(&mut self, data: &[u8], idx: &TreeIdx, prefix: &str, label: &str) {
+        if idx.header.node_count == 0 {
+            return;
+        }
+        let limits = self.opts.limits.clone();
+        let root = idx.header.root;
+        let mut levels: Vec<LevelBits> = Vec::with_capacity(idx.levels.len());
+        let mut l0 = LevelBits::default();
+        l0.push(idx.header.root_internal == 1);
+        l0.finish();
+        levels.push(l0);
+        let mut pending: Vec<(usize, u64, CheckId, String)> = Vec::new();
+        let mut root_issues = Vec::new();
+        check_node(&root, 0, &mut root_issues);
+        pending.extend(root_issues.into_iter().map(|(i, k, m)| (0, i, k, m)));
+        let mut parents: Vec<Node> = if idx.header.root_internal == 1 { vec![root] } else { Vec::new() };
+        self.report.nodes += 1;
+        for d in 1..idx.levels.len() {
+            let blocks = idx.level_blocks(d);
+            let results: Vec<Result<BlockOut, Problem>> = blocks
+                .clone()
+                .into_par_iter()
+                .map(|b| {
+                    let e = &idx.blocks[b];
+                    let lo = (e.first_node / 2) as usize;
+                    let ps = parents
+                        .get(lo..lo + e.node_count as usize / 2)
+                        .ok_or((CheckId::BlockDecode, format!("block {b} refers to parents that do not exist")))?;
+                    check_block(data, idx, b, ps, &limits)
+                })
+                .collect();
+            self.report.blocks += blocks.len() as u64;
+            let mut next = Vec::new();
+            let mut bits = LevelBits::default();
+            let mut failed = None;
+            for r in results {
+                match r {
+                    Ok(out) => {
+                        self.report.nodes += out.flags.len() as u64;
+                        out.flags.iter().for_each(|&f| bits.push(f));
+                        next.extend(out.internal_nodes);
+                        pending.extend(out.issues.into_iter().map(|(i, k, m)| (d, i, k, m)));
+                    }
+                    Err(p) => {
+                        failed = Some(p);
+                        break;
+                    }
+                }
+            }
+            if let Some((k, m)) = failed {
+                // Deeper levels need the failed block's nodes as parents: stop this tree.
+                self.issue(prefix, k, label, format!("level {d}: {m}; levels below are not checked"));
+                break;
+            }
+            bits.finish();
+            levels.push(bits);
+            parents = next;
+        }
+        for (d, i, k, m) in pending {
+            let path = if i & PARENT_BIT != 0 {
+                let child = i & !PARENT_BIT;
+                match d.checked_sub(1).and_then(|pd| levels.get(pd).and_then(|l| l.select(child / 2)).map(|pi| (pd, pi))) {
+                    Some((pd, pi)) => node_path(&levels, pd, pi, prefix),
+                    None => format!("{prefix}/?"),
+                }
+            } else {
+                node_path(&levels, d, i, prefix)
+            };
+            self.issue(path, k, label, m);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::parent_of;
+    use crate::write::{write_scene, Scene, WriteOptions};
+
+    fn leaf(x: f32, y: f32) -> Node {
+        Node { center: [x, y, 0.0], radius: 0.25, normal: [0.0, 0.0, 1.0], cone: 0.1, area: 0.5, color: [(x * 40.0) as u8, 90, 200, 255] }
+    }
+
+    /// A consistent tree over `n` leaves, built by pairing neighbours bottom-up (not
+    /// balanced when `n` is not a power of two).
+    fn build(n: usize) -> SceneTree {
+        // Build top-down with a queue of index ranges, collecting BFS order.
+        let leaves: Vec<Node> = (0..n).map(|i| leaf(i as f32 * 0.7, (i % 3) as f32)).collect();
+        fn bound(ls: &[Node]) -> Node {
+            if ls.len() == 1 {
+                return ls[0];
+            }
+            let m = ls.len() / 2;
+            parent_of(&bound(&ls[..m]), &bound(&ls[m..]))
+        }
+        let mut nodes = Vec::new();
+        let mut flags = Vec::new();
+        let mut q = std::collections::VecDeque::from([(0usize, n)]);
+        while let Some((a, b)) = q.pop_front() {
+            nodes.push(bound(&leaves[a..b]));
+            flags.push(b - a > 1);
+            if b - a > 1 {
+                let m = a + (b - a) / 2;
+                q.push_back((a, m));
+                q.push_back((m, b));
+            }
+        }
+        SceneTree::from_bfs(nodes, flags).unwrap()
+    }
+
+    fn bytes_of(tree: SceneTree, profile: Profile) -> Vec<u8> {
+        let mut out = Vec::new();
+        let scene = Scene::single_tree(Generator::default(), tree);
+        write_scene(&scene, &WriteOptions { profile, block_nodes: 4, ..Default::default() }, &mut out).unwrap();
+        out
+    }
+
+    fn deep() -> ValidateOptions {
+        ValidateOptions { deep: true, ..Default::default() }
+    }
+
+    #[test]
+    fn consistent_trees_are_valid() {
+        for profile in [Profile::Raw, Profile::Canopy, Profile::Default] {
+            for n in [1, 2, 3, 7, 33] {
+                let r = validate_bytes(&bytes_of(build(n), profile), &deep());
+                assert!(r.is_valid(), "{profile:?} {n}: {:#?}", r.issues);
+                assert_eq!(r.nodes, 2 * n as u64 - 1);
+            }
+        }
+    }
+
+    #[test]
+    fn names_paths_of_bad_nodes() {
+        let mut t = build(8);
+        t.nodes_mut().iter_mut().for_each(|n| n.color = [9, 9, 9, 255]); // keep colours consistent under any weights
+        // Node 4 is level 2 index 1: path root/0/1. Break its area (parent reported) and a child.
+        t.nodes_mut()[4].area += 0.25;
+        let r = validate_bytes(&bytes_of(t, Profile::Raw), &deep());
+        let got: Vec<(String, &str)> = r.issues.iter().map(|i| (i.path.clone(), i.check.as_str())).collect();
+        assert!(got.contains(&("root/0".into(), "area-sum")), "{got:?}");
+        assert!(got.contains(&("root/0/1".into(), "area-sum")), "{got:?}");
+        assert_eq!(r.check_ids(), vec![CheckId::AreaSum]);
+    }
+
+    #[test]
+    fn level_bits_select() {
+        let mut b = LevelBits::default();
+        for i in 0..200 {
+            b.push(i % 3 == 0);
+        }
+        b.finish();
+        assert_eq!(b.select(0), Some(0));
+        assert_eq!(b.select(22), Some(66));
+        assert_eq!(b.select(66), Some(198));
+        assert_eq!(b.select(67), None);
+    }
+
+    #[test]
+    fn transform_checks() {
+        let mut t = Similarity::IDENTITY;
+        t.rotation = [0.0, 0.0, 0.0, 2.0];
+        t.scale = -1.0;
+        let ids: Vec<CheckId> = transform_problems(&t).into_iter().map(|p| p.0).collect();
+        assert_eq!(ids, vec![CheckId::Quaternion, CheckId::Scale]);
+        t.translation[0] = f64::NAN;
+        assert_eq!(transform_problems(&t)[0].0, CheckId::NonFinite);
+    }
+}
