@@ -1,0 +1,55 @@
+//! Library errors, split by who is at fault so the binary can pick an exit code.
+
+use std::path::PathBuf;
+
+/// Everything that can fail while rendering a preview.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// Reading an SCT file failed (malformed content or I/O).
+    #[error("{}: {source}", path.display())]
+    Sct {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        #[source]
+        source: sct_format::Error,
+    },
+    /// Loading the reference mesh failed.
+    #[error(transparent)]
+    Mesh(#[from] voxelize::LoadError),
+    /// The camera or render settings cannot produce an image.
+    #[error("invalid camera: {0}")]
+    Camera(String),
+    /// Some other invalid setting or input (bad inline path, scene too deep …).
+    #[error("invalid input: {0}")]
+    Invalid(String),
+    /// Writing an output failed.
+    #[error("cannot write {}: {message}", path.display())]
+    Output {
+        /// The output file.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+/// Shorthand.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    /// True when the input (file content, camera, settings) is at fault rather than the
+    /// environment: the binary exits 1 for these, 2 for I/O.
+    pub fn is_invalid_input(&self) -> bool {
+        match self {
+            Error::Sct { source, .. } => source.is_invalid_input(),
+            Error::Mesh(e) => !matches!(e, voxelize::LoadError::Io { .. }),
+            Error::Camera(_) | Error::Invalid(_) => true,
+            Error::Output { .. } => false,
+        }
+    }
+
+    pub(crate) fn sct(path: &std::path::Path, source: sct_format::Error) -> Self {
+        Error::Sct { path: path.to_path_buf(), source }
+    }
+}

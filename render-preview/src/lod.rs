@@ -1,0 +1,394 @@
+//! Lazy block cache and level-by-level LOD refinement of one scene tree.
+//!
+//! A tree is stored breadth first in blocks per level; a block can only be decoded with
+//! its decoded parents, so the cache decodes on demand, recursively fetching the parent
+//! blocks it needs. Refinement walks the tree one level at a time: the frontier of each
+//! level is sorted, so finding its blocks is a merge walk, and the children of the
+//! `k`-th internal node of a level are nodes `2k`, `2k+1` of the next.
+
+use std::sync::{Arc, OnceLock};
+
+use rayon::prelude::*;
+use sct_format::{Node, SctReader};
+
+use crate::camera::View;
+use crate::error::{Error, Result};
+use crate::raster::Splat;
+use crate::shade::{self, Shading};
+
+/// One decoded block plus what refinement needs to find children.
+#[derive(Debug)]
+pub(crate) struct Block {
+    nodes: Vec<Node>,
+    internal: Vec<bool>,
+    /// Internal nodes before position `i` within the block.
+    rank_before: Vec<u32>,
+    /// Positions of the internal nodes within the block.
+    internal_pos: Vec<u32>,
+    first_node: u64,
+    internal_before: u64,
+}
+
+impl Block {
+    fn new(nodes: Vec<Node>, internal: Vec<bool>, first_node: u64, internal_before: u64) -> Block {
+        let mut rank_before = Vec::with_capacity(nodes.len());
+        let mut internal_pos = Vec::new();
+        for (i, &f) in internal.iter().enumerate() {
+            rank_before.push(internal_pos.len() as u32);
+            if f {
+                internal_pos.push(i as u32);
+            }
+        }
+        Block { nodes, internal, rank_before, internal_pos, first_node, internal_before }
+    }
+    fn end(&self) -> u64 {
+        self.first_node + self.nodes.len() as u64
+    }
+}
+
+/// Decoded blocks of one tree, filled on demand; shared by every instance of the tree.
+#[derive(Debug)]
+pub(crate) struct TreeCache {
+    tree: usize,
+    /// `levels[d][k]`: local block `k` of level `d` (level 0 holds the root only).
+    levels: Vec<Vec<OnceLock<Arc<Block>>>>,
+    first_block: Vec<usize>,
+    /// Leaves in the levels above level `d` (to number a group tree's leaves).
+    leaves_before: Vec<u64>,
+}
+
+impl TreeCache {
+    pub(crate) fn new(reader: &SctReader, tree: usize) -> TreeCache {
+        let t = &reader.trees()[tree];
+        let mut levels = Vec::with_capacity(t.levels.len());
+        let mut first_block = Vec::with_capacity(t.levels.len());
+        let mut leaves_before = Vec::with_capacity(t.levels.len());
+        let mut leaves = 0u64;
+        for (d, l) in t.levels.iter().enumerate() {
+            first_block.push(l.first_block as usize);
+            leaves_before.push(leaves);
+            let internal = t.levels.get(d + 1).map_or(0, |n| n.node_count / 2);
+            leaves += l.node_count.saturating_sub(internal);
+            let n = if d == 0 { 1 } else { l.block_count as usize };
+            levels.push((0..n).map(|_| OnceLock::new()).collect::<Vec<_>>());
+        }
+        if let Some(root) = levels.first().and_then(|l| l.first()) {
+            let _ = root.set(Arc::new(Block::new(vec![t.header.root], vec![t.header.root_internal == 1], 0, 0)));
+        }
+        TreeCache { tree, levels, first_block, leaves_before }
+    }
+
+    /// Root node, if the tree has one.
+    pub(crate) fn root(&self) -> Option<Node> {
+        self.levels.first()?.first()?.get().map(|b| b.nodes[0])
+    }
+
+    fn malformed(&self, reader: &SctReader, what: String) -> Error {
+        let at = reader.trees()[self.tree].section.offset;
+        Error::sct(reader.path().unwrap_or(std::path::Path::new("<memory>")), sct_format::Error::malformed(at, what))
+    }
+
+    /// Local block of level `d` holding node `i`.
+    fn block_of(&self, reader: &SctReader, d: usize, i: u64) -> Result<usize> {
+        if d == 0 {
+            return Ok(0);
+        }
+        let g = reader.trees()[self.tree]
+            .block_of(d, i)
+            .ok_or_else(|| self.malformed(reader, format!("level {d} has no node {i}")))?;
+        Ok(g - self.first_block[d])
+    }
+
+    fn cached(&self, d: usize, k: usize) -> Option<Arc<Block>> {
+        self.levels.get(d)?.get(k)?.get().cloned()
+    }
+
+    /// The decoded parents of block `k` of level `d` (internal nodes of level `d − 1`).
+    fn parents_of(&self, reader: &SctReader, d: usize, k: usize) -> Result<Vec<Node>> {
+        let e = &reader.trees()[self.tree].blocks[self.first_block[d] + k];
+        let lo = e.first_node / 2;
+        let hi = lo + e.node_count as u64 / 2;
+        let mut out = Vec::with_capacity((hi - lo) as usize);
+        let mut pk = if d == 1 {
+            0
+        } else {
+            reader.trees()[self.tree]
+                .block_of_internal(d - 1, lo)
+                .ok_or_else(|| self.malformed(reader, format!("no parent block for level {d}")))?
+                - self.first_block[d - 1]
+        };
+        while (out.len() as u64) < hi - lo {
+            if pk >= self.levels[d - 1].len() {
+                return Err(self.malformed(reader, format!("level {d} block {k} has parents past the end of level {}", d - 1)));
+            }
+            let pb = self.get(reader, d - 1, pk)?;
+            let ib = pb.internal_before;
+            let from = lo.max(ib) - ib;
+            let to = (hi.min(ib + pb.internal_pos.len() as u64)).saturating_sub(ib);
+            for r in from..to {
+                out.push(pb.nodes[pb.internal_pos[r as usize] as usize]);
+            }
+            pk += 1;
+        }
+        Ok(out)
+    }
+
+    fn decode_with(&self, reader: &SctReader, d: usize, k: usize, parents: &[Node]) -> Result<Arc<Block>> {
+        let path = reader.path().unwrap_or(std::path::Path::new("<memory>"));
+        let g = self.first_block[d] + k;
+        let blk = reader.decode_block(self.tree, g, parents).map_err(|e| Error::sct(path, e))?;
+        let e = &reader.trees()[self.tree].blocks[g];
+        let b = Arc::new(Block::new(blk.nodes, blk.internal, e.first_node, e.internal_before));
+        // Another thread may have won the race; either copy is identical.
+        let _ = self.levels[d][k].set(b.clone());
+        Ok(self.cached(d, k).unwrap_or(b))
+    }
+
+    /// Block `k` of level `d`, decoding it (and the parent blocks it needs) if necessary.
+    fn get(&self, reader: &SctReader, d: usize, k: usize) -> Result<Arc<Block>> {
+        if let Some(b) = self.cached(d, k) {
+            return Ok(b);
+        }
+        if d >= self.levels.len() || k >= self.levels[d].len() {
+            return Err(self.malformed(reader, format!("block {k} of level {d} does not exist")));
+        }
+        let parents = self.parents_of(reader, d, k)?;
+        self.decode_with(reader, d, k, &parents)
+    }
+
+    /// Decodes the blocks `ks` of level `d`, in parallel when several are missing.
+    fn ensure(&self, reader: &SctReader, d: usize, ks: &[usize]) -> Result<()> {
+        let missing: Vec<usize> = ks.iter().copied().filter(|&k| self.cached(d, k).is_none()).collect();
+        if missing.len() <= 1 {
+            return missing.iter().try_for_each(|&k| self.get(reader, d, k).map(|_| ()));
+        }
+        // Parents first, sequentially, so that no parent block is decoded twice.
+        let jobs: Vec<(usize, Vec<Node>)> =
+            missing.iter().map(|&k| Ok((k, self.parents_of(reader, d, k)?))).collect::<Result<_>>()?;
+        jobs.par_iter().try_for_each(|(k, p)| self.decode_with(reader, d, *k, p).map(|_| ()))
+    }
+}
+
+/// Placement of a tree in camera space: `c_cam = m·c + t`, `n_cam = rot·n`, `r' = s·r`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Placement {
+    pub m: [[f32; 3]; 3],
+    pub rot: [[f32; 3]; 3],
+    pub t: [f32; 3],
+    pub s: f32,
+    pub tint: Option<[u8; 4]>,
+}
+
+#[inline]
+fn mul(m: &[[f32; 3]; 3], v: [f32; 3]) -> [f32; 3] {
+    [
+        m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
+        m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
+        m[2][0] * v[0] + m[2][1] * v[1] + m[2][2] * v[2],
+    ]
+}
+
+/// Render settings the per-node decision needs.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LodParams {
+    pub pixel_error: f32,
+    pub shading: Shading,
+    pub ellipses: bool,
+    pub backface: bool,
+    /// Cap on a leaf splat's radius (pixels) when it nearly reaches the eye.
+    pub max_radius: f32,
+}
+
+/// Counters of one render.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct LodStats {
+    /// Nodes examined.
+    pub nodes_visited: u64,
+    /// Nodes culled by the view frustum.
+    pub frustum_culled: u64,
+    /// Nodes culled as back-facing (normal cone).
+    pub backface_culled: u64,
+    /// Internal nodes drawn because they were small enough.
+    pub internal_splats: u64,
+    /// Leaves drawn.
+    pub leaf_splats: u64,
+}
+
+impl LodStats {
+    pub(crate) fn add(&mut self, o: &LodStats) {
+        self.nodes_visited += o.nodes_visited;
+        self.frustum_culled += o.frustum_culled;
+        self.backface_culled += o.backface_culled;
+        self.internal_splats += o.internal_splats;
+        self.leaf_splats += o.leaf_splats;
+    }
+}
+
+/// What to do with one node.
+pub(crate) enum Decision {
+    Cull,
+    Draw(Splat),
+    Refine,
+    /// A group-tree leaf too large to draw: draw its child graph node instead.
+    Descend,
+}
+
+/// The per-node decision: cull, draw (projected size under the threshold, or a leaf) or
+/// refine. `leaf` says the node has no children.
+#[inline]
+pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &View, p: &LodParams, st: &mut LodStats) -> Decision {
+    st.nodes_visited += 1;
+    let c = mul(&pl.m, n.center);
+    let c = [c[0] + pl.t[0], c[1] + pl.t[1], c[2] + pl.t[2]];
+    let r = n.radius * pl.s;
+    if view.outside(c, r) {
+        st.frustum_culled += 1;
+        return Decision::Cull;
+    }
+    let nrm = mul(&pl.rot, n.normal);
+    if p.backface && view.backfacing(c, r, nrm, n.cone) {
+        st.backface_culled += 1;
+        return Decision::Cull;
+    }
+    let mut s = view.projected_radius(c, r);
+    if s > p.pixel_error {
+        if !leaf {
+            return Decision::Refine;
+        }
+        if group {
+            return Decision::Descend;
+        }
+    }
+    if c[2] <= view.near {
+        // A leaf whose centre is behind the near plane cannot be projected.
+        st.frustum_culled += 1;
+        return Decision::Cull;
+    }
+    if leaf {
+        st.leaf_splats += 1;
+    } else {
+        st.internal_splats += 1;
+    }
+    s = s.min(p.max_radius);
+    let mut color = n.color;
+    if let Some(t) = pl.tint {
+        color = shade::tint(color, t);
+    }
+    let d = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt().max(1e-30);
+    let l = [-c[0] / d, -c[1] / d, -c[2] / d];
+    if p.shading == Shading::Lambert {
+        color = shade::apply(color, shade::lambert(nrm, l));
+    }
+    let [x, y] = view.project(c);
+    if p.ellipses && n.cone < std::f32::consts::FRAC_PI_2 {
+        // The node's surface is a patch with normals inside the cone: seen at angle γ it
+        // projects to an ellipse whose minor axis shrinks by |cos γ| (widened by the cone).
+        let cg = (nrm[0] * l[0] + nrm[1] * l[1] + nrm[2] * l[2]).abs();
+        let k = (cg + n.cone.sin()).min(1.0);
+        if k < 0.999 {
+            // Screen direction of the normal at the centre (derivative of the projection).
+            let ux = nrm[0] * c[2] - c[0] * nrm[2];
+            let uy = -(nrm[1] * c[2] - c[1] * nrm[2]);
+            let len = (ux * ux + uy * uy).sqrt();
+            if len > 1e-12 {
+                // Never thinner than about a pixel, or grazing surfaces would crack.
+                let minor = (s * k).max(0.6).min(s);
+                return Decision::Draw(Splat::ellipse(x, y, c[2], s, minor, ux / len, uy / len, color));
+            }
+        }
+    }
+    Decision::Draw(Splat::disc(x, y, c[2], s, color))
+}
+
+/// Output of one tree traversal.
+#[derive(Default)]
+pub(crate) struct TreeOut {
+    pub splats: Vec<Splat>,
+    /// Leaf numbers (breadth-first leaf order) of group-tree leaves that need their
+    /// child graph node drawn.
+    pub group_leaves: Vec<u64>,
+    pub stats: LodStats,
+}
+
+/// Refines one tree under `pl`. With `group` set, leaves that still need refinement are
+/// reported in `group_leaves` instead of being drawn.
+pub(crate) fn traverse(
+    reader: &SctReader,
+    cache: &TreeCache,
+    pl: &Placement,
+    view: &View,
+    p: &LodParams,
+    group: bool,
+    out: &mut TreeOut,
+) -> Result<()> {
+    if cache.root().is_none() {
+        return Ok(());
+    }
+    let mut frontier: Vec<u64> = vec![0];
+    let mut d = 0usize;
+    while !frontier.is_empty() {
+        if d >= cache.levels.len() {
+            return Err(cache.malformed(reader, format!("children expected below the last level {}", d - 1)));
+        }
+        // Group the sorted frontier by block.
+        let mut groups: Vec<(usize, usize, usize)> = Vec::new(); // (block, start, end) in frontier
+        let mut i = 0;
+        while i < frontier.len() {
+            let k = cache.block_of(reader, d, frontier[i])?;
+            let end_node = if d == 0 {
+                1
+            } else {
+                let e = &reader.trees()[cache.tree].blocks[cache.first_block[d] + k];
+                e.first_node + e.node_count as u64
+            };
+            let j = i + frontier[i..].partition_point(|&n| n < end_node);
+            groups.push((k, i, j));
+            i = j;
+        }
+        let ks: Vec<usize> = groups.iter().map(|g| g.0).collect();
+        cache.ensure(reader, d, &ks)?;
+        let blocks: Vec<Arc<Block>> =
+            ks.iter().map(|&k| cache.get(reader, d, k)).collect::<Result<_>>()?;
+        let leaves_before = cache.leaves_before[d];
+        let work = |gi: usize| -> (TreeOut, Vec<u64>) {
+            let (_, a, b) = groups[gi];
+            let blk = &blocks[gi];
+            let mut o = TreeOut::default();
+            let mut next = Vec::new();
+            for &node in &frontier[a..b] {
+                let local = (node - blk.first_node) as usize;
+                debug_assert!(node < blk.end());
+                let internal = blk.internal[local];
+                match decide(&blk.nodes[local], !internal, group, pl, view, p, &mut o.stats) {
+                    Decision::Cull => {}
+                    Decision::Draw(s) => o.splats.push(s),
+                    Decision::Descend => {
+                        let rank = blk.internal_before + blk.rank_before[local] as u64;
+                        o.group_leaves.push(leaves_before + node - rank);
+                    }
+                    Decision::Refine => {
+                        let rank = blk.internal_before + blk.rank_before[local] as u64;
+                        next.push(2 * rank);
+                        next.push(2 * rank + 1);
+                    }
+                }
+            }
+            (o, next)
+        };
+        let results: Vec<(TreeOut, Vec<u64>)> = if frontier.len() >= 8192 {
+            (0..groups.len()).into_par_iter().map(work).collect()
+        } else {
+            (0..groups.len()).map(work).collect()
+        };
+        let mut next = Vec::new();
+        for (o, n) in results {
+            out.splats.extend_from_slice(&o.splats);
+            out.group_leaves.extend_from_slice(&o.group_leaves);
+            out.stats.add(&o.stats);
+            next.extend_from_slice(&n);
+        }
+        frontier = next;
+        d += 1;
+    }
+    Ok(())
+}

@@ -1,0 +1,280 @@
+//! Depth-tested splat rasterizer: splats are binned to screen tiles, and bands of tiles
+//! are rasterized in parallel with rayon. Each pixel keeps the nearest splat; ties go to
+//! the splat that comes first in the input, so the output does not depend on the number
+//! of threads.
+
+use rayon::prelude::*;
+
+/// Tile side in pixels.
+pub const TILE: usize = 32;
+
+/// One screen-space splat: an ellipse (a circle when both radii agree).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Splat {
+    /// Centre, pixel units (pixel `(i, j)` covers `[i, i+1) × [j, j+1)`).
+    pub x: f32,
+    /// Centre row coordinate (down).
+    pub y: f32,
+    /// Depth (camera-space distance along the view axis), smaller is nearer.
+    pub z: f32,
+    /// Unit direction of the minor axis.
+    pub ux: f32,
+    /// Unit direction of the minor axis.
+    pub uy: f32,
+    /// 1 / minor radius².
+    pub inv_a2: f32,
+    /// 1 / major radius².
+    pub inv_b2: f32,
+    /// Half extent of the bounding box along x.
+    pub ex: f32,
+    /// Half extent of the bounding box along y.
+    pub ey: f32,
+    /// sRGB colour, straight alpha (alpha < 255 is drawn with an ordered-dither screen door).
+    pub color: [u8; 4],
+}
+
+impl Splat {
+    /// A circular splat of radius `r` pixels.
+    pub fn disc(x: f32, y: f32, z: f32, r: f32, color: [u8; 4]) -> Splat {
+        let r = r.max(1e-6);
+        let inv = 1.0 / (r * r);
+        Splat { x, y, z, ux: 1.0, uy: 0.0, inv_a2: inv, inv_b2: inv, ex: r, ey: r, color }
+    }
+
+    /// An elliptical splat: major radius `b`, minor radius `a` along unit `(ux, uy)`.
+    pub fn ellipse(x: f32, y: f32, z: f32, b: f32, a: f32, ux: f32, uy: f32, color: [u8; 4]) -> Splat {
+        let b = b.max(1e-6);
+        let a = a.clamp(1e-6, b);
+        let ex = ((a * ux).powi(2) + (b * uy).powi(2)).sqrt();
+        let ey = ((a * uy).powi(2) + (b * ux).powi(2)).sqrt();
+        Splat { x, y, z, ux, uy, inv_a2: 1.0 / (a * a), inv_b2: 1.0 / (b * b), ex, ey, color }
+    }
+
+    /// Inclusive pixel bounds `[x0, x1] × [y0, y1]` (unclipped): pixels whose centre lies in
+    /// the bounding box, plus the pixel holding the centre (so sub-pixel splats never vanish).
+    #[inline]
+    fn bounds(&self) -> (i32, i32, i32, i32, i32, i32) {
+        let cx = self.x.floor() as i32;
+        let cy = self.y.floor() as i32;
+        let x0 = ((self.x - self.ex - 0.5).ceil() as i32).min(cx);
+        let x1 = ((self.x + self.ex - 0.5).floor() as i32).max(cx);
+        let y0 = ((self.y - self.ey - 0.5).ceil() as i32).min(cy);
+        let y1 = ((self.y + self.ey - 0.5).floor() as i32).max(cy);
+        (x0, x1, y0, y1, cx, cy)
+    }
+}
+
+/// A rendered image with depth.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    /// Width.
+    pub width: usize,
+    /// Height.
+    pub height: usize,
+    /// RGBA8 per pixel, row major, top row first.
+    pub color: Vec<[u8; 4]>,
+    /// Depth per pixel, `f32::INFINITY` where nothing was drawn.
+    pub depth: Vec<f32>,
+}
+
+impl Frame {
+    /// A frame filled with `background` and infinite depth.
+    pub fn new(width: usize, height: usize, background: [u8; 4]) -> Frame {
+        Frame { width, height, color: vec![background; width * height], depth: vec![f32::INFINITY; width * height] }
+    }
+
+    /// Coverage mask: true where something was drawn.
+    pub fn coverage(&self) -> Vec<bool> {
+        self.depth.iter().map(|d| d.is_finite()).collect()
+    }
+
+    /// Number of covered pixels.
+    pub fn covered(&self) -> usize {
+        self.depth.iter().filter(|d| d.is_finite()).count()
+    }
+
+    /// The colour image as an `image` buffer (alpha forced opaque).
+    pub fn to_rgb_image(&self) -> image::RgbImage {
+        let mut buf = Vec::with_capacity(self.width * self.height * 3);
+        for c in &self.color {
+            buf.extend_from_slice(&c[..3]);
+        }
+        image::RgbImage::from_raw(self.width as u32, self.height as u32, buf).unwrap_or_default()
+    }
+}
+
+/// 4×4 ordered-dither thresholds in (0, 255): a pixel of a splat with alpha `a` is drawn
+/// when `a > BAYER[..]`, so alpha 255 always draws and the density follows alpha.
+pub const BAYER: [u8; 16] = [8, 136, 40, 168, 200, 72, 232, 104, 56, 184, 24, 152, 248, 120, 216, 88];
+
+/// Screen-door alpha test shared with the reference rasterizer.
+#[inline]
+pub fn alpha_passes(alpha: u8, x: usize, y: usize) -> bool {
+    alpha == 255 || alpha > BAYER[(x & 3) | ((y & 3) << 2)]
+}
+
+/// Rasterizes `splats` into `frame` (depth-tested against what the frame holds).
+pub fn rasterize(frame: &mut Frame, splats: &[Splat]) {
+    let (w, h) = (frame.width, frame.height);
+    if w == 0 || h == 0 || splats.is_empty() {
+        return;
+    }
+    let tx = w.div_ceil(TILE);
+    let ty = h.div_ceil(TILE);
+    let ntiles = tx * ty;
+    // Chunks keep input order: a tile walks the chunks in order, so ties resolve to the
+    // earliest splat whatever the thread count.
+    let threads = rayon::current_num_threads().max(1);
+    let chunk_len = (splats.len() / (threads * 2)).max(16384);
+    let bins: Vec<Vec<Vec<u32>>> = splats
+        .par_chunks(chunk_len)
+        .enumerate()
+        .map(|(ci, chunk)| {
+            let mut bins: Vec<Vec<u32>> = vec![Vec::new(); ntiles];
+            let base = ci * chunk_len;
+            for (k, s) in chunk.iter().enumerate() {
+                let (x0, x1, y0, y1, _, _) = s.bounds();
+                if x1 < 0 || y1 < 0 || x0 >= w as i32 || y0 >= h as i32 {
+                    continue;
+                }
+                let (x0, x1) = (x0.max(0) as usize / TILE, (x1 as usize).min(w - 1) / TILE);
+                let (y0, y1) = (y0.max(0) as usize / TILE, (y1 as usize).min(h - 1) / TILE);
+                for ty_ in y0..=y1 {
+                    for tx_ in x0..=x1 {
+                        bins[ty_ * tx + tx_].push((base + k) as u32);
+                    }
+                }
+            }
+            bins
+        })
+        .collect();
+
+    let band_px = TILE * w;
+    frame.color.par_chunks_mut(band_px).zip(frame.depth.par_chunks_mut(band_px)).enumerate().for_each(
+        |(band, (color, depth))| {
+            let y_base = band * TILE;
+            let rows = color.len() / w;
+            for tile_x in 0..tx {
+                let x_lo = tile_x * TILE;
+                let x_hi = (x_lo + TILE).min(w);
+                let tile = band * tx + tile_x;
+                for chunk_bins in &bins {
+                    for &i in &chunk_bins[tile] {
+                        draw(&splats[i as usize], color, depth, w, x_lo, x_hi, y_base, rows);
+                    }
+                }
+            }
+        },
+    );
+}
+
+/// Draws one splat clipped to columns `[x_lo, x_hi)` of a band of `rows` rows starting at
+/// image row `y_base`.
+#[inline]
+#[allow(clippy::too_many_arguments)]
+fn draw(s: &Splat, color: &mut [[u8; 4]], depth: &mut [f32], w: usize, x_lo: usize, x_hi: usize, y_base: usize, rows: usize) {
+    let (x0, x1, y0, y1, cx, cy) = s.bounds();
+    let xa = x0.max(x_lo as i32);
+    let xb = x1.min(x_hi as i32 - 1);
+    let ya = y0.max(y_base as i32);
+    let yb = y1.min((y_base + rows) as i32 - 1);
+    if xa > xb || ya > yb {
+        return;
+    }
+    let opaque = s.color[3] == 255;
+    // Fast path: a one-pixel splat needs no coverage test (its centre pixel always counts).
+    if x0 == x1 && y0 == y1 {
+        let (px, py) = (xa as usize, ya as usize);
+        let i = (py - y_base) * w + px;
+        if s.z < depth[i] && (opaque || alpha_passes(s.color[3], px, py)) {
+            depth[i] = s.z;
+            color[i] = s.color;
+        }
+        return;
+    }
+    for py in ya..=yb {
+        let dy = py as f32 + 0.5 - s.y;
+        let row = (py as usize - y_base) * w;
+        for px in xa..=xb {
+            let dx = px as f32 + 0.5 - s.x;
+            let a = dx * s.ux + dy * s.uy;
+            let b = dy * s.ux - dx * s.uy;
+            let inside = a * a * s.inv_a2 + b * b * s.inv_b2 <= 1.0 || (px == cx && py == cy);
+            let i = row + px as usize;
+            if inside && s.z < depth[i] && (opaque || alpha_passes(s.color[3], px as usize, py as usize)) {
+                depth[i] = s.z;
+                color[i] = s.color;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn disc_covers_expected_pixels() {
+        let mut f = Frame::new(16, 16, [0, 0, 0, 255]);
+        rasterize(&mut f, &[Splat::disc(8.0, 8.0, 1.0, 3.0, [255, 0, 0, 255])]);
+        let n = f.covered();
+        // Pixel centres within radius 3 of (8, 8): about π·9 ≈ 28.
+        assert!((24..=32).contains(&n), "{n}");
+        assert_eq!(f.color[8 * 16 + 8], [255, 0, 0, 255]);
+        assert_eq!(f.color[0], [0, 0, 0, 255]);
+    }
+
+    #[test]
+    fn tiny_splat_still_draws_one_pixel() {
+        let mut f = Frame::new(8, 8, [0; 4]);
+        rasterize(&mut f, &[Splat::disc(3.01, 5.99, 1.0, 0.01, [9, 9, 9, 255])]);
+        assert_eq!(f.covered(), 1);
+        assert_eq!(f.color[5 * 8 + 3], [9, 9, 9, 255]);
+    }
+
+    #[test]
+    fn nearest_wins_and_ties_keep_first() {
+        let mut f = Frame::new(8, 8, [0; 4]);
+        rasterize(
+            &mut f,
+            &[
+                Splat::disc(4.0, 4.0, 2.0, 2.0, [1, 0, 0, 255]),
+                Splat::disc(4.0, 4.0, 1.0, 1.0, [2, 0, 0, 255]),
+                Splat::disc(4.0, 4.0, 1.0, 1.0, [3, 0, 0, 255]),
+            ],
+        );
+        assert_eq!(f.color[4 * 8 + 4][0], 2);
+        assert_eq!(f.color[2 * 8 + 4][0], 1);
+    }
+
+    #[test]
+    fn ellipse_is_thin_along_minor_axis() {
+        let mut f = Frame::new(32, 32, [0; 4]);
+        rasterize(&mut f, &[Splat::ellipse(16.0, 16.0, 1.0, 8.0, 1.0, 0.0, 1.0, [5, 5, 5, 255])]);
+        // Wide in x, thin in y.
+        assert!(f.depth[16 * 32 + 22].is_finite());
+        assert!(!f.depth[20 * 32 + 16].is_finite());
+    }
+
+    #[test]
+    fn splats_across_tiles_and_clipping_are_deterministic() {
+        let mut splats = Vec::new();
+        let mut s = 12345u32;
+        let mut rnd = || {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            s as f32 / u32::MAX as f32
+        };
+        for i in 0..50_000 {
+            let c = [(i % 251) as u8, (i % 13) as u8, 7, 255];
+            splats.push(Splat::disc(rnd() * 120.0 - 10.0, rnd() * 90.0 - 10.0, (rnd() * 8.0).floor(), rnd() * 4.0, c));
+        }
+        let mut a = Frame::new(100, 70, [0; 4]);
+        rasterize(&mut a, &splats);
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let mut b = Frame::new(100, 70, [0; 4]);
+        pool.install(|| rasterize(&mut b, &splats));
+        assert_eq!(a, b);
+    }
+}

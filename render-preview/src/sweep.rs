@@ -1,0 +1,1 @@
+//! Speed–accuracy sweep (placeholder, filled in below).
