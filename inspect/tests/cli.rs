@@ -1,0 +1,98 @@
+//! The binary end to end: golden reports for a file built from the Stanford bunny, exit
+//! statuses, dumps, help. Regenerate the golden files with `UPDATE_GOLDEN=1 cargo test -p inspect --test cli`.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use common::*;
+use sct_format::{GraphNode, InstanceAttrs, Profile, Propagation, SceneGraph, SceneTree, Similarity};
+
+fn run(args: &[&str]) -> Output {
+    Command::new(bin()).args(args).output().unwrap()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8(o.stdout.clone()).unwrap()
+}
+
+/// The bunny (8171 vertices, one leaf each) as a group of the plain tree and a tinted,
+/// scaled instance of it, raw profile (its bytes do not depend on lossy codec tuning).
+fn bunny_scene(path: &Path) {
+    let t = bunny_tree();
+    let tr = Similarity { translation: [0.3, 0.0, 0.0], rotation: [0.0, 0.0, 0.38268343236508984, 0.9238795325112867], scale: 0.5 };
+    let attrs = InstanceAttrs { size: Propagation::PullUp, color: Propagation::PushDown, tint: Some([255, 128, 128, 255]) };
+    let a = t.nodes()[0];
+    let b = sct_format::traverse::TraversalState::IDENTITY.push_instance(&tr, &attrs).apply(&a);
+    let gt = SceneTree::from_bfs(vec![sct_format::geometry::parent_of(&a, &b), a, b], vec![true, false, false]).unwrap();
+    let nodes = vec![GraphNode::Tree { tree: 0 }, GraphNode::Instance { child: 0, transform: tr, attrs }, GraphNode::Group { children: vec![0, 1], tree: 1 }];
+    write(path, SceneGraph { nodes, root: 2 }, vec![t, gt], Profile::Raw);
+}
+
+fn golden(name: &str, actual: &str) {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/golden").join(name);
+    if std::env::var_os("UPDATE_GOLDEN").is_some_and(|v| v == "1") {
+        std::fs::write(&p, actual).unwrap();
+        return;
+    }
+    let want = std::fs::read_to_string(&p).unwrap_or_else(|_| panic!("{} missing: run with UPDATE_GOLDEN=1", p.display()));
+    assert_eq!(actual, want, "golden {name} differs (UPDATE_GOLDEN=1 regenerates it)");
+}
+
+#[test]
+fn golden_reports() {
+    let d = tmp();
+    let f = path_in(&d, "bunny.sct");
+    bunny_scene(&f);
+    let fs = f.to_str().unwrap();
+    let norm = |s: String| s.replace(fs, "<FILE>").replace(&d.path().display().to_string(), "<DIR>");
+    let o = run(&[fs, "--deep"]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    golden("bunny_report.txt", &norm(stdout(&o)));
+    let o = run(&[fs, "--json", "--deep"]);
+    assert_eq!(o.status.code(), Some(0));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["schema"], "sct-inspect/1");
+    assert_eq!(v["totals"]["leaves_expanded"], 2 * 8171);
+    assert_eq!(v["validation"]["issues"].as_array().unwrap().len(), 0);
+    golden("bunny_report.json", &norm(stdout(&o)));
+    let o = run(&[fs, "--dump", "root/1", "--levels", "3"]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    golden("bunny_dump_root_1.txt", &norm(stdout(&o)));
+}
+
+#[test]
+fn exit_codes_and_streams() {
+    let d = tmp();
+    // I/O error: 2, message on stderr only.
+    let o = run(&[d.path().join("none.sct").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(o.stdout.is_empty());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("sct-inspect:"));
+    // Usage error: 2.
+    assert_eq!(run(&["--bogus"]).status.code(), Some(2));
+    // Not an SCT file: 1 (the content is at fault).
+    let f = path_in(&d, "junk.sct");
+    std::fs::write(&f, b"hello").unwrap();
+    assert_eq!(run(&[f.to_str().unwrap()]).status.code(), Some(1));
+    let o = run(&[f.to_str().unwrap(), "--validate"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stdout(&o).contains("file magic:"), "{}", stdout(&o));
+    // Bad dump path: 2.
+    let g = path_in(&d, "ok.sct");
+    write_single(&g, kd_tree(mesh_leaves(&load_ascii_ply(Path::new(BUNNY)).0[..8].to_vec(), &[])), Profile::Raw);
+    assert_eq!(run(&[g.to_str().unwrap(), "--dump", "root/2"]).status.code(), Some(2));
+    assert_eq!(run(&[g.to_str().unwrap(), "--dump", "root/0/0/0/0/0/0"]).status.code(), Some(2));
+    let o = run(&[g.to_str().unwrap(), "--dump"]);
+    assert_eq!(o.status.code(), Some(0));
+    assert!(stdout(&o).contains("root/0/1"), "{}", stdout(&o));
+}
+
+#[test]
+fn help_has_examples() {
+    let o = run(&["--help"]);
+    assert_eq!(o.status.code(), Some(0));
+    let s = stdout(&o);
+    assert!(s.contains("Examples:") && s.contains("--deep") && s.contains("--dump"));
+}
