@@ -18,3 +18,8 @@ pub mod polygon;
 
 pub use error::{Error, LoadError};
 pub use load::{load, LoadOptions};
+pub mod run;
+pub mod sample;
+
+pub use run::{run, Options, Summary};
+pub use sample::{AreaMode, Density, Method, SampleOptions};

@@ -520,3 +520,61 @@ pub fn corner_normals(p: &Primitive, crease_deg: f32) -> Vec<[[f32; 3]; 3]> {
         })
         .collect()
 }
+
+/// Area-uniform random points on the scene's surface in world space (every instance
+/// counted), from a seeded generator: the same seed gives the same points. Used by coverage
+/// checks (`inspect --against`, tests).
+pub fn surface_points(scene: &LoadedScene, n: usize, seed: u64) -> Vec<[f64; 3]> {
+    let mut tris: Vec<[[f64; 3]; 3]> = Vec::new();
+    let mut cdf: Vec<f64> = Vec::new();
+    let mut total = 0.0;
+    for inst in &scene.instances {
+        let Some(mesh) = scene.meshes.get(inst.mesh) else { continue };
+        for p in &mesh.primitives {
+            for t in &p.triangles {
+                let w = t.map(|i| transform_point(&inst.transform, p.positions[i as usize]));
+                let a = 0.5 * norm(cross(sub(w[1], w[0]), sub(w[2], w[0])));
+                if a > 0.0 {
+                    total += a;
+                    tris.push(w);
+                    cdf.push(total);
+                }
+            }
+        }
+    }
+    if tris.is_empty() {
+        return Vec::new();
+    }
+    let mut rng = SplitMix(seed);
+    (0..n)
+        .map(|_| {
+            let x = rng.next_f64() * total;
+            let i = cdf.partition_point(|&c| c < x).min(tris.len() - 1);
+            let [a, b, c] = tris[i];
+            let (mut u, mut v) = (rng.next_f64(), rng.next_f64());
+            if u + v > 1.0 {
+                u = 1.0 - u;
+                v = 1.0 - v;
+            }
+            std::array::from_fn(|k| a[k] + u * (b[k] - a[k]) + v * (c[k] - a[k]))
+        })
+        .collect()
+}
+
+/// SplitMix64: tiny, seedable, good enough for sampling test points.
+pub struct SplitMix(pub u64);
+
+impl SplitMix {
+    /// Next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in [0, 1).
+    pub fn next_f64(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+}

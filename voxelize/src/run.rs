@@ -1,0 +1,280 @@
+//! The whole job of `sct-voxelize`: load inputs into one scene, sample, write atomically.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use sct_format::samples::{MeshEntry, SampleInstance, SamplesFile};
+use sct_format::{Generator, SourceRef};
+use serde_json::json;
+
+use crate::error::Error;
+use crate::load::{load, LoadOptions};
+use crate::mesh::{Instance, LoadedScene};
+use crate::sample::{sample_points, sample_scene, AreaMode, Density, Method, SampleOptions, Sampled};
+
+/// Options of a run.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// Input mesh files; all are sampled in one grid.
+    pub inputs: Vec<PathBuf>,
+    /// Output samples file (`None`: sample but write nothing — a dry run).
+    pub output: Option<PathBuf>,
+    /// Loader options.
+    pub load: LoadOptions,
+    /// Sampler options.
+    pub sample: SampleOptions,
+}
+
+/// What a run did (printed as JSON by `--json`).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Summary {
+    /// Input files with hashes (resources included).
+    pub inputs: Vec<SourceRef>,
+    /// Output path.
+    pub output: Option<String>,
+    /// Bytes written.
+    pub output_bytes: u64,
+    /// Sampler.
+    pub method: String,
+    /// Area mode.
+    pub area_mode: String,
+    /// Whether same-voxel samples were merged.
+    pub merged: bool,
+    /// Triangles read (once per mesh).
+    pub triangles_read: u64,
+    /// Zero-area triangles skipped.
+    pub triangles_degenerate: u64,
+    /// Polygons triangulated by CDT.
+    pub polygons_triangulated: u64,
+    /// Point/line primitives skipped.
+    pub primitives_skipped: u64,
+    /// Triangles in the scene counting every instance.
+    pub triangles_instanced: u64,
+    /// Meshes written.
+    pub meshes: u64,
+    /// Instances written.
+    pub instances: u64,
+    /// Samples before merging.
+    pub samples_before_merge: u64,
+    /// Samples written.
+    pub samples: u64,
+    /// Samples dropped by alpha.
+    pub samples_dropped_alpha: u64,
+    /// Point-cloud points turned into samples.
+    pub point_samples: u64,
+    /// Voxel edge length (world units).
+    pub voxel_size: f64,
+    /// How it was chosen.
+    pub voxel_size_reason: String,
+    /// Sum of sample areas over the scene (instances applied).
+    pub sample_area: f64,
+    /// Mesh surface area over the scene.
+    pub mesh_area: f64,
+    /// (sample_area − mesh_area) / mesh_area.
+    pub area_relative_error: f64,
+    /// Seconds spent loading.
+    pub seconds_load: f64,
+    /// Seconds spent sampling.
+    pub seconds_sample: f64,
+    /// Seconds spent writing.
+    pub seconds_write: f64,
+    /// Total seconds.
+    pub seconds_total: f64,
+    /// Samples per second of sampling time.
+    pub samples_per_second: f64,
+    /// Non-fatal problems.
+    pub warnings: Vec<String>,
+}
+
+/// Loads every input into one scene (indices offset so meshes, materials and images stay
+/// distinct).
+pub fn load_all(inputs: &[PathBuf], opts: &LoadOptions) -> Result<LoadedScene, Error> {
+    let mut all = LoadedScene::default();
+    for path in inputs {
+        let s = load(path, opts)?;
+        let (mo, mato, io) = (all.meshes.len(), all.materials.len(), all.images.len());
+        for mut m in s.meshes {
+            for p in &mut m.primitives {
+                p.material = p.material.map(|x| x + mato);
+            }
+            all.meshes.push(m);
+        }
+        for mut mat in s.materials {
+            if let Some(t) = &mut mat.texture {
+                t.image += io;
+            }
+            if let Some(t) = &mut mat.alpha_texture {
+                t.image += io;
+            }
+            all.materials.push(mat);
+        }
+        all.images.extend(s.images);
+        all.instances.extend(s.instances.into_iter().map(|i| Instance { mesh: i.mesh + mo, transform: i.transform }));
+        match (&mut all.points, s.points) {
+            (Some(a), Some(b)) => {
+                let (na, nb) = (a.positions.len(), b.positions.len());
+                a.normals = match (a.normals.take(), b.normals) {
+                    (Some(mut x), Some(y)) => {
+                        x.extend(y);
+                        Some(x)
+                    }
+                    (x, y) => {
+                        let x = x.unwrap_or_else(|| vec![[0.0; 3]; na]);
+                        let y = y.unwrap_or_else(|| vec![[0.0; 3]; nb]);
+                        Some(x.into_iter().chain(y).collect())
+                    }
+                };
+                a.colors = match (a.colors.take(), b.colors) {
+                    (None, None) => None,
+                    (x, y) => Some(
+                        x.unwrap_or_else(|| vec![[0.8, 0.8, 0.8, 1.0]; na]).into_iter().chain(y.unwrap_or_else(|| vec![[0.8, 0.8, 0.8, 1.0]; nb])).collect(),
+                    ),
+                };
+                a.positions.extend(b.positions);
+            }
+            (a @ None, b) => *a = b,
+            _ => {}
+        }
+        all.warnings.extend(s.warnings);
+        all.stats.triangles_read += s.stats.triangles_read;
+        all.stats.degenerate_triangles += s.stats.degenerate_triangles;
+        all.stats.polygons_triangulated += s.stats.polygons_triangulated;
+        all.stats.skipped_primitives += s.stats.skipped_primitives;
+        all.files.extend(s.files);
+    }
+    Ok(all)
+}
+
+/// Assembles the samples file of a sampled scene (plus an optional point cloud).
+pub fn to_samples_file(sampled: &Sampled, points: Vec<sct_format::Node>, generator: Generator) -> SamplesFile {
+    let mut meshes = Vec::new();
+    let mut instances = Vec::new();
+    let mut samples = Vec::new();
+    for m in &sampled.meshes {
+        let idx = meshes.len() as u32;
+        meshes.push(MeshEntry { name: m.name.clone(), first: samples.len() as u64, count: m.samples.len() as u64 });
+        samples.extend_from_slice(&m.samples);
+        instances.extend(m.instances.iter().map(|t| SampleInstance { mesh: idx, transform: *t }));
+    }
+    if !points.is_empty() {
+        let idx = meshes.len() as u32;
+        meshes.push(MeshEntry { name: "points".into(), first: samples.len() as u64, count: points.len() as u64 });
+        samples.extend(points);
+        instances.push(SampleInstance { mesh: idx, transform: sct_format::Similarity::IDENTITY });
+    }
+    SamplesFile { generator, meshes, instances, samples }
+}
+
+fn method_name(m: Method) -> &'static str {
+    match m {
+        Method::Voxel => "voxel",
+        Method::Scanline => "scanline",
+        Method::Vertex => "vertex",
+    }
+}
+
+/// Runs the whole job. `progress(done, total)` reports sampled triangles.
+pub fn run(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summary, Error> {
+    let t0 = Instant::now();
+    if opts.inputs.is_empty() {
+        return Err(Error::Usage("no input file".into()));
+    }
+    if let Density::VoxelSize(h) = opts.sample.density {
+        if !(h.is_finite() && h > 0.0) {
+            return Err(Error::Usage(format!("--voxel-size must be a positive number, got {h}")));
+        }
+    }
+    let scene = load_all(&opts.inputs, &opts.load)?;
+    let t_load = t0.elapsed().as_secs_f64();
+    let t1 = Instant::now();
+    let has_tris = scene.meshes.iter().any(|m| m.triangle_count() > 0);
+    let sampled = if has_tris || scene.points.is_none() {
+        sample_scene(&scene, &opts.sample, progress).map_err(Error::Sampling)?
+    } else {
+        Sampled {
+            meshes: Vec::new(),
+            voxel: crate::sample::VoxelChoice { size: 0.0, reason: "point cloud: no voxelization".into() },
+            stats: Default::default(),
+        }
+    };
+    let points = scene.points.as_ref().map(sample_points).unwrap_or_default();
+    let t_sample = t1.elapsed().as_secs_f64();
+    let mut sources = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    for f in &scene.files {
+        if !seen.insert(f.clone()) {
+            continue;
+        }
+        // The inputs were read successfully a moment ago; a resource that vanished since
+        // is simply left out of the provenance.
+        if let Ok(bytes) = std::fs::read(f) {
+            sources.push(SourceRef { path: f.display().to_string(), blake3: blake3::hash(&bytes).to_hex().to_string() });
+        }
+    }
+    let s = &opts.sample;
+    let density = match s.density {
+        Density::VoxelSize(h) => json!({"voxel_size": h}),
+        Density::Auto { k, gamma, min_base } => json!({"auto": {"k": k, "gamma": gamma, "min_base": min_base}}),
+        Density::Screen { pixels, resolution, distance, fov_deg } => {
+            json!({"screen": {"pixels": pixels, "resolution": resolution, "distance": distance, "fov_deg": fov_deg}})
+        }
+    };
+    let generator = Generator {
+        tool: "sct-voxelize".into(),
+        version: env!("CARGO_PKG_VERSION").into(),
+        parameters: json!({
+            "method": method_name(s.method),
+            "density": density,
+            "voxel_size": sampled.voxel.size,
+            "area": match s.area { AreaMode::Exact => "exact", AreaMode::Eq17 => "eq17" },
+            "merge": s.merge,
+            "crease_deg": s.crease_deg,
+            "texture_override": opts.load.texture_override.as_ref().map(|p| p.display().to_string()),
+        }),
+        sources: sources.clone(),
+    };
+    let n_points = points.len() as u64;
+    let file = to_samples_file(&sampled, points, generator);
+    let t2 = Instant::now();
+    let output_bytes = match &opts.output {
+        Some(path) => file.write_file(path).map_err(|source| Error::Write { path: path.clone(), source })?,
+        None => 0,
+    };
+    let t_write = t2.elapsed().as_secs_f64();
+    let st = &sampled.stats;
+    let rel = if st.mesh_area > 0.0 { (st.sample_area - st.mesh_area) / st.mesh_area } else { 0.0 };
+    let mut warnings = scene.warnings.clone();
+    if st.baked_non_similar > 0 {
+        warnings.push(format!("{} reused mesh(es) had a non-similarity instance transform and were baked per instance", st.baked_non_similar));
+    }
+    Ok(Summary {
+        inputs: sources,
+        output: opts.output.as_ref().map(|p| p.display().to_string()),
+        output_bytes,
+        method: method_name(s.method).into(),
+        area_mode: match s.area { AreaMode::Exact => "exact", AreaMode::Eq17 => "eq17" }.into(),
+        merged: s.merge,
+        triangles_read: scene.stats.triangles_read,
+        triangles_degenerate: scene.stats.degenerate_triangles,
+        polygons_triangulated: scene.stats.polygons_triangulated,
+        primitives_skipped: scene.stats.skipped_primitives,
+        triangles_instanced: scene.instanced_triangle_count(),
+        meshes: file.meshes.len() as u64,
+        instances: file.instances.len() as u64,
+        samples_before_merge: st.samples_before_merge + n_points,
+        samples: file.samples.len() as u64,
+        samples_dropped_alpha: st.dropped_alpha,
+        point_samples: n_points,
+        voxel_size: sampled.voxel.size,
+        voxel_size_reason: sampled.voxel.reason.clone(),
+        sample_area: st.sample_area,
+        mesh_area: st.mesh_area,
+        area_relative_error: rel,
+        seconds_load: t_load,
+        seconds_sample: t_sample,
+        seconds_write: t_write,
+        seconds_total: t0.elapsed().as_secs_f64(),
+        samples_per_second: if t_sample > 0.0 { file.samples.len() as f64 / t_sample } else { 0.0 },
+        warnings,
+    })
+}
