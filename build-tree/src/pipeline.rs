@@ -95,7 +95,7 @@ pub fn run(cfg: &Config, phase: &mut dyn FnMut(&str)) -> Result<Report, BuildErr
 
     phase("reading samples");
     let samples = SamplesFile::read_file(&cfg.samples, &limits).map_err(|e| match e {
-        sct_format::Error::Io { .. } => BuildError::Io(format!("{}: {e}", cfg.samples.display())),
+        sct_format::Error::Io { .. } => BuildError::Io(e.to_string()),
         other => BuildError::Input(format!("{}: {other}", cfg.samples.display())),
     })?;
     rep.samples = samples.samples.len() as u64;
