@@ -373,9 +373,12 @@ pub fn srgb_to_linear(c: f32) -> f32 {
 
 /// Encodes a linear channel in [0, 1] as 8-bit sRGB.
 pub fn linear_to_srgb8(c: f32) -> u8 {
-    let c = if c.is_finite() { c.clamp(0.0, 1.0) } else { 0.0 };
-    let s = if c <= 0.003_130_8 { c * 12.92 } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 };
-    (s * 255.0 + 0.5) as u8
+    // Binary search over the linear values of the midpoints between 8-bit codes: the same
+    // rounding as encoding with powf, without a powf per sample (a hot path).
+    static MID: std::sync::OnceLock<[f32; 255]> = std::sync::OnceLock::new();
+    let mid = MID.get_or_init(|| std::array::from_fn(|i| srgb_to_linear((i as f32 + 0.5) / 255.0)));
+    let c = if c.is_finite() { c } else { 0.0 };
+    mid.partition_point(|&t| t < c) as u8
 }
 
 /// Lookup table: 8-bit sRGB → linear.

@@ -62,7 +62,8 @@ pub enum Density {
         k: f64,
         /// Samples per base length.
         gamma: f64,
-        /// Minimum base length β; `None` = 1e-4 × the scene's bounding-box diagonal.
+        /// Minimum base length β; `None` = a quarter of the mean edge length (for long-tailed
+        /// edge distributions μ − kσ is tiny or negative).
         min_base: Option<f64>,
     },
     /// Viewing needs: a sample's projected diameter is at most `pixels` pixels when seen from
@@ -163,10 +164,6 @@ pub struct Sampled {
 
 /// Chooses the voxel size (EQ 16, explicit, or viewing needs).
 pub fn choose_voxel_size(scene: &LoadedScene, d: &Density) -> Result<VoxelChoice, String> {
-    let diag = scene
-        .world_bounds()
-        .map(|(lo, hi)| norm(sub(hi, lo)))
-        .unwrap_or(0.0);
     let c = match *d {
         Density::VoxelSize(h) => VoxelChoice { size: h, reason: format!("explicit --voxel-size {h}") },
         Density::Screen { pixels, resolution, distance, fov_deg } => {
@@ -217,7 +214,7 @@ pub fn choose_voxel_size(scene: &LoadedScene, d: &Density) -> Result<VoxelChoice
             }
             let mu = sum / count;
             let sigma = (sum2 / count - mu * mu).max(0.0).sqrt();
-            let beta = min_base.unwrap_or(1e-4 * diag);
+            let beta = min_base.unwrap_or(0.25 * mu);
             let raw = mu - k * sigma;
             let base = raw.max(beta);
             let h = base / gamma;
@@ -255,24 +252,35 @@ fn plan_units(scene: &LoadedScene, h: f64, stats: &mut SampleStats) -> Vec<Unit>
         if insts.is_empty() {
             continue;
         }
-        let sims: Option<Vec<sct_format::Similarity>> = insts.iter().map(|i| to_similarity(&i.transform)).collect();
-        match sims {
-            Some(sims) if insts.len() > 1 => {
-                // Sampled once in the local frame; the finest instance scale decides the
-                // local voxel so that no instance is undersampled.
-                let smin = sims.iter().map(|s| s.scale).fold(f64::INFINITY, f64::min);
-                stats.instanced_meshes += 1;
-                units.push(Unit { mesh: mi, bake: None, h: h / smin, name: mesh.name.clone(), instances: sims });
-            }
-            other => {
-                if other.is_none() && insts.len() > 1 {
-                    stats.baked_non_similar += 1;
+        // Similarity placements share one local sampling; anything else (non-uniform scale,
+        // shear, mirror) cannot be a samples-file instance and is baked into world space.
+        let mut sims = Vec::new();
+        let mut sim_mats = Vec::new();
+        let mut baked = Vec::new();
+        for inst in &insts {
+            match to_similarity(&inst.transform) {
+                Some(s) => {
+                    sims.push(s);
+                    sim_mats.push(inst.transform);
                 }
-                for (k, inst) in insts.iter().enumerate() {
-                    let name = if insts.len() > 1 { format!("{}#{k}", mesh.name) } else { mesh.name.clone() };
-                    units.push(Unit { mesh: mi, bake: Some(inst.transform), h, name, instances: vec![sct_format::Similarity::IDENTITY] });
-                }
+                None => baked.push(inst.transform),
             }
+        }
+        if sims.len() >= 2 {
+            // The finest instance scale decides the local voxel so no instance is undersampled.
+            let smin = sims.iter().map(|s| s.scale).fold(f64::INFINITY, f64::min);
+            stats.instanced_meshes += 1;
+            units.push(Unit { mesh: mi, bake: None, h: h / smin, name: mesh.name.clone(), instances: sims });
+        } else if let Some(m) = sim_mats.first() {
+            baked.insert(0, *m);
+        }
+        if !baked.is_empty() && insts.len() > 1 {
+            stats.baked_non_similar += baked.len() as u64;
+        }
+        let many = baked.len() > 1;
+        for (k, m) in baked.into_iter().enumerate() {
+            let name = if many { format!("{}#{k}", mesh.name) } else { mesh.name.clone() };
+            units.push(Unit { mesh: mi, bake: Some(m), h, name, instances: vec![sct_format::Similarity::IDENTITY] });
         }
     }
     units
@@ -441,10 +449,21 @@ pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn F
         let nodes = if opts.method == Method::Vertex {
             vnodes
         } else {
-            // Stable sort: equal keys keep triangle order, so merging does not depend on the
-            // thread count.
-            recs.par_sort_by_key(|r| r.key);
-            to_nodes(&recs, u.h, opts.merge)
+            // Sort (voxel key, record index) pairs: unique keys make the unstable parallel
+            // sort deterministic, and equal voxels keep triangle order, so merging does not
+            // depend on the thread count. Cheaper than moving 44-byte records around.
+            let mut order: Vec<u128> = recs
+                .par_iter()
+                .enumerate()
+                .map(|(i, r)| {
+                    let k = r.key.map(|v| u128::from((v as i64 + (1i64 << 31)) as u32));
+                    (k[0] << 96) | (k[1] << 64) | (k[2] << 32) | i as u128
+                })
+                .collect();
+            order.par_sort_unstable();
+            let sorted: Vec<Rec> = order.par_iter().map(|&o| recs[(o & 0xFFFF_FFFF) as usize]).collect();
+            drop(order);
+            to_nodes(&sorted, u.h, opts.merge)
         };
         stats.samples += nodes.len() as u64;
         let area: f64 = nodes.iter().map(|n| f64::from(n.area)).sum();
