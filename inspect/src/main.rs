@@ -70,7 +70,7 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
         }
         // An unparsable file still gets its issues printed when validating.
         Err(e) if e.exit_code() == 1 && validation.is_some() => {
-            let v = validation.as_ref().map(|v| v.clone()).unwrap_or_default();
+            let v = validation.clone().unwrap_or_default();
             if cli.json {
                 serde_json::to_writer_pretty(&mut out, &serde_json::json!({"schema": inspect::SCHEMA, "file": cli.file, "error": e.to_string(), "validation": v})).map_err(std::io::Error::from)?;
                 writeln!(out)?;

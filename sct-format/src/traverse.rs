@@ -372,6 +372,8 @@ impl Traversal {
         Ok(())
     }
 
+    // The error is built once per failing inline, never on a hot path: no need to box it.
+    #[allow(clippy::result_large_err)]
     fn follow_inline(&mut self, p: &Pending, rel: &str, hash: &[u8; 32]) -> Result<Pending, TraverseErrorKind> {
         let dir = p.chain.path.parent().unwrap_or(Path::new("."));
         let target = dir.join(rel);

@@ -363,7 +363,7 @@ fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits) -> Result
         let (mut first, mut before) = (0u64, 0u64);
         for (k, b) in blocks[l.first_block as usize..next_block as usize].iter().enumerate() {
             let bi = l.first_block as usize + k;
-            if b.offset.checked_add(b.stored_len as u64).is_none_or(|end| end > e.stored_len) {
+            if b.offset.checked_add(b.stored_len as u64).map_or(true, |end| end > e.stored_len) {
                 return Err((CheckId::Truncated, format!("block {bi} (level {d}) extends past the end of its tree section")));
             }
             let ok = b.level == d as u32
