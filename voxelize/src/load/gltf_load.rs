@@ -49,6 +49,27 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
     // implement them (EXT_mesh_gpu_instancing); having checked them above, drop them and run
     // its validation for everything else (indices in range, required fields …).
     root.extensions_required.clear();
+    // POSITION min/max are required by the validator, but a bound of ±Infinity is not valid
+    // JSON and reads as "missing"; we never use them, so fill them in and let the real data
+    // check report the non-finite vertex precisely.
+    let mut pos_accessors = Vec::new();
+    for mesh in &root.meshes {
+        for prim in &mesh.primitives {
+            for (sem, idx) in &prim.attributes {
+                if matches!(sem, gltf::json::validation::Checked::Valid(gltf::Semantic::Positions)) {
+                    pos_accessors.push(idx.value());
+                }
+            }
+        }
+    }
+    for i in pos_accessors {
+        if let Some(acc) = root.accessors.get_mut(i) {
+            if acc.min.is_none() || acc.max.is_none() {
+                acc.min = Some(serde_json::json!([0.0, 0.0, 0.0]));
+                acc.max = Some(serde_json::json!([0.0, 0.0, 0.0]));
+            }
+        }
+    }
     let document = gltf::Document::from_json(root).map_err(|e| perr("document validation", e.to_string()))?;
     let base = path.parent().unwrap_or_else(|| Path::new("."));
     let mut scene = LoadedScene::default();

@@ -238,16 +238,16 @@ pub(super) fn decode_text(path: &Path, bytes: &[u8]) -> Result<String, LoadError
 }
 
 /// Joins lines ending in a backslash with the next line (an OBJ/MTL continuation).
+/// Also drops `usemtl`/`mtllib` lines without a name (Rhino writes them; tobj refuses them).
 pub(super) fn join_continuations(text: &str) -> String {
-    if !text.contains("\\\n") && !text.contains("\\\r\n") {
-        return text.to_string();
-    }
     let mut out = String::with_capacity(text.len());
     for line in text.split_inclusive('\n') {
         let trimmed = line.trim_end_matches(['\n', '\r']);
         if let Some(body) = trimmed.strip_suffix('\\') {
             out.push_str(body);
             out.push(' ');
+        } else if matches!(trimmed.trim(), "usemtl" | "mtllib") {
+            out.push('\n');
         } else {
             out.push_str(line);
         }

@@ -48,9 +48,32 @@ fn channel(p: &Property) -> Option<f32> {
     Some(unit.clamp(0.0, 1.0) as f32)
 }
 
+/// Some exporters (Blender 2.4x) write free text lines in the header; they are turned into
+/// comments so the strict header grammar accepts the file. `None` = no change needed.
+fn sanitize_header(bytes: &[u8]) -> Option<Vec<u8>> {
+    const KEYWORDS: &[&str] = &["ply", "format", "element", "property", "comment", "obj_info", "end_header"];
+    let end = bytes.windows(10).position(|w| w == b"end_header")?;
+    let header = std::str::from_utf8(&bytes[..end]).ok()?;
+    let bad = |l: &str| !l.trim().is_empty() && !KEYWORDS.contains(&l.split_whitespace().next().unwrap_or(""));
+    if !header.lines().any(bad) {
+        return None;
+    }
+    let mut out = Vec::with_capacity(bytes.len() + 64);
+    for line in header.split_inclusive('\n') {
+        if bad(line) {
+            out.extend_from_slice(b"comment ");
+        }
+        out.extend_from_slice(line.as_bytes());
+    }
+    out.extend_from_slice(&bytes[end..]);
+    Some(out)
+}
+
 pub(super) fn load(path: &Path, bytes: &[u8], _opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
     let perr = |loc: String, msg: String| LoadError::parse(path, "PLY", loc, msg);
     let parser = Parser::<DefaultElement>::new();
+    let fixed = sanitize_header(bytes);
+    let bytes: &[u8] = fixed.as_deref().unwrap_or(bytes);
     let mut cur = Cursor::new(bytes);
     let header = parser.read_header(&mut cur).map_err(|e| perr("header".into(), e.to_string()))?;
     // A declared count can never exceed the bytes left (each element takes at least one
