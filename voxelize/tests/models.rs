@@ -272,7 +272,7 @@ fn texture_colours_reproduced() {
             for (ti, (w, _, _)) in tris.iter().enumerate() {
                 let (bc, dist) = project(w, c);
                 let eps = 1e-9;
-                if bc.iter().all(|&x| x >= -eps) && best.is_none_or(|b| dist < b.0) {
+                if bc.iter().all(|&x| x >= -eps) && best.map_or(true, |b| dist < b.0) {
                     best = Some((dist, ti, bc));
                 }
             }
