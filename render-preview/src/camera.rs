@@ -312,8 +312,10 @@ mod tests {
         // Grazing normal is kept; obtuse cones are never culled.
         assert!(!v.backfacing(c, 0.1, [1.0, 0.0, 0.0], 0.0));
         assert!(!v.backfacing(c, 0.1, [0.0, 0.0, 1.0], 1.7));
-        // Wide but acute cone facing away at 135° + margin: 0.7 rad cone is not enough.
-        assert!(!v.backfacing(c, 0.1, [0.0, 0.0, 1.0], 1.5));
+        // Axis straight away: a 1.5 rad cone still faces away entirely (its best normal is
+        // 1.64 rad from the eye direction); 1.565 rad plus the view cone reaches it.
+        assert!(v.backfacing(c, 0.1, [0.0, 0.0, 1.0], 1.5));
+        assert!(!v.backfacing(c, 0.1, [0.0, 0.0, 1.0], 1.565));
     }
 
     #[test]

@@ -51,6 +51,10 @@ pub enum SplatShape {
     Disc,
 }
 
+/// Internal splats are drawn with at most this multiple of the radius of the disc whose
+/// area equals the node's surface area (see `lod::decide`).
+pub const AREA_COVER: f32 = 1.3;
+
 /// Everything that controls a render.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RenderOptions {
@@ -153,6 +157,8 @@ pub struct Rendered {
     pub camera: Camera,
     /// Counters and timings.
     pub stats: RenderStats,
+    /// Near distance used (the reference renderer must use the same).
+    pub near: f64,
 }
 
 /// Bounding sphere of a scene as (centre, radius).
@@ -177,6 +183,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         ellipses: opts.splat == SplatShape::Ellipse,
         backface: opts.backface_culling,
         max_radius: 2.0 * opts.width.max(opts.height) as f32,
+        area_cover: AREA_COVER,
     };
     let (splats, lod) = files.collect(&view, &params)?;
     let t1 = Instant::now();
@@ -198,7 +205,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             total: (t2 - t0).as_secs_f64(),
         },
     };
-    Ok(Rendered { frame, camera, stats })
+    Ok(Rendered { frame, camera, stats, near })
 }
 
 /// Opens `path` and renders it; the open time is included in the timings.
@@ -225,4 +232,21 @@ pub fn write_rgb_png(path: &Path, img: &image::RgbImage) -> Result<()> {
             .map_err(|e| sct_format::Error::Io { path: Some(path.to_path_buf()), source: std::io::Error::other(e) })
     })
     .map_err(|e| fail(e.to_string()))
+}
+
+/// The splats a render would rasterize (for benchmarks and tests).
+pub fn collect_splats(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Vec<Splat>> {
+    let bound = scene_bound(files);
+    let camera = opts.camera(bound);
+    let near = bound.map_or(1e-6, |(_, r)| (r * 1e-5).max(1e-12));
+    let view = View::new(&camera, near)?;
+    let params = lod::LodParams {
+        pixel_error: opts.pixel_error,
+        shading: opts.shading,
+        ellipses: opts.splat == SplatShape::Ellipse,
+        backface: opts.backface_culling,
+        max_radius: 2.0 * opts.width.max(opts.height) as f32,
+        area_cover: AREA_COVER,
+    };
+    Ok(files.collect(&view, &params)?.0)
 }

@@ -197,6 +197,8 @@ pub(crate) struct LodParams {
     pub backface: bool,
     /// Cap on a leaf splat's radius (pixels) when it nearly reaches the eye.
     pub max_radius: f32,
+    /// Internal splats are drawn with at most this multiple of their equal-area radius.
+    pub area_cover: f32,
 }
 
 /// Counters of one render.
@@ -270,6 +272,14 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
         st.internal_splats += 1;
     }
     s = s.min(p.max_radius);
+    if !leaf && n.radius > 0.0 {
+        // Merged spheres are loose: an internal node's surface patch is usually much
+        // smaller than its sphere, and drawing the whole conservative circle thickens
+        // silhouettes. Shrink towards the disc of equal area, kept large enough (×AREA_COVER)
+        // that neighbouring discs still overlap. Leaves keep their covering radius.
+        let r_area = (n.area / std::f32::consts::PI).sqrt() * p.area_cover;
+        s *= (r_area / n.radius).min(1.0);
+    }
     let mut color = n.color;
     if let Some(t) = pl.tint {
         color = shade::tint(color, t);

@@ -5,6 +5,10 @@
 
 use rayon::prelude::*;
 
+/// Splats whose larger half-extent is below this (pixels) always cover the pixel holding
+/// their centre; a disc of radius ≥ √2/2 always contains a pixel centre anyway.
+pub const CENTRE_RULE_BELOW: f32 = 0.71;
+
 /// Tile side in pixels.
 pub const TILE: usize = 32;
 
@@ -50,18 +54,44 @@ impl Splat {
         Splat { x, y, z, ux, uy, inv_a2: 1.0 / (a * a), inv_b2: 1.0 / (b * b), ex, ey, color }
     }
 
-    /// Inclusive pixel bounds `[x0, x1] × [y0, y1]` (unclipped): pixels whose centre lies in
-    /// the bounding box, plus the pixel holding the centre (so sub-pixel splats never vanish).
+    /// Inclusive pixel bounds `[x0, x1] × [y0, y1]` (unclipped) and the forced centre pixel:
+    /// pixels whose centre lies in the bounding box, plus, for splats smaller than
+    /// [`CENTRE_RULE_BELOW`], the pixel holding the centre (so they never vanish).
     #[inline]
     fn bounds(&self) -> (i32, i32, i32, i32, i32, i32) {
-        let cx = self.x.floor() as i32;
-        let cy = self.y.floor() as i32;
-        let x0 = ((self.x - self.ex - 0.5).ceil() as i32).min(cx);
-        let x1 = ((self.x + self.ex - 0.5).floor() as i32).max(cx);
-        let y0 = ((self.y - self.ey - 0.5).ceil() as i32).min(cy);
-        let y1 = ((self.y + self.ey - 0.5).floor() as i32).max(cy);
+        if self.ex.max(self.ey) >= CENTRE_RULE_BELOW {
+            // Large enough to be sampled at pixel centres like a triangle would be: no
+            // forced centre pixel, which would grow silhouettes by half a pixel.
+            let x0 = iceil(self.x - self.ex - 0.5);
+            let x1 = ifloor(self.x + self.ex - 0.5);
+            let y0 = iceil(self.y - self.ey - 0.5);
+            let y1 = ifloor(self.y + self.ey - 0.5);
+            return (x0, x1, y0, y1, i32::MIN, i32::MIN);
+        }
+        let cx = ifloor(self.x);
+        let cy = ifloor(self.y);
+        let x0 = iceil(self.x - self.ex - 0.5).min(cx);
+        let x1 = ifloor(self.x + self.ex - 0.5).max(cx);
+        let y0 = iceil(self.y - self.ey - 0.5).min(cy);
+        let y1 = ifloor(self.y + self.ey - 0.5).max(cy);
         (x0, x1, y0, y1, cx, cy)
     }
+}
+
+// Without SSE4.1 `f32::floor` is a libm call; these stay inline. Inputs are clamped so
+// the casts saturate harmlessly for splats far off screen.
+#[inline(always)]
+fn ifloor(v: f32) -> i32 {
+    let v = v.clamp(-1e9, 1e9);
+    let i = v as i32;
+    i - ((i as f32) > v) as i32
+}
+
+#[inline(always)]
+fn iceil(v: f32) -> i32 {
+    let v = v.clamp(-1e9, 1e9);
+    let i = v as i32;
+    i + ((i as f32) < v) as i32
 }
 
 /// A rendered image with depth.
@@ -113,6 +143,12 @@ pub fn alpha_passes(alpha: u8, x: usize, y: usize) -> bool {
     alpha == 255 || alpha > BAYER[(x & 3) | ((y & 3) << 2)]
 }
 
+/// Per-chunk bins: tile `t` of this chunk is `idx[off[t]..off[t + 1]]`.
+struct Bins {
+    off: Vec<u32>,
+    idx: Vec<u32>,
+}
+
 /// Rasterizes `splats` into `frame` (depth-tested against what the frame holds).
 pub fn rasterize(frame: &mut Frame, splats: &[Splat]) {
     let (w, h) = (frame.width, frame.height);
@@ -122,30 +158,63 @@ pub fn rasterize(frame: &mut Frame, splats: &[Splat]) {
     let tx = w.div_ceil(TILE);
     let ty = h.div_ceil(TILE);
     let ntiles = tx * ty;
-    // Chunks keep input order: a tile walks the chunks in order, so ties resolve to the
-    // earliest splat whatever the thread count.
+    // Screen-clipped pixel bounds, computed once and reused by binning and drawing.
+    let bounds: Vec<[i16; 4]> = splats
+        .par_iter()
+        .with_min_len(4096)
+        .map(|s| {
+            let (x0, x1, y0, y1, _, _) = s.bounds();
+            if x1 < 0 || y1 < 0 || x0 >= w as i32 || y0 >= h as i32 {
+                return [1, 0, 1, 0]; // empty
+            }
+            [x0.max(0) as i16, x1.min(w as i32 - 1) as i16, y0.max(0) as i16, y1.min(h as i32 - 1) as i16]
+        })
+        .collect();
+    // Counting sort per chunk. Chunks keep input order and a tile walks them in order, so
+    // ties resolve to the earliest splat whatever the thread count.
     let threads = rayon::current_num_threads().max(1);
     let chunk_len = (splats.len() / (threads * 2)).max(16384);
-    let bins: Vec<Vec<Vec<u32>>> = splats
+    let bins: Vec<Bins> = bounds
         .par_chunks(chunk_len)
         .enumerate()
         .map(|(ci, chunk)| {
-            let mut bins: Vec<Vec<u32>> = vec![Vec::new(); ntiles];
-            let base = ci * chunk_len;
-            for (k, s) in chunk.iter().enumerate() {
-                let (x0, x1, y0, y1, _, _) = s.bounds();
-                if x1 < 0 || y1 < 0 || x0 >= w as i32 || y0 >= h as i32 {
+            let tiles = |b: &[i16; 4]| {
+                let (x0, x1) = (b[0] as usize / TILE, b[1] as usize / TILE);
+                let (y0, y1) = (b[2] as usize / TILE, b[3] as usize / TILE);
+                (x0, x1, y0, y1)
+            };
+            let mut off = vec![0u32; ntiles + 1];
+            for b in chunk {
+                if b[0] > b[1] {
                     continue;
                 }
-                let (x0, x1) = (x0.max(0) as usize / TILE, (x1 as usize).min(w - 1) / TILE);
-                let (y0, y1) = (y0.max(0) as usize / TILE, (y1 as usize).min(h - 1) / TILE);
-                for ty_ in y0..=y1 {
-                    for tx_ in x0..=x1 {
-                        bins[ty_ * tx + tx_].push((base + k) as u32);
+                let (x0, x1, y0, y1) = tiles(b);
+                for t_y in y0..=y1 {
+                    for t_x in x0..=x1 {
+                        off[t_y * tx + t_x + 1] += 1;
                     }
                 }
             }
-            bins
+            for t in 0..ntiles {
+                off[t + 1] += off[t];
+            }
+            let mut fill = off.clone();
+            let mut idx = vec![0u32; off[ntiles] as usize];
+            let base = (ci * chunk_len) as u32;
+            for (k, b) in chunk.iter().enumerate() {
+                if b[0] > b[1] {
+                    continue;
+                }
+                let (x0, x1, y0, y1) = tiles(b);
+                for t_y in y0..=y1 {
+                    for t_x in x0..=x1 {
+                        let f = &mut fill[t_y * tx + t_x];
+                        idx[*f as usize] = base + k as u32;
+                        *f += 1;
+                    }
+                }
+            }
+            Bins { off, idx }
         })
         .collect();
 
@@ -153,14 +222,21 @@ pub fn rasterize(frame: &mut Frame, splats: &[Splat]) {
     frame.color.par_chunks_mut(band_px).zip(frame.depth.par_chunks_mut(band_px)).enumerate().for_each(
         |(band, (color, depth))| {
             let y_base = band * TILE;
-            let rows = color.len() / w;
             for tile_x in 0..tx {
-                let x_lo = tile_x * TILE;
-                let x_hi = (x_lo + TILE).min(w);
+                let x_lo = (tile_x * TILE) as i32;
+                let x_hi = ((tile_x + 1) * TILE).min(w) as i32 - 1;
+                let (y_lo, y_hi) = (y_base as i32, (y_base + color.len() / w) as i32 - 1);
                 let tile = band * tx + tile_x;
-                for chunk_bins in &bins {
-                    for &i in &chunk_bins[tile] {
-                        draw(&splats[i as usize], color, depth, w, x_lo, x_hi, y_base, rows);
+                for b in &bins {
+                    for &i in &b.idx[b.off[tile] as usize..b.off[tile + 1] as usize] {
+                        let bb = bounds[i as usize];
+                        let clip = [
+                            (bb[0] as i32).max(x_lo),
+                            (bb[1] as i32).min(x_hi),
+                            (bb[2] as i32).max(y_lo),
+                            (bb[3] as i32).min(y_hi),
+                        ];
+                        draw(&splats[i as usize], clip, color, depth, w, y_base);
                     }
                 }
             }
@@ -168,22 +244,14 @@ pub fn rasterize(frame: &mut Frame, splats: &[Splat]) {
     );
 }
 
-/// Draws one splat clipped to columns `[x_lo, x_hi)` of a band of `rows` rows starting at
-/// image row `y_base`.
+/// Draws one splat over the inclusive pixel rectangle `clip` (inside the band starting at
+/// image row `y_base`).
 #[inline]
-#[allow(clippy::too_many_arguments)]
-fn draw(s: &Splat, color: &mut [[u8; 4]], depth: &mut [f32], w: usize, x_lo: usize, x_hi: usize, y_base: usize, rows: usize) {
-    let (x0, x1, y0, y1, cx, cy) = s.bounds();
-    let xa = x0.max(x_lo as i32);
-    let xb = x1.min(x_hi as i32 - 1);
-    let ya = y0.max(y_base as i32);
-    let yb = y1.min((y_base + rows) as i32 - 1);
-    if xa > xb || ya > yb {
-        return;
-    }
+fn draw(s: &Splat, clip: [i32; 4], color: &mut [[u8; 4]], depth: &mut [f32], w: usize, y_base: usize) {
+    let [xa, xb, ya, yb] = clip;
     let opaque = s.color[3] == 255;
     // Fast path: a one-pixel splat needs no coverage test (its centre pixel always counts).
-    if x0 == x1 && y0 == y1 {
+    if xa == xb && ya == yb && s.ex.max(s.ey) < CENTRE_RULE_BELOW {
         let (px, py) = (xa as usize, ya as usize);
         let i = (py - y_base) * w + px;
         if s.z < depth[i] && (opaque || alpha_passes(s.color[3], px, py)) {
@@ -192,13 +260,15 @@ fn draw(s: &Splat, color: &mut [[u8; 4]], depth: &mut [f32], w: usize, x_lo: usi
         }
         return;
     }
+    let (_, _, _, _, cx, cy) = s.bounds();
     for py in ya..=yb {
         let dy = py as f32 + 0.5 - s.y;
         let row = (py as usize - y_base) * w;
+        let (ay, by) = (dy * s.uy, dy * s.ux);
         for px in xa..=xb {
             let dx = px as f32 + 0.5 - s.x;
-            let a = dx * s.ux + dy * s.uy;
-            let b = dy * s.ux - dx * s.uy;
+            let a = dx * s.ux + ay;
+            let b = by - dx * s.uy;
             let inside = a * a * s.inv_a2 + b * b * s.inv_b2 <= 1.0 || (px == cx && py == cy);
             let i = row + px as usize;
             if inside && s.z < depth[i] && (opaque || alpha_passes(s.color[3], px as usize, py as usize)) {

@@ -98,8 +98,11 @@ impl SceneFiles {
         let f = &self.files[file];
         match f.reader.graph().nodes.get(node as usize)? {
             GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => {
-                let c = f.trees.get(*tree as usize)?;
-                c.root()
+                let root = f.trees.get(*tree as usize)?.root()?;
+                // Merged spheres grow level by level, so the root sphere is loose (often
+                // 2-3× the object): bound the spheres a few levels down instead, which
+                // costs only the first few (small) blocks.
+                Some(tighter_bound(&f.reader, *tree as usize).filter(|t| t.radius < root.radius).map_or(root, |t| Node { center: t.center, radius: t.radius, ..root }))
             }
             GraphNode::Instance { child, transform, .. } => {
                 (depth < 1024).then(|| self.bound(file, *child, depth + 1))?.map(|n| transform.apply_node(&n))
@@ -175,6 +178,35 @@ impl SceneFiles {
         }
         Ok((splats, stats))
     }
+}
+
+/// A sphere around the cut at level 9 (and the leaves above it), centred on the cut's
+/// bounding box, or `None` when that cannot be read.
+fn tighter_bound(reader: &SctReader, tree: usize) -> Option<Node> {
+    const LEVELS: usize = 10;
+    let t = reader.read_tree_levels(tree, LEVELS).ok()?;
+    let last = t.level_count().checked_sub(1)?;
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for (i, n) in t.nodes().iter().enumerate() {
+        if t.is_internal(i) && i < t.level(last).start {
+            continue;
+        }
+        for k in 0..3 {
+            lo[k] = lo[k].min(n.center[k] - n.radius);
+            hi[k] = hi[k].max(n.center[k] + n.radius);
+        }
+    }
+    let center: [f32; 3] = std::array::from_fn(|k| (lo[k] + hi[k]) / 2.0);
+    let mut radius = 0f32;
+    for (i, n) in t.nodes().iter().enumerate() {
+        if t.is_internal(i) && i < t.level(last).start {
+            continue;
+        }
+        let d = (0..3).map(|k| (n.center[k] - center[k]).powi(2)).sum::<f32>().sqrt();
+        radius = radius.max(d + n.radius);
+    }
+    (radius.is_finite() && radius > 0.0).then_some(Node { center, radius, ..Node::default() })
 }
 
 /// Camera-space placement of a world-space similarity.
