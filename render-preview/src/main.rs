@@ -135,6 +135,9 @@ enum Command {
         /// Replace the model by an N×N grid of tinted instances of it (a group tree on top).
         #[arg(long)]
         grid: Option<usize>,
+        /// Node profile: raw, canopy or default.
+        #[arg(long, default_value = "default")]
+        profile: sct_format::Profile,
     },
 }
 
@@ -170,7 +173,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             println!("{}", serde_json::to_string_pretty(&result)?);
             Ok(())
         }
-        Some(Command::Synth { mesh, output, spacing, grid }) => {
+        Some(Command::Synth { mesh, output, spacing, grid, profile }) => {
             let m = reference::WorldMesh::load(&mesh)?;
             let (_, r) = m.bound().context("the mesh has no triangles")?;
             let spacing = spacing.unwrap_or((2.0 * r / 400.0) as f32);
@@ -184,7 +187,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     Some([128 + (h & 127) as u8, 128 + (h >> 8 & 127) as u8, 128 + (h >> 16 & 127) as u8, 255])
                 })?,
             };
-            let stats = sct_format::write_scene_file(&output, &scene, &Default::default())
+            let wopts = sct_format::WriteOptions { profile, ..Default::default() };
+            let stats = sct_format::write_scene_file(&output, &scene, &wopts)
                 .with_context(|| format!("writing {}", output.display()))?;
             println!("{}: {n} leaves, {} bytes", output.display(), stats.bytes);
             Ok(())

@@ -260,7 +260,7 @@ fn draw(s: &Splat, clip: [i32; 4], color: &mut [[u8; 4]], depth: &mut [f32], w: 
         }
         return;
     }
-    let (_, _, _, _, cx, cy) = s.bounds();
+    let (cx, cy) = if s.ex.max(s.ey) < CENTRE_RULE_BELOW { (ifloor(s.x), ifloor(s.y)) } else { (i32::MIN, i32::MIN) };
     for py in ya..=yb {
         let dy = py as f32 + 0.5 - s.y;
         let row = (py as usize - y_base) * w;

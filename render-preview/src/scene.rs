@@ -4,7 +4,7 @@
 use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
 
-use sct_format::{GraphNode, Limits, Node, SctReader, Similarity};
+use sct_format::{GraphNode, Limits, Node, Propagation, SctReader, Similarity};
 
 use crate::camera::View;
 use crate::error::{Error, Result};
@@ -147,7 +147,10 @@ impl SceneFiles {
                     }
                 }
                 GraphNode::Instance { child, transform, attrs } => {
-                    let ctx = Ctx { sim: v.ctx.sim.compose(&transform), tint: compose_tint(v.ctx.tint, attrs.tint) };
+                    // As in sct_format::traverse (§5.11.2): a tint only applies to a
+                    // push-down-colour instance; a pull-up instance keeps child colours.
+                    let tint = if attrs.color == Propagation::PushDown { attrs.tint } else { None };
+                    let ctx = Ctx { sim: v.ctx.sim.compose(&transform), tint: compose_tint(v.ctx.tint, tint) };
                     queue.push_back(Visit { file: v.file, node: child, ctx, depth: v.depth });
                 }
                 GraphNode::Inline { path, bound, .. } => {

@@ -7,7 +7,7 @@
 
 use std::path::Path;
 
-use sct_format::graph::{Generator, GraphNode, InstanceAttrs, SceneGraph, Similarity};
+use sct_format::graph::{Generator, GraphNode, InstanceAttrs, Propagation, SceneGraph, Similarity};
 use sct_format::write::{write_scene_file, Scene, WriteOptions};
 use sct_format::{Node, SceneTree};
 
@@ -150,7 +150,9 @@ pub fn instance_grid(tree: SceneTree, nx: usize, nz: usize, step: f64, tints: im
                 translation: [(ix as f64 - (nx as f64 - 1.0) / 2.0) * step, 0.0, (iz as f64 - (nz as f64 - 1.0) / 2.0) * step],
                 ..Similarity::IDENTITY
             };
-            let attrs = InstanceAttrs { tint: tints(i), ..Default::default() };
+            let tint = tints(i);
+            let color = if tint.is_some() { Propagation::PushDown } else { Propagation::PullUp };
+            let attrs = InstanceAttrs { tint, color, ..Default::default() };
             bounds.push(transform.apply_node(&root));
             nodes.push(GraphNode::Instance { child: 0, transform, attrs });
         }
