@@ -46,6 +46,7 @@ impl Splat {
     }
 
     /// An elliptical splat: major radius `b`, minor radius `a` along unit `(ux, uy)`.
+    #[allow(clippy::too_many_arguments)]
     pub fn ellipse(x: f32, y: f32, z: f32, b: f32, a: f32, ux: f32, uy: f32, color: [u8; 4]) -> Splat {
         let b = b.max(1e-6);
         let a = a.clamp(1e-6, b);
