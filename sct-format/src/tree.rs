@@ -9,7 +9,7 @@ use crate::error::{Error, Result};
 use crate::node::Node;
 
 /// A decoded scene tree, possibly truncated to its first levels.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct SceneTree {
     nodes: Vec<Node>,
     internal: Vec<bool>,
@@ -18,6 +18,13 @@ pub struct SceneTree {
     /// Index of the first child of each node, `u32::MAX` for leaves and for nodes whose
     /// children are not loaded.
     first_child: Vec<u32>,
+}
+
+impl Default for SceneTree {
+    /// The empty tree (same as `from_bfs(vec![], vec![])`).
+    fn default() -> Self {
+        SceneTree { nodes: Vec::new(), internal: Vec::new(), level_starts: vec![0], first_child: Vec::new() }
+    }
 }
 
 /// Sentinel for "no child".
@@ -157,6 +164,13 @@ mod tests {
 
     fn n() -> Node {
         Node::default()
+    }
+
+    #[test]
+    fn default_is_the_empty_tree() {
+        // Regression: the derived Default left level_starts empty and level_count() underflowed.
+        assert_eq!(SceneTree::default().level_count(), 0);
+        assert_eq!(SceneTree::default(), SceneTree::from_bfs(vec![], vec![]).unwrap());
     }
 
     #[test]
