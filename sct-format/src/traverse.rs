@@ -36,7 +36,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use crate::error::Error;
-use crate::graph::{GraphNode, InstanceAttrs, Propagation, Similarity};
+use crate::graph::{GraphNode, InstanceAttrs, Propagation, SceneGraph, Similarity};
 use crate::limits::Limits;
 use crate::node::Node;
 use crate::read::SctReader;
@@ -128,16 +128,21 @@ pub fn leaf_paths(tree: &crate::SceneTree, base: &str) -> Vec<String> {
 /// The bound of graph node `node` of `file` in that file's frame: a tree's or group's root,
 /// an inline's recorded bound, an instance's child bound transformed (and tinted).
 pub fn graph_bound(file: &SctReader, node: u32) -> Option<Node> {
-    let g = file.graph();
+    bound_in_graph(file.graph(), node, |t| {
+        let t = file.trees().get(t as usize)?;
+        (t.header.node_count > 0).then_some(t.header.root)
+    })
+}
+
+/// [`graph_bound`] over any source of tree roots: `tree_root(t)` is tree `t`'s root, `None`
+/// when the tree is empty or unusable.
+pub(crate) fn bound_in_graph(g: &SceneGraph, node: u32, tree_root: impl Fn(u32) -> Option<Node>) -> Option<Node> {
     let mut state = TraversalState::IDENTITY;
     let mut at = node;
     // Instance chains only point backwards, so this loop ends after at most `nodes` steps.
     for _ in 0..=g.nodes.len() {
         match g.nodes.get(at as usize)? {
-            GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => {
-                let t = file.trees().get(*tree as usize)?;
-                return (t.header.node_count > 0).then(|| state.apply(&t.header.root));
-            }
+            GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => return tree_root(*tree).map(|r| state.apply(&r)),
             GraphNode::Inline { bound, .. } => return Some(state.apply(bound)),
             GraphNode::Instance { child, transform, attrs } => {
                 state = state.push_instance(transform, attrs);

@@ -52,7 +52,7 @@ use crate::raw::{
     tags, BlockEntry, Cursor, LevelEntry, SectionEntry, TreeHeader, BLOCK_ENTRY_LEN, LEVEL_ENTRY_LEN, SCT_MAGIC, TREE_HEADER_LEN,
 };
 use crate::samples::read_similarity;
-use crate::traverse::{hex, leaf_paths, TraversalState};
+use crate::traverse::{hex, leaf_paths};
 use crate::tree::SceneTree;
 use crate::write::kind;
 
@@ -515,22 +515,10 @@ fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, issues: &mut Vec<Prob
 /// The bound of graph node `node` in its file's frame (instances applied, push-down tints
 /// included), from the parsed index.
 fn bound_of(g: &SceneGraph, trees: &[Option<TreeIdx>], node: u32) -> Option<Node> {
-    let mut state = TraversalState::IDENTITY;
-    let mut at = node;
-    for _ in 0..=g.nodes.len() {
-        match g.nodes.get(at as usize)? {
-            GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => {
-                let t = trees.get(*tree as usize)?.as_ref()?;
-                return (t.header.node_count > 0).then(|| state.apply(&t.header.root));
-            }
-            GraphNode::Inline { bound, .. } => return Some(state.apply(bound)),
-            GraphNode::Instance { child, transform, attrs } => {
-                state = state.push_instance(transform, attrs);
-                at = *child;
-            }
-        }
-    }
-    None
+    crate::traverse::bound_in_graph(g, node, |t| {
+        let t = trees.get(t as usize)?.as_ref()?;
+        (t.header.node_count > 0).then_some(t.header.root)
+    })
 }
 
 /// Issues found in a block, by node index within its level.
