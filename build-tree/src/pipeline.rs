@@ -87,17 +87,40 @@ pub struct Phases {
     pub total: f64,
 }
 
-/// Runs a build; `phase` is told what is happening (for a progress display).
+/// Runs a build from the samples file `cfg.samples`; `phase` is told what is happening
+/// (for a progress display).
 pub fn run(cfg: &Config, phase: &mut dyn FnMut(&str)) -> Result<Report, BuildError> {
     let t0 = Instant::now();
-    let mut rep = Report { output: cfg.output.display().to_string(), profile: cfg.profile.name().into(), ..Default::default() };
-    let limits = Limits::default();
-
     phase("reading samples");
-    let samples = SamplesFile::read_file(&cfg.samples, &limits).map_err(|e| match e {
+    let samples = SamplesFile::read_file(&cfg.samples, &Limits::default()).map_err(|e| match e {
         sct_format::Error::Io { .. } => BuildError::Io(e.to_string()),
         other => BuildError::Input(format!("{}: {other}", cfg.samples.display())),
     })?;
+    let upstream = Upstream::SamplesFile(source(&cfg.samples)?);
+    run_samples(cfg, samples, upstream, t0, phase)
+}
+
+/// Where the samples of a build came from (recorded in the generator's provenance).
+#[derive(Clone, Debug)]
+pub enum Upstream {
+    /// A samples file on disk (path and hash).
+    SamplesFile(SourceRef),
+    /// Sampled in this process from meshes (one-step conversion): the voxelizer's own
+    /// generator record, whose sources are the meshes and resources it read.
+    Sampled(Generator),
+}
+
+/// Builds from samples already in memory (`cfg.samples` is not read). `t0` is when the
+/// run started, so the read (or sampling) time counts in the report's phases.
+pub fn run_samples(
+    cfg: &Config,
+    samples: SamplesFile,
+    upstream: Upstream,
+    t0: Instant,
+    phase: &mut dyn FnMut(&str),
+) -> Result<Report, BuildError> {
+    let mut rep = Report { output: cfg.output.display().to_string(), profile: cfg.profile.name().into(), ..Default::default() };
+    let limits = Limits::default();
     rep.samples = samples.samples.len() as u64;
     rep.seconds.read = t0.elapsed().as_secs_f64();
 
@@ -145,7 +168,7 @@ pub fn run(cfg: &Config, phase: &mut dyn FnMut(&str)) -> Result<Report, BuildErr
 
     phase("writing");
     let t2 = Instant::now();
-    let generator = generator(cfg, &composed.inlines)?;
+    let generator = generator(cfg, &upstream, &composed.inlines)?;
     let scene = Scene { generator, graph: composed.graph, trees: composed.trees };
     drop(samples);
     let wopts = WriteOptions { profile: cfg.profile, compression_level: cfg.compression_level, ..Default::default() };
@@ -163,8 +186,14 @@ pub fn run(cfg: &Config, phase: &mut dyn FnMut(&str)) -> Result<Report, BuildErr
     Ok(rep)
 }
 
-fn generator(cfg: &Config, inlines: &[(String, String)]) -> Result<Generator, BuildError> {
-    let mut sources = vec![source(&cfg.samples)?];
+fn generator(cfg: &Config, upstream: &Upstream, inlines: &[(String, String)]) -> Result<Generator, BuildError> {
+    let (mut sources, sampling) = match upstream {
+        Upstream::SamplesFile(s) => (vec![s.clone()], serde_json::Value::Null),
+        Upstream::Sampled(g) => (
+            g.sources.clone(),
+            serde_json::json!({ "tool": g.tool, "version": g.version, "parameters": g.parameters }),
+        ),
+    };
     if let Some(s) = &cfg.scene {
         sources.push(source(s)?);
     }
@@ -174,16 +203,21 @@ fn generator(cfg: &Config, inlines: &[(String, String)]) -> Result<Generator, Bu
         Weld::Absolute(t) => serde_json::json!({ "absolute": t }),
         Weld::RelativeToMeanRadius(f) => serde_json::json!({ "relative_to_mean_radius": f }),
     };
+    let mut parameters = serde_json::json!({
+        "profile": cfg.profile.name(),
+        "compression_level": cfg.compression_level,
+        "weld": weld,
+        "depth_slack": cfg.build.depth_slack,
+        "splitter": "centre of largest extent",
+    });
+    // Only one-step builds carry the sampling step (a samples file has its own GENR).
+    if let (false, Some(map)) = (sampling.is_null(), parameters.as_object_mut()) {
+        map.insert("sampling".into(), sampling);
+    }
     Ok(Generator {
         tool: "sct-build-tree".into(),
         version: env!("CARGO_PKG_VERSION").into(),
-        parameters: serde_json::json!({
-            "profile": cfg.profile.name(),
-            "compression_level": cfg.compression_level,
-            "weld": weld,
-            "depth_slack": cfg.build.depth_slack,
-            "splitter": "centre of largest extent",
-        }),
+        parameters,
         sources,
     })
 }

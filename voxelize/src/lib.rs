@@ -11,6 +11,7 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod args;
 pub mod error;
 pub mod load;
 pub mod mesh;
@@ -21,5 +22,5 @@ pub use load::{load, LoadOptions};
 pub mod run;
 pub mod sample;
 
-pub use run::{run, Options, Summary};
+pub use run::{run, sample_in_memory, Options, Summary};
 pub use sample::{AreaMode, Density, Method, SampleOptions};

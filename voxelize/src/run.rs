@@ -173,8 +173,25 @@ fn method_name(m: Method) -> &'static str {
     }
 }
 
-/// Runs the whole job. `progress(done, total)` reports sampled triangles.
+/// Runs the whole job: [`sample_in_memory`], then writes `opts.output` atomically (nothing for a dry
+/// run). `progress(done, total)` reports sampled triangles.
 pub fn run(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summary, Error> {
+    let t0 = Instant::now();
+    let (file, mut summary) = sample_in_memory(opts, progress)?;
+    let t2 = Instant::now();
+    summary.output_bytes = match &opts.output {
+        Some(path) => file.write_file(path).map_err(|source| Error::Write { path: path.clone(), source })?,
+        None => 0,
+    };
+    summary.output = opts.output.as_ref().map(|p| p.display().to_string());
+    summary.seconds_write = t2.elapsed().as_secs_f64();
+    summary.seconds_total = t0.elapsed().as_secs_f64();
+    Ok(summary)
+}
+
+/// Loads and samples `opts.inputs` into a samples file in memory (`opts.output` is
+/// ignored): what `sct-build-tree` uses to convert a mesh in one step.
+pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<(SamplesFile, Summary), Error> {
     let t0 = Instant::now();
     if opts.inputs.is_empty() {
         return Err(Error::Usage("no input file".into()));
@@ -235,22 +252,16 @@ pub fn run(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summa
     };
     let n_points = points.len() as u64;
     let file = to_samples_file(&sampled, points, generator);
-    let t2 = Instant::now();
-    let output_bytes = match &opts.output {
-        Some(path) => file.write_file(path).map_err(|source| Error::Write { path: path.clone(), source })?,
-        None => 0,
-    };
-    let t_write = t2.elapsed().as_secs_f64();
     let st = &sampled.stats;
     let rel = if st.mesh_area > 0.0 { (st.sample_area - st.mesh_area) / st.mesh_area } else { 0.0 };
     let mut warnings = scene.warnings.clone();
     if st.baked_non_similar > 0 {
         warnings.push(format!("{} reused mesh(es) had a non-similarity instance transform and were baked per instance", st.baked_non_similar));
     }
-    Ok(Summary {
+    let summary = Summary {
         inputs: sources,
-        output: opts.output.as_ref().map(|p| p.display().to_string()),
-        output_bytes,
+        output: None,
+        output_bytes: 0,
         method: method_name(s.method).into(),
         area_mode: match s.area { AreaMode::Exact => "exact", AreaMode::Eq17 => "eq17" }.into(),
         merged: s.merge,
@@ -272,9 +283,10 @@ pub fn run(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summa
         area_relative_error: rel,
         seconds_load: t_load,
         seconds_sample: t_sample,
-        seconds_write: t_write,
+        seconds_write: 0.0,
         seconds_total: t0.elapsed().as_secs_f64(),
         samples_per_second: if t_sample > 0.0 { file.samples.len() as f64 / t_sample } else { 0.0 },
         warnings,
-    })
+    };
+    Ok((file, summary))
 }

@@ -1,0 +1,143 @@
+//! The sampling flags as a reusable clap argument group: `sct-voxelize` and the one-step
+//! mesh conversion of `sct-build-tree` flatten the same struct, so every voxelize option
+//! is available in both with the same names, defaults and help.
+
+use std::path::PathBuf;
+
+use clap::{Args, ValueEnum};
+
+use crate::load::LoadOptions;
+use crate::sample::{AreaMode, Density, Method, SampleOptions};
+
+/// Sampler choice on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MethodArg {
+    /// Conservative scan-line voxelization: every voxel a triangle crosses (coverage guaranteed).
+    Voxel,
+    /// The thesis' scan-line: one sample per covered grid-column centre.
+    Scanline,
+    /// QSplat vertex patches: one sample per vertex, radius = longest incident edge.
+    Vertex,
+}
+
+/// Area mode on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AreaArg {
+    /// Exact area of triangle ∩ voxel.
+    Exact,
+    /// Thesis EQ 17: triangle area / samples of the triangle.
+    Eq17,
+}
+
+/// How meshes are sampled (thesis §5.2). The voxel size comes from --voxel-size, else from
+/// a viewing target (--screen-error with --distance), else automatically from EQ 16.
+#[derive(Args, Clone, Debug, serde::Serialize)]
+#[command(next_help_heading = "Sampling (mesh inputs)")]
+pub struct SamplingArgs {
+    /// Sampler.
+    #[arg(long, value_enum, default_value = "voxel")]
+    pub method: MethodArg,
+    /// Voxel edge length in world units (overrides everything else).
+    #[arg(long, value_name = "LEN")]
+    pub voxel_size: Option<f64>,
+    /// EQ 16: standard deviations below the mean edge length.
+    #[arg(long, default_value_t = 3.0)]
+    pub k: f64,
+    /// EQ 16: samples per base length.
+    #[arg(long, default_value_t = 2.0)]
+    pub gamma: f64,
+    /// EQ 16: minimum base length β (default 1e-4 × scene diagonal).
+    #[arg(long, value_name = "LEN")]
+    pub min_base: Option<f64>,
+    /// Viewing target: largest projected sample diameter in pixels (needs --distance).
+    #[arg(long, value_name = "PX", requires = "distance")]
+    pub screen_error: Option<f64>,
+    /// Viewing target: image width in pixels.
+    #[arg(long, value_name = "PX", default_value_t = 1920.0)]
+    pub resolution: f64,
+    /// Viewing target: nearest viewing distance in world units.
+    #[arg(long, value_name = "LEN")]
+    pub distance: Option<f64>,
+    /// Viewing target: horizontal field of view in degrees.
+    #[arg(long, value_name = "DEG", default_value_t = 60.0)]
+    pub fov: f64,
+    /// How samples get their area.
+    #[arg(long, value_enum, default_value = "exact")]
+    pub area: AreaArg,
+    /// Keep one sample per triangle per voxel (no merging of samples sharing a voxel).
+    #[arg(long)]
+    pub no_merge: bool,
+    /// Crease angle (degrees) for normals computed when a mesh has none.
+    #[arg(long, value_name = "DEG", default_value_t = 60.0)]
+    pub crease: f32,
+    /// Bind this image as the base-colour texture (OBJ without MTL, e.g. spot).
+    #[arg(long, value_name = "IMAGE")]
+    pub texture: Option<PathBuf>,
+    /// Ignore textures (colours from factors and vertex colours).
+    #[arg(long)]
+    pub no_textures: bool,
+    /// Refuse runs estimated to make more samples than this.
+    #[arg(long, value_name = "N", default_value_t = 400_000_000)]
+    pub max_samples: u64,
+}
+
+impl SamplingArgs {
+    /// The density rule these flags select.
+    pub fn density(&self) -> Density {
+        if let Some(h) = self.voxel_size {
+            Density::VoxelSize(h)
+        } else if let (Some(px), Some(d)) = (self.screen_error, self.distance) {
+            Density::Screen { pixels: px, resolution: self.resolution, distance: d, fov_deg: self.fov }
+        } else {
+            Density::Auto { k: self.k, gamma: self.gamma, min_base: self.min_base }
+        }
+    }
+
+    /// Loader options.
+    pub fn load_options(&self) -> LoadOptions {
+        LoadOptions { texture_override: self.texture.clone(), load_textures: !self.no_textures, ..Default::default() }
+    }
+
+    /// Sampler options.
+    pub fn sample_options(&self) -> SampleOptions {
+        SampleOptions {
+            method: match self.method {
+                MethodArg::Voxel => Method::Voxel,
+                MethodArg::Scanline => Method::Scanline,
+                MethodArg::Vertex => Method::Vertex,
+            },
+            density: self.density(),
+            area: match self.area {
+                AreaArg::Exact => AreaMode::Exact,
+                AreaArg::Eq17 => AreaMode::Eq17,
+            },
+            merge: !self.no_merge,
+            crease_deg: self.crease,
+            max_samples: self.max_samples,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        s: SamplingArgs,
+    }
+
+    #[test]
+    fn density_precedence_voxel_size_then_screen_then_auto() {
+        let p = |a: &[&str]| Cli::try_parse_from(std::iter::once("x").chain(a.iter().copied())).map(|c| c.s.density());
+        assert!(matches!(p(&["--voxel-size", "0.5", "--screen-error", "1", "--distance", "3"]), Ok(Density::VoxelSize(h)) if h == 0.5));
+        assert!(matches!(p(&["--screen-error", "1", "--distance", "3"]), Ok(Density::Screen { distance, .. }) if distance == 3.0));
+        assert!(matches!(p(&["--k", "2"]), Ok(Density::Auto { k, gamma, .. }) if k == 2.0 && gamma == 2.0));
+        // --screen-error alone is a usage error, not a silent fallback to EQ 16.
+        assert!(p(&["--screen-error", "1"]).is_err());
+    }
+}
