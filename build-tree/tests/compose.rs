@@ -41,7 +41,7 @@ fn samples_file(dir: &Path) -> std::path::PathBuf {
         SampleInstance { mesh: 2, transform: t },
         SampleInstance { mesh: 0, transform: t },
     ];
-    let f = SamplesFile { generator: Generator::default(), meshes, instances, samples };
+    let f = SamplesFile { generator: Generator::default(), meshes, instances, affine_instances: Vec::new(), samples };
     let p = dir.join("three.samples");
     f.write_file(&p).unwrap();
     p

@@ -2,8 +2,10 @@
 //!
 //! Samples are grouped by mesh (contiguous ranges); the scene is every instance's mesh
 //! placed by its similarity transform, so a mesh used by many glTF nodes is sampled once.
-//! Sections: `GENR` (provenance JSON), `MESH` (mesh table), `INST` (instances) and `SMPL`
-//! (samples, column by column, zstd-compressed).
+//! Sections: `GENR` (provenance JSON), `MESH` (mesh table), `INST` (instances), `SMPL`
+//! (samples, column by column, zstd-compressed) and, only when some placement is not a
+//! similarity, `AFFI` (affine instances, flagged required so that a reader that predates it
+//! refuses the file instead of silently dropping those placements).
 
 use std::io::Write;
 use std::path::Path;
@@ -19,6 +21,9 @@ use crate::raw::{cursor::Put, tags, Cursor, SAMPLES_MAGIC};
 pub const SAMPLE_BYTES: usize = 36;
 const MESH_ENTRY_MIN: usize = 20;
 const INST_ENTRY_BYTES: usize = 68;
+const AFFI_ENTRY_BYTES: usize = 100;
+/// Section tag of the affine instances (spec §8); local to the samples file.
+pub const AFFI: [u8; 4] = *b"AFFI";
 const ZSTD_LEVEL: i32 = 3;
 
 /// One mesh's samples: `samples[first .. first + count]`.
@@ -41,6 +46,98 @@ pub struct SampleInstance {
     pub transform: Similarity,
 }
 
+/// One placement of a mesh by a general (invertible) affine map: non-uniform scale, shear or
+/// mirror, which a scene-tree instance (a similarity) cannot express. A consumer bakes the
+/// mesh's samples through it ([`AffineInstance::transform_node`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AffineInstance {
+    /// Index into [`SamplesFile::meshes`].
+    pub mesh: u32,
+    /// Row-major 3 × 4 matrix: `world[r] = Σc m[r][c]·p[c] + m[r][3]`.
+    pub matrix: [[f64; 4]; 3],
+}
+
+impl AffineInstance {
+    /// Applies the map to a point.
+    pub fn apply_point(&self, p: [f64; 3]) -> [f64; 3] {
+        let m = &self.matrix;
+        std::array::from_fn(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3])
+    }
+
+    /// Determinant of the linear part.
+    pub fn determinant(&self) -> f64 {
+        let m = &self.matrix;
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    }
+
+    /// Finite entries and an invertible linear part (what the reader requires).
+    pub fn is_valid(&self) -> bool {
+        self.matrix.iter().flatten().all(|v| v.is_finite()) && self.determinant().is_normal()
+    }
+
+    /// The largest singular value of the linear part: the most it stretches any length, so a
+    /// sphere of radius r maps into a sphere of radius r × this around the mapped centre.
+    pub fn max_stretch(&self) -> f64 {
+        let m = &self.matrix;
+        // Largest eigenvalue of the symmetric AᵀA (closed form for 3 × 3, Smith 1961).
+        let a: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| m[k][i] * m[k][j]).sum()));
+        let p1 = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
+        let q = (a[0][0] + a[1][1] + a[2][2]) / 3.0;
+        let p2 = (a[0][0] - q).powi(2) + (a[1][1] - q).powi(2) + (a[2][2] - q).powi(2) + 2.0 * p1;
+        let p = (p2 / 6.0).sqrt();
+        let lambda = if p == 0.0 {
+            q
+        } else {
+            let b: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| (a[i][j] - if i == j { q } else { 0.0 }) / p));
+            let det_b = b[0][0] * (b[1][1] * b[2][2] - b[1][2] * b[2][1]) - b[0][1] * (b[1][0] * b[2][2] - b[1][2] * b[2][0])
+                + b[0][2] * (b[1][0] * b[2][1] - b[1][1] * b[2][0]);
+            let phi = (det_b / 2.0).clamp(-1.0, 1.0).acos() / 3.0;
+            q + 2.0 * p * phi.cos()
+        };
+        // The closed form can land a few ulps low; the Frobenius norm is a hard upper bound.
+        let frob = a[0][0] + a[1][1] + a[2][2];
+        (lambda * (1.0 + 1e-12)).min(frob).max(0.0).sqrt()
+    }
+
+    /// Bakes one sample through the map: centre mapped; radius × [`Self::max_stretch`]
+    /// (containment stays conservative); normal by the inverse transpose; area × |det| ×
+    /// |A⁻ᵀ n| (Nanson's formula for a surface element); colour unchanged. `stretch` is
+    /// [`Self::max_stretch`], passed in so it is computed once per instance.
+    pub fn transform_node(&self, n: &Node, stretch: f64) -> Node {
+        let m = &self.matrix;
+        let det = self.determinant();
+        let col = |c: usize| [m[0][c], m[1][c], m[2][c]];
+        let cross = |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+        // Rows of A⁻¹ are (c1×c2, c2×c0, c0×c1)/det, so A⁻ᵀ n = Σ n_i (row i of A⁻¹).
+        let (r0, r1, r2) = (cross(col(1), col(2)), cross(col(2), col(0)), cross(col(0), col(1)));
+        let nn = n.normal.map(f64::from);
+        let v: [f64; 3] = std::array::from_fn(|k| (nn[0] * r0[k] + nn[1] * r1[k] + nn[2] * r2[k]) / det);
+        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let nlen = (nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]).sqrt();
+        let (normal, factor) = if len > 0.0 && len.is_finite() && nlen > 0.0 {
+            (v.map(|x| (x / len) as f32), det.abs() * len / nlen)
+        } else {
+            // No usable normal: the mean area factor |det|^(2/3) keeps totals plausible.
+            (n.normal, det.abs().powf(2.0 / 3.0))
+        };
+        let center = self.apply_point(n.center.map(f64::from));
+        // Widened by the centre's own f32 rounding (≤ ε·max|x|) and rounded up, so
+        // containment holds in stored precision too.
+        let slack = center.iter().fold(0.0f64, |a, x| a.max(x.abs())) * f64::from(f32::EPSILON);
+        let r = f64::from(n.radius) * stretch + slack;
+        let rf = r as f32;
+        Node {
+            center: center.map(|x| x as f32),
+            radius: if f64::from(rf) < r { rf.next_up() } else { rf },
+            normal,
+            cone: n.cone,
+            area: (f64::from(n.area) * factor) as f32,
+            color: n.color,
+        }
+    }
+}
+
 /// A whole samples file in memory.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SamplesFile {
@@ -48,8 +145,11 @@ pub struct SamplesFile {
     pub generator: Generator,
     /// Meshes, in sample order.
     pub meshes: Vec<MeshEntry>,
-    /// Placements; every mesh appears at least once.
+    /// Similarity placements.
     pub instances: Vec<SampleInstance>,
+    /// Affine placements (non-similarities); every mesh appears at least once in
+    /// `instances` or here.
+    pub affine_instances: Vec<AffineInstance>,
     /// Leaf samples (cone 0).
     pub samples: Vec<Node>,
 }
@@ -61,6 +161,7 @@ impl SamplesFile {
             generator,
             meshes: vec![MeshEntry { name: name.to_string(), first: 0, count: samples.len() as u64 }],
             instances: vec![SampleInstance { mesh: 0, transform: Similarity::IDENTITY }],
+            affine_instances: Vec::new(),
             samples,
         }
     }
@@ -68,7 +169,7 @@ impl SamplesFile {
     /// Checks the invariants the reader enforces, so a writer cannot produce a file its own
     /// reader refuses.
     pub fn check(&self) -> Result<()> {
-        check_tables(&self.meshes, &self.instances, self.samples.len() as u64, 0).map_err(|e| match e {
+        check_tables(&self.meshes, &self.instances, &self.affine_instances, self.samples.len() as u64, 0).map_err(|e| match e {
             Error::Malformed { what, .. } => Error::Misuse(what),
             other => other,
         })
@@ -91,12 +192,22 @@ impl SamplesFile {
             inst.put_u32(i.mesh);
             put_similarity(&mut inst, &i.transform);
         }
-        let sections = [
+        let mut sections = vec![
             SectionOut::plain(tags::GENR, genr),
             SectionOut::plain(tags::MESH, mesh),
             SectionOut::zstd(tags::INST, &inst, ZSTD_LEVEL)?,
             SectionOut::zstd(tags::SMPL, &encode_samples(&self.samples), ZSTD_LEVEL)?,
         ];
+        // Only when needed, so files without such placements stay readable by 1.0 readers.
+        if !self.affine_instances.is_empty() {
+            let mut affi = Vec::with_capacity(8 + self.affine_instances.len() * AFFI_ENTRY_BYTES);
+            affi.put_u64(self.affine_instances.len() as u64);
+            for a in &self.affine_instances {
+                affi.put_u32(a.mesh);
+                a.matrix.iter().flatten().for_each(|v| affi.put_f64(*v));
+            }
+            sections.push(SectionOut::zstd(AFFI, &affi, ZSTD_LEVEL)?);
+        }
         Ok(write_container(SAMPLES_MAGIC, &sections, w)?.0)
     }
 
@@ -107,7 +218,7 @@ impl SamplesFile {
 
     /// Parses a samples file from bytes.
     pub fn read(data: &[u8], limits: &Limits) -> Result<Self> {
-        let known = [tags::GENR, tags::MESH, tags::INST, tags::SMPL];
+        let known = [tags::GENR, tags::MESH, tags::INST, tags::SMPL, AFFI];
         let c = Container::parse(data, SAMPLES_MAGIC, "SCT samples", &known, limits)?;
         if c.sections.first().map(|e| e.tag) != Some(tags::GENR) {
             return Err(Error::malformed(c.header.section_table_offset, "the first section must be the generator (GENR)"));
@@ -143,8 +254,29 @@ impl SamplesFile {
             instances.push(SampleInstance { mesh, transform });
         }
         cur.finish("instance list")?;
-        check_tables(&meshes, &instances, samples.len() as u64, e.offset)?;
-        Ok(SamplesFile { generator, meshes, instances, samples })
+        let inst_offset = e.offset;
+
+        let mut affine_instances = Vec::new();
+        let mut affi_offset = inst_offset;
+        if c.sections.iter().any(|s| s.tag == AFFI) {
+            let e = c.single(AFFI)?;
+            affi_offset = e.offset;
+            let bytes = c.section_bytes(e, limits)?;
+            let mut cur = Cursor::new(&bytes, e.offset);
+            let n = cur.count(AFFI_ENTRY_BYTES, "affine instance count")?;
+            affine_instances.reserve(n);
+            for _ in 0..n {
+                let mesh = cur.u32("affine instance mesh")?;
+                let mut matrix = [[0f64; 4]; 3];
+                for v in matrix.iter_mut().flatten() {
+                    *v = cur.f64("affine matrix")?;
+                }
+                affine_instances.push(AffineInstance { mesh, matrix });
+            }
+            cur.finish("affine instance list")?;
+        }
+        check_tables(&meshes, &instances, &affine_instances, samples.len() as u64, affi_offset)?;
+        Ok(SamplesFile { generator, meshes, instances, affine_instances, samples })
     }
 
     /// Reads a samples file from disk.
@@ -160,7 +292,7 @@ impl SamplesFile {
     }
 }
 
-fn check_tables(meshes: &[MeshEntry], instances: &[SampleInstance], samples: u64, offset: u64) -> Result<()> {
+fn check_tables(meshes: &[MeshEntry], instances: &[SampleInstance], affine: &[AffineInstance], samples: u64, offset: u64) -> Result<()> {
     let mut next = 0u64;
     for (i, m) in meshes.iter().enumerate() {
         if m.first != next {
@@ -182,6 +314,15 @@ fn check_tables(meshes: &[MeshEntry], instances: &[SampleInstance], samples: u64
                 offset,
                 format!("instance {i} has an invalid transform (non-finite, non-unit quaternion or scale <= 0)"),
             ));
+        }
+    }
+    for (i, inst) in affine.iter().enumerate() {
+        let slot = used.get_mut(inst.mesh as usize).ok_or_else(|| {
+            Error::malformed(offset, format!("affine instance {i} names mesh {}, there are {}", inst.mesh, meshes.len()))
+        })?;
+        *slot = true;
+        if !inst.is_valid() {
+            return Err(Error::malformed(offset, format!("affine instance {i} has a non-finite or singular matrix")));
         }
     }
     if let Some(m) = used.iter().position(|u| !u) {
@@ -268,6 +409,114 @@ mod tests {
         f
     }
 
+    fn stretched() -> AffineInstance {
+        // Non-uniform scale (1, 2, 0.5), a shear and a translation.
+        AffineInstance { mesh: 0, matrix: [[1.0, 0.3, 0.0, 5.0], [0.0, 2.0, 0.0, -1.0], [0.0, 0.0, 0.5, 2.0]] }
+    }
+
+    fn file_affine() -> SamplesFile {
+        let mut f = file();
+        f.affine_instances.push(stretched());
+        f.affine_instances.push(AffineInstance { mesh: 1, ..stretched() });
+        f
+    }
+
+    #[test]
+    fn round_trip_affine() {
+        let f = file_affine();
+        let mut bytes = Vec::new();
+        f.write_to(&mut bytes).unwrap();
+        assert_eq!(SamplesFile::read(&bytes, &Limits::default()).unwrap(), f);
+        // A mesh placed only by an affine instance is placed.
+        let mut g = f.clone();
+        g.instances.retain(|i| i.mesh != 0);
+        let mut bytes = Vec::new();
+        g.write_to(&mut bytes).unwrap();
+        assert_eq!(SamplesFile::read(&bytes, &Limits::default()).unwrap(), g);
+    }
+
+    #[test]
+    fn affine_section_only_when_needed_and_required() {
+        let mut plain = Vec::new();
+        file().write_to(&mut plain).unwrap();
+        let mut with = Vec::new();
+        file_affine().write_to(&mut with).unwrap();
+        let old_known = [tags::GENR, tags::MESH, tags::INST, tags::SMPL];
+        // A reader that predates AFFI still reads files without it …
+        assert!(Container::parse(&plain, SAMPLES_MAGIC, "SCT samples", &old_known, &Limits::default()).is_ok());
+        // … and refuses files with it rather than silently dropping placements.
+        let e = Container::parse(&with, SAMPLES_MAGIC, "SCT samples", &old_known, &Limits::default()).unwrap_err();
+        assert!(e.to_string().contains("AFFI"), "{e}");
+    }
+
+    #[test]
+    fn singular_affine_is_refused() {
+        let mut f = file_affine();
+        f.affine_instances[0].matrix[2] = [0.0, 0.0, 0.0, 1.0];
+        assert!(matches!(f.write_to(Vec::new()), Err(Error::Misuse(_))));
+        f.affine_instances[0].matrix = stretched().matrix;
+        f.affine_instances[0].matrix[1][1] = f64::NAN;
+        assert!(matches!(f.write_to(Vec::new()), Err(Error::Misuse(_))));
+    }
+
+    #[test]
+    fn max_stretch_is_the_largest_singular_value() {
+        let s = AffineInstance { mesh: 0, matrix: [[3.0, 0.0, 0.0, 1.0], [0.0, -0.5, 0.0, 0.0], [0.0, 0.0, 2.0, 0.0]] }.max_stretch();
+        assert!((s - 3.0).abs() < 1e-9, "{s}");
+        // Brute force over directions for a sheared map.
+        let a = stretched();
+        let mut best = 0.0f64;
+        for i in 0..200 {
+            for j in 0..100 {
+                let (t, p) = (i as f64 * std::f64::consts::PI / 100.0, j as f64 * std::f64::consts::PI / 100.0);
+                let d = [p.sin() * t.cos(), p.sin() * t.sin(), p.cos()];
+                let o = a.apply_point([0.0; 3]);
+                let q = a.apply_point(d);
+                best = best.max((0..3).map(|k| (q[k] - o[k]).powi(2)).sum::<f64>().sqrt());
+            }
+        }
+        let s = a.max_stretch();
+        assert!(s >= best && s < best * 1.001, "stretch {s}, brute force {best}");
+    }
+
+    /// A baked sample's sphere contains the image of its sphere, its normal is perpendicular
+    /// to mapped tangents and its area is the mapped area of a small disc.
+    #[test]
+    fn transform_node_is_conservative_and_exact_for_area() {
+        let a = stretched();
+        let st = a.max_stretch();
+        let n = Node { center: [0.3, -0.2, 1.0], radius: 0.1, normal: [0.0, 0.6, 0.8], cone: 0.0, area: 0.01, color: [9, 8, 7, 255] };
+        let b = a.transform_node(&n, st);
+        assert_eq!(b.color, n.color);
+        let c = n.center.map(f64::from);
+        let bc = b.center.map(f64::from);
+        for i in 0..50 {
+            for j in 0..25 {
+                let (t, p) = (i as f64 * 0.1257, j as f64 * 0.1257);
+                let d = [p.sin() * t.cos(), p.sin() * t.sin(), p.cos()];
+                let q = a.apply_point([0, 1, 2].map(|k| c[k] + 0.1 * d[k]));
+                let dist = (0..3).map(|k| (q[k] - bc[k]).powi(2)).sum::<f64>().sqrt();
+                assert!(dist <= f64::from(b.radius), "{dist} > {}", b.radius);
+            }
+        }
+        // Tangents of the plane with normal (0, .6, .8): (1,0,0) and (0,.8,-.6).
+        let map_dir = |d: [f64; 3]| {
+            let (o, q) = (a.apply_point([0.0; 3]), a.apply_point(d));
+            [q[0] - o[0], q[1] - o[1], q[2] - o[2]]
+        };
+        let (u, v) = (map_dir([1.0, 0.0, 0.0]), map_dir([0.0, 0.8, -0.6]));
+        let nb = b.normal.map(f64::from);
+        for t in [u, v] {
+            assert!((t[0] * nb[0] + t[1] * nb[1] + t[2] * nb[2]).abs() < 1e-6);
+        }
+        let cr = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+        let expect = 0.01 * (cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]).sqrt();
+        assert!((f64::from(b.area) - expect).abs() < 1e-6 * expect, "{} vs {expect}", b.area);
+        // Orientation kept: the baked normal points the same way as the mapped unit normal's
+        // cofactor image (same side as u × v).
+        assert!(cr[0] * nb[0] + cr[1] * nb[1] + cr[2] * nb[2] > 0.0);
+    }
+
     #[test]
     fn round_trip() {
         let f = file();
@@ -280,7 +529,7 @@ mod tests {
     #[test]
     fn every_truncation_is_an_error() {
         let mut bytes = Vec::new();
-        file().write_to(&mut bytes).unwrap();
+        file_affine().write_to(&mut bytes).unwrap();
         for len in 0..bytes.len() {
             assert!(SamplesFile::read(&bytes[..len], &Limits::default()).is_err(), "truncated at {len}");
         }
@@ -289,7 +538,7 @@ mod tests {
     #[test]
     fn every_bit_flip_is_detected() {
         let mut bytes = Vec::new();
-        file().write_to(&mut bytes).unwrap();
+        file_affine().write_to(&mut bytes).unwrap();
         for i in 0..bytes.len() {
             for bit in [0, 3, 7] {
                 let mut b = bytes.clone();
