@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use sct_format::graph::{Generator, SourceRef};
-use sct_format::samples::SamplesFile;
+use sct_format::samples::{MeshEntry, SampleInstance, SamplesFile};
 use sct_format::write::{write_scene_file, Scene, WriteOptions};
 use sct_format::{Limits, Profile};
 
@@ -114,7 +114,7 @@ pub enum Upstream {
 /// run started, so the read (or sampling) time counts in the report's phases.
 pub fn run_samples(
     cfg: &Config,
-    samples: SamplesFile,
+    mut samples: SamplesFile,
     upstream: Upstream,
     t0: Instant,
     phase: &mut dyn FnMut(&str),
@@ -122,6 +122,7 @@ pub fn run_samples(
     let mut rep = Report { output: cfg.output.display().to_string(), profile: cfg.profile.name().into(), ..Default::default() };
     let limits = Limits::default();
     rep.samples = samples.samples.len() as u64;
+    bake_affine_instances(&mut samples);
     rep.seconds.read = t0.elapsed().as_secs_f64();
 
     phase("building trees");
@@ -186,6 +187,24 @@ pub fn run_samples(
     Ok(rep)
 }
 
+/// Turns every affine instance (spec §8) into a mesh of its own — the samples baked through
+/// the matrix — placed at the identity, since a scene-tree instance must be a similarity.
+/// Original meshes keep their indices and names (scene files refer to them); a mesh left
+/// with no similarity instance is simply not built.
+pub fn bake_affine_instances(samples: &mut SamplesFile) {
+    for a in std::mem::take(&mut samples.affine_instances) {
+        let m = a.mesh as usize;
+        let Some(src) = samples.meshes.get(m).cloned() else { continue };
+        let stretch = a.max_stretch();
+        let first = samples.samples.len() as u64;
+        let baked: Vec<_> = samples.mesh_samples(m).iter().map(|n| a.transform_node(n, stretch)).collect();
+        samples.samples.extend(baked);
+        let idx = samples.meshes.len() as u32;
+        samples.meshes.push(MeshEntry { name: format!("{}#affine", src.name), first, count: src.count });
+        samples.instances.push(SampleInstance { mesh: idx, transform: sct_format::Similarity::IDENTITY });
+    }
+}
+
 fn generator(cfg: &Config, upstream: &Upstream, inlines: &[(String, String)]) -> Result<Generator, BuildError> {
     let (mut sources, sampling) = match upstream {
         Upstream::SamplesFile(s) => (vec![s.clone()], serde_json::Value::Null),
@@ -237,4 +256,49 @@ pub fn peak_memory() -> Option<u64> {
     let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb * 1024)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sct_format::samples::AffineInstance;
+    use sct_format::Node;
+
+    /// A non-similarity instance becomes its own baked tree whose leaves contain the image
+    /// of every original sample sphere (points on each sphere mapped by the matrix).
+    #[test]
+    fn baked_affine_tree_covers_transformed_samples() {
+        let samples: Vec<Node> = (0..400)
+            .map(|i| {
+                let (t, z) = (i as f32 * 0.37, (i % 20) as f32 * 0.05);
+                Node { center: [t.cos(), t.sin(), z], radius: 0.04, normal: [t.cos(), t.sin(), 0.0], cone: 0.0, area: 0.003, color: [200, 10, 10, 255] }
+            })
+            .collect();
+        let mut f = SamplesFile::single_mesh(Generator::default(), "m", samples.clone());
+        let a = AffineInstance { mesh: 0, matrix: [[1.0, 0.4, 0.0, 3.0], [0.0, 2.5, 0.0, 0.0], [0.0, 0.0, 0.5, -1.0]] };
+        f.affine_instances.push(a);
+        bake_affine_instances(&mut f);
+        assert!(f.affine_instances.is_empty());
+        assert_eq!(f.meshes.len(), 2);
+        assert_eq!(f.instances.len(), 2);
+        assert_eq!(f.instances[1].transform, sct_format::Similarity::IDENTITY);
+        let (tree, _) = crate::tree::build_tree(f.mesh_samples(1), &crate::tree::BuildOptions::default()).unwrap();
+        let leaves: Vec<&Node> = tree.nodes().iter().enumerate().filter(|(i, _)| tree.children(*i).is_none()).map(|(_, n)| n).collect();
+        assert!(!leaves.is_empty());
+        for s in &samples {
+            let c = s.center.map(f64::from);
+            for k in 0..26 {
+                let (th, ph) = (k as f64 * 0.9, k as f64 * 0.45);
+                let d = [ph.sin() * th.cos(), ph.sin() * th.sin(), ph.cos()];
+                let q = a.apply_point(std::array::from_fn(|j| c[j] + f64::from(s.radius) * d[j]));
+                let inside = leaves.iter().any(|l| {
+                    let dist2: f64 = (0..3).map(|j| (q[j] - f64::from(l.center[j])).powi(2)).sum();
+                    dist2 <= f64::from(l.radius).powi(2)
+                });
+                assert!(inside, "mapped point {q:?} of sample {:?} is outside every baked leaf", s.center);
+            }
+        }
+        // Colour is unchanged by baking.
+        assert!(leaves.iter().all(|l| l.color == [200, 10, 10, 255]));
+    }
 }
