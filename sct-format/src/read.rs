@@ -74,6 +74,19 @@ impl TreeIndex {
         (i < blocks[k].first_node + blocks[k].node_count as u64).then_some(r.start + k)
     }
 
+    /// Internal nodes of block `b`, from the index alone (the next block's `internal_before`,
+    /// or the next level's parent count after a level's last block).
+    pub fn internal_in_block(&self, b: usize) -> u64 {
+        let Some(e) = self.blocks.get(b) else { return 0 };
+        let end = self.level_blocks(e.level as usize).end;
+        let next = if b + 1 < end {
+            self.blocks[b + 1].internal_before
+        } else {
+            self.levels.get(e.level as usize + 1).map_or(0, |l| l.node_count / 2)
+        };
+        next.saturating_sub(e.internal_before)
+    }
+
     /// The block of level `d` holding the `rank`-th internal node of that level.
     pub fn block_of_internal(&self, d: usize, rank: u64) -> Option<usize> {
         let r = self.level_blocks(d);
@@ -145,11 +158,14 @@ impl SctReader {
         let generator = parse_generator(&c.section_bytes(genr, limits)?, genr.offset, limits)?;
         read += genr.stored_len;
         let grph = c.single(tags::GRPH)?;
-        let graph = parse_graph(&c.section_bytes(grph, limits)?, grph.offset, limits)?;
+        let graph = parse_graph_strict(&c.section_bytes(grph, limits)?, grph.offset, limits)?;
         read += grph.stored_len;
         let mut trees = Vec::new();
         for e in c.sections_with(tags::TREE) {
             let t = parse_tree_index(c.stored(e)?, e, limits)?;
+            if !t.header.root.is_finite() && t.header.node_count > 0 {
+                return Err(Error::malformed(e.offset + 32, "root node has non-finite or out-of-range attributes"));
+            }
             read += (TREE_HEADER_LEN + t.levels.len() * LEVEL_ENTRY_LEN + t.blocks.len() * BLOCK_ENTRY_LEN) as u64;
             trees.push(t);
         }
@@ -220,90 +236,18 @@ impl SctReader {
     pub fn decode_block(&self, t: usize, b: usize, parents: &[Node]) -> Result<DecodedBlock> {
         let tree = self.trees.get(t).ok_or_else(|| Error::Misuse(format!("no tree {t}")))?;
         let e = tree.blocks.get(b).ok_or_else(|| Error::Misuse(format!("tree {t} has no block {b}")))?;
-        if parents.len() * 2 != e.node_count as usize {
-            return Err(Error::Misuse(format!("block {b} needs {} parents, {} given", e.node_count / 2, parents.len())));
-        }
-        let section = slice(&self.data, tree.section.offset, tree.section.stored_len, "tree section")?;
-        let abs = tree.section.offset + e.offset;
-        let stored = slice(section, e.offset, e.stored_len as u64, "block").map_err(|_| Error::malformed(abs, "block outside its section"))?;
         self.bytes_read.fetch_add(e.stored_len as u64, Ordering::Relaxed);
-        let computed = crc32fast::hash(stored);
-        if computed != e.crc {
-            return Err(Error::Checksum { what: format!("tree {t} block {b}"), offset: abs, stored: e.crc, computed });
-        }
-        let owned;
-        let payload: &[u8] = if e.flags & 1 != 0 {
-            owned = decompress(stored, e.raw_len as u64, abs, &self.limits)?;
-            &owned
-        } else {
-            if e.raw_len != e.stored_len {
-                return Err(Error::malformed(abs, "uncompressed block with raw length != stored length"));
-            }
-            stored
-        };
-        let n = e.node_count as usize;
-        let mask_len = n.div_ceil(8);
-        let mask = payload.get(..mask_len).ok_or_else(|| Error::malformed(abs, "block shorter than its child-flag mask"))?;
-        let internal: Vec<bool> = (0..n).map(|i| mask[i / 8] >> (i % 8) & 1 == 1).collect();
-        if n % 8 != 0 && mask[mask_len - 1] >> (n % 8) != 0 {
-            return Err(Error::malformed(abs, "padding bits of the child-flag mask are not zero"));
-        }
-        let mut nodes = Vec::with_capacity(n);
-        decode_children(tree.profile, tree.params, parents, &payload[mask_len..], abs, &mut nodes)?;
-        if nodes.len() != n {
-            return Err(Error::malformed(abs, format!("block decoded to {} nodes, expected {n}", nodes.len())));
-        }
-        // The next block's internal_before must agree with this block's flags.
-        let here = internal.iter().filter(|&&f| f).count() as u64;
-        let level_end = tree.level_blocks(e.level as usize).end;
-        let expected_next = if b + 1 < level_end {
-            tree.blocks[b + 1].internal_before
-        } else {
-            tree.levels.get(e.level as usize + 1).map_or(0, |l| l.node_count / 2)
-        };
-        if e.internal_before + here != expected_next {
-            return Err(Error::malformed(
-                abs,
-                format!("block has {here} internal nodes, the index implies {}", expected_next.wrapping_sub(e.internal_before)),
-            ));
-        }
-        Ok(DecodedBlock { nodes, internal })
+        decode_block_in(&self.data, tree, b, parents, &self.limits).map_err(|e| match e {
+            Error::Checksum { offset, stored, computed, .. } => Error::Checksum { what: format!("tree {t} block {b}"), offset, stored, computed },
+            e => e,
+        })
     }
 
     /// Reads the first `max_levels` levels of tree `t` (all of them with `usize::MAX`),
     /// decoding only the blocks of those levels.
     pub fn read_tree_levels(&self, t: usize, max_levels: usize) -> Result<SceneTree> {
         let tree = self.trees.get(t).ok_or_else(|| Error::Misuse(format!("no tree {t}")))?;
-        let levels = tree.levels.len().min(max_levels);
-        if levels == 0 {
-            return SceneTree::from_bfs(Vec::new(), Vec::new());
-        }
-        let total: u64 = tree.levels[..levels].iter().map(|l| l.node_count).sum();
-        let mut nodes = Vec::with_capacity(total as usize);
-        let mut internal = Vec::with_capacity(total as usize);
-        nodes.push(tree.header.root);
-        internal.push(tree.header.root_internal == 1);
-        let mut parents: Vec<Node> = if internal[0] { vec![tree.header.root] } else { Vec::new() };
-        for d in 1..levels {
-            let mut next = Vec::new();
-            for b in tree.level_blocks(d) {
-                let e = &tree.blocks[b];
-                let lo = (e.first_node / 2) as usize;
-                let ps = parents.get(lo..lo + e.node_count as usize / 2).ok_or_else(|| {
-                    Error::malformed(tree.section.offset + e.offset, "block refers to parents that do not exist")
-                })?;
-                let blk = self.decode_block(t, b, ps)?;
-                for (n, &f) in blk.nodes.iter().zip(&blk.internal) {
-                    if f {
-                        next.push(*n);
-                    }
-                }
-                nodes.extend_from_slice(&blk.nodes);
-                internal.extend_from_slice(&blk.internal);
-            }
-            parents = next;
-        }
-        SceneTree::from_bfs(nodes, internal).map_err(|e| Error::malformed(tree.section.offset, format!("tree structure: {e}")))
+        read_levels(tree, max_levels, |b, ps| self.decode_block(t, b, ps))
     }
 
     /// Reads all of tree `t`.
@@ -312,7 +256,86 @@ impl SctReader {
     }
 }
 
-fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits) -> Result<TreeIndex> {
+/// Decodes block `b` of `tree` from the whole file's bytes `data` (see
+/// [`SctReader::decode_block`]); shared with the validator, which has no reader for files
+/// the reader rejects.
+pub(crate) fn decode_block_in(data: &[u8], tree: &TreeIndex, b: usize, parents: &[Node], limits: &Limits) -> Result<DecodedBlock> {
+    let e = tree.blocks.get(b).ok_or_else(|| Error::Misuse(format!("no block {b}")))?;
+    if parents.len() * 2 != e.node_count as usize {
+        return Err(Error::Misuse(format!("block {b} needs {} parents, {} given", e.node_count / 2, parents.len())));
+    }
+    let section = slice(data, tree.section.offset, tree.section.stored_len, "tree section")?;
+    let abs = tree.section.offset + e.offset;
+    let stored = slice(section, e.offset, e.stored_len as u64, "block").map_err(|_| Error::malformed(abs, format!("block {b} lies outside its section")))?;
+    let computed = crc32fast::hash(stored);
+    if computed != e.crc {
+        return Err(Error::Checksum { what: format!("block {b} (level {})", e.level), offset: abs, stored: e.crc, computed });
+    }
+    let owned;
+    let payload: &[u8] = if e.flags & 1 != 0 {
+        owned = decompress(stored, e.raw_len as u64, abs, limits)?;
+        &owned
+    } else {
+        if e.raw_len != e.stored_len {
+            return Err(Error::malformed(abs, format!("uncompressed block {b} with raw length != stored length")));
+        }
+        stored
+    };
+    let n = e.node_count as usize;
+    let mask_len = n.div_ceil(8);
+    let mask = payload.get(..mask_len).ok_or_else(|| Error::malformed(abs, format!("block {b} is shorter than its child-flag mask")))?;
+    let internal: Vec<bool> = (0..n).map(|i| mask[i / 8] >> (i % 8) & 1 == 1).collect();
+    if n % 8 != 0 && mask[mask_len - 1] >> (n % 8) != 0 {
+        return Err(Error::malformed(abs, format!("block {b}: padding bits of the child-flag mask are not zero")));
+    }
+    let mut nodes = Vec::with_capacity(n);
+    decode_children(tree.profile, tree.params, parents, &payload[mask_len..], abs, &mut nodes)?;
+    if nodes.len() != n {
+        return Err(Error::malformed(abs, format!("block {b} decoded to {} nodes, expected {n}", nodes.len())));
+    }
+    // The next block's internal_before must agree with this block's flags.
+    let here = internal.iter().filter(|&&f| f).count() as u64;
+    if here != tree.internal_in_block(b) {
+        return Err(Error::malformed(abs, format!("block {b} has {here} internal nodes, the index implies {}", tree.internal_in_block(b))));
+    }
+    Ok(DecodedBlock { nodes, internal })
+}
+
+/// The first `max_levels` levels of `tree`, each block decoded by `decode(block, parents)`.
+pub(crate) fn read_levels(tree: &TreeIndex, max_levels: usize, mut decode: impl FnMut(usize, &[Node]) -> Result<DecodedBlock>) -> Result<SceneTree> {
+    let levels = tree.levels.len().min(max_levels);
+    if levels == 0 {
+        return SceneTree::from_bfs(Vec::new(), Vec::new());
+    }
+    let total: u64 = tree.levels[..levels].iter().map(|l| l.node_count).sum();
+    let mut nodes = Vec::with_capacity(total as usize);
+    let mut internal = Vec::with_capacity(total as usize);
+    nodes.push(tree.header.root);
+    internal.push(tree.header.root_internal == 1);
+    let mut parents: Vec<Node> = if internal[0] { vec![tree.header.root] } else { Vec::new() };
+    for d in 1..levels {
+        let mut next = Vec::new();
+        for b in tree.level_blocks(d) {
+            let e = &tree.blocks[b];
+            let lo = (e.first_node / 2) as usize;
+            let ps = parents
+                .get(lo..lo + e.node_count as usize / 2)
+                .ok_or_else(|| Error::malformed(tree.section.offset + e.offset, "block refers to parents that do not exist"))?;
+            let blk = decode(b, ps)?;
+            next.extend(blk.nodes.iter().zip(&blk.internal).filter(|(_, &f)| f).map(|(n, _)| *n));
+            nodes.extend_from_slice(&blk.nodes);
+            internal.extend_from_slice(&blk.internal);
+        }
+        parents = next;
+    }
+    SceneTree::from_bfs(nodes, internal).map_err(|e| Error::malformed(tree.section.offset, format!("tree structure: {e}")))
+}
+
+/// Parses and checks a tree's index (header, level table, block table), so decoding can
+/// trust it. Shared by the reader and the validator: a block past its section is reported
+/// as lying "past the end", an oversized block through [`Limits::check`], so the validator
+/// can tell truncation and limits from other inconsistencies.
+pub(crate) fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits) -> Result<TreeIndex> {
     let mut c = Cursor::new(section, e.offset);
     let header = TreeHeader::parse(&mut c)?;
     let at = e.offset;
@@ -341,9 +364,6 @@ fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits) -> Result
     if header.node_count == 0 && (header.level_count != 0 || header.block_count != 0) {
         return Err(Error::malformed(at, "empty tree with levels or blocks"));
     }
-    if !header.root.is_finite() && header.node_count > 0 {
-        return Err(Error::malformed(at + 32, "root node has non-finite or out-of-range attributes"));
-    }
     let mut next_block = 0u32;
     for (d, l) in levels.iter().enumerate() {
         let where_ = at + (TREE_HEADER_LEN + d * LEVEL_ENTRY_LEN) as u64;
@@ -367,18 +387,21 @@ fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits) -> Result
         let mut internal_before = 0u64;
         for (k, b) in blocks[l.first_block as usize..next_block as usize].iter().enumerate() {
             let bw = lc.offset() + ((l.first_block as usize + k) * BLOCK_ENTRY_LEN) as u64;
+            let bi = l.first_block as usize + k;
+            if b.offset.checked_add(b.stored_len as u64).is_none_or(|end| end > e.stored_len) {
+                return Err(Error::malformed(bw, format!("block {bi} (level {d}) extends past the end of its tree section")));
+            }
             let ok = b.level == d as u32
                 && b.first_node == first
                 && b.node_count > 0
                 && b.node_count % 2 == 0
                 && b.internal_before >= internal_before
                 && b.internal_before <= b.first_node
-                && b.flags & !1 == 0
-                && b.offset.checked_add(b.stored_len as u64).is_some_and(|end| end <= e.stored_len)
-                && (b.raw_len as u64) <= limits.max_decompressed_bytes;
+                && b.flags & !1 == 0;
             if !ok {
-                return Err(Error::malformed(bw, format!("block entry {} of level {d} is inconsistent", l.first_block as usize + k)));
+                return Err(Error::malformed(bw, format!("block entry {bi} of level {d} is inconsistent ({b:?})")));
             }
+            Limits::check("block decompressed bytes", b.raw_len as u64, limits.max_decompressed_bytes)?;
             first += b.node_count as u64;
             internal_before = b.internal_before;
         }
@@ -403,19 +426,40 @@ fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits) -> Result
     })
 }
 
-fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits) -> Result<SceneGraph> {
+/// A problem of one graph node that does not stop [`parse_graph`]: the validator reports it
+/// (at the node's path when reachable) and goes on; the reader rejects the file.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct GraphProblem {
+    /// The graph node, `None` for the section as a whole.
+    pub node: Option<u32>,
+    /// Byte offset of the node.
+    pub offset: u64,
+    /// What is wrong.
+    pub message: String,
+}
+
+/// Parses the scene graph. Structural failures (truncation, unknown node kind, counts, root
+/// out of range) are errors; a bad reference (kept as `u32::MAX` so a group's leaf `j` still
+/// maps to child `j`), reserved flag bits, a malformed inline path or trailing bytes are
+/// collected as [`GraphProblem`]s. Transforms and inline bounds are returned as stored:
+/// callers check them (the reader rejects, the validator names each failing check).
+pub(crate) fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits) -> Result<(SceneGraph, Vec<GraphProblem>)> {
     let mut c = Cursor::new(bytes, offset);
     let n = c.count(5, "graph node count")?;
     Limits::check("graph nodes", n as u64, limits.max_graph_nodes)?;
     let root = c.u32("graph root")?;
     let mut nodes = Vec::with_capacity(n);
+    let mut problems = Vec::new();
     for i in 0..n {
         let at = c.offset();
-        let earlier = |r: u32, c: &Cursor<'_>| -> Result<u32> {
+        let mut problem = |message: String| problems.push(GraphProblem { node: Some(i as u32), offset: at, message });
+        let mut earlier = |r: u32, what: &str| {
             if r as usize >= i {
-                return Err(Error::malformed(c.offset() - 4, format!("graph node {i} refers to node {r}: references must point to earlier nodes")));
+                problem(format!("{what} {r} is not an earlier node (references must point backwards)"));
+                u32::MAX
+            } else {
+                r
             }
-            Ok(r)
         };
         let node = match c.u8("graph node kind")? {
             kind::TREE => GraphNode::Tree { tree: c.u32("tree index")? },
@@ -425,21 +469,18 @@ fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits) -> Result<SceneGraph>
                 let mut children = Vec::with_capacity(k);
                 for _ in 0..k {
                     let r = c.u32("group child")?;
-                    children.push(earlier(r, &c)?);
+                    children.push(earlier(r, "group child"));
                 }
                 GraphNode::Group { children, tree }
             }
             kind::INSTANCE => {
                 let r = c.u32("instance child")?;
-                let child = earlier(r, &c)?;
+                let child = earlier(r, "instance child");
                 let transform = read_similarity(&mut c)?;
                 let flags = c.u8("instance flags")?;
                 let tint = c.array::<4>("tint")?;
                 if flags & !7 != 0 {
-                    return Err(Error::malformed(at, "reserved instance flag bits set"));
-                }
-                if !transform.is_valid(1e-6) {
-                    return Err(Error::malformed(at, format!("instance {i} transform is not finite, not unit or not positive: {transform:?}")));
+                    problem(format!("reserved instance flag bits set ({flags:#04x})"));
                 }
                 let prop = |bit: u8| if flags & bit != 0 { Propagation::PushDown } else { Propagation::PullUp };
                 let attrs = InstanceAttrs { size: prop(1), color: prop(2), tint: (flags & 4 != 0).then_some(tint) };
@@ -450,19 +491,37 @@ fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits) -> Result<SceneGraph>
                 let hash = c.array::<32>("inline hash")?;
                 let bound = crate::codec::raw::read_node(&c.array("inline bound")?);
                 if path.is_empty() || path.starts_with('/') || path.contains('\\') || path.contains('\0') {
-                    return Err(Error::malformed(at, format!("inline path {path:?} is not a relative '/'-separated path")));
+                    problem(format!("inline path {path:?} is not a relative '/'-separated path"));
                 }
                 GraphNode::Inline { path, hash, bound }
             }
-            k => return Err(Error::malformed(at, format!("unknown graph node kind {k}"))),
+            k => return Err(Error::malformed(at, format!("graph node {i} has unknown kind {k}"))),
         };
         nodes.push(node);
     }
-    c.finish("scene graph")?;
+    if let Err(e) = c.finish("scene graph") {
+        problems.push(GraphProblem { node: None, offset: c.offset(), message: e.to_string() });
+    }
     if n == 0 || root as usize >= n {
         return Err(Error::malformed(offset, format!("graph root {root} out of range ({n} nodes)")));
     }
-    Ok(SceneGraph { nodes, root })
+    Ok((SceneGraph { nodes, root }, problems))
+}
+
+/// [`parse_graph`] for the reader: any problem, or an invalid instance transform, is an error.
+fn parse_graph_strict(bytes: &[u8], offset: u64, limits: &Limits) -> Result<SceneGraph> {
+    let (graph, problems) = parse_graph(bytes, offset, limits)?;
+    if let Some(p) = problems.first() {
+        return Err(Error::malformed(p.offset, p.node.map_or_else(|| p.message.clone(), |i| format!("graph node {i}: {}", p.message))));
+    }
+    for (i, n) in graph.nodes.iter().enumerate() {
+        if let GraphNode::Instance { transform, .. } = n {
+            if !transform.is_valid(1e-6) {
+                return Err(Error::malformed(offset, format!("instance {i} transform is not finite, not unit or not positive: {transform:?}")));
+            }
+        }
+    }
+    Ok(graph)
 }
 
 fn check_graph_refs(g: &SceneGraph, trees: &[TreeIndex], offset: u64) -> Result<()> {

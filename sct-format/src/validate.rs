@@ -41,20 +41,17 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::codec::{decode_children, CodecParams, Profile};
-use crate::container::{decompress, Container};
+use crate::codec::Profile;
+use crate::container::Container;
 use crate::error::Error;
 use crate::geometry::{cone_contains, merge_color, sphere_contains};
-use crate::graph::{Generator, GraphNode, InstanceAttrs, Propagation, SceneGraph, Similarity};
+use crate::graph::{Generator, GraphNode, SceneGraph, Similarity};
 use crate::limits::Limits;
 use crate::node::Node;
-use crate::raw::{
-    tags, BlockEntry, Cursor, LevelEntry, SectionEntry, TreeHeader, BLOCK_ENTRY_LEN, LEVEL_ENTRY_LEN, SCT_MAGIC, TREE_HEADER_LEN,
-};
-use crate::samples::read_similarity;
+use crate::raw::{tags, SectionEntry, SCT_MAGIC};
+use crate::read::TreeIndex;
 use crate::traverse::{hex, leaf_paths};
 use crate::tree::SceneTree;
-use crate::write::kind;
 
 /// Relative area tolerance (see the module docs).
 pub const AREA_REL_TOL: f64 = 1e-4;
@@ -278,118 +275,12 @@ fn classify(e: &Error, default: CheckId) -> CheckId {
     }
 }
 
-/// A tree's index, parsed leniently.
-struct TreeIdx {
-    section: SectionEntry,
-    header: TreeHeader,
-    profile: Profile,
-    params: CodecParams,
-    levels: Vec<LevelEntry>,
-    blocks: Vec<BlockEntry>,
-}
-
-impl TreeIdx {
-    fn level_blocks(&self, d: usize) -> std::ops::Range<usize> {
-        self.levels.get(d).map_or(0..0, |l| l.first_block as usize..l.first_block as usize + l.block_count as usize)
-    }
-    /// Internal nodes of block `b`, from the index alone.
-    fn internal_in_block(&self, b: usize) -> u64 {
-        let e = &self.blocks[b];
-        let end = self.level_blocks(e.level as usize).end;
-        let next = if b + 1 < end {
-            self.blocks[b + 1].internal_before
-        } else {
-            self.levels.get(e.level as usize + 1).map_or(0, |l| l.node_count / 2)
-        };
-        next.saturating_sub(e.internal_before)
-    }
-}
-
 type Problem = (CheckId, String);
 
-fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits) -> Result<TreeIdx, Problem> {
-    let at = e.offset;
-    let mal = |c: CheckId, s: String| (c, format!("{s} (tree section at byte {at})"));
-    let rd = |r: crate::Result<TreeHeader>| r.map_err(|e| (classify(&e, CheckId::TreeIndex), e.to_string()));
-    let mut c = Cursor::new(section, at);
-    let header = rd(TreeHeader::parse(&mut c))?;
-    let profile = Profile::from_id(header.profile).ok_or_else(|| mal(CheckId::TreeIndex, format!("unknown profile id {}", header.profile)))?;
-    if header.flags & !1 != 0 || header.root_internal > 1 {
-        return Err(mal(CheckId::TreeIndex, "reserved tree flag bits set".into()));
-    }
-    Limits::check("tree levels", header.level_count as u64, limits.max_tree_levels as u64)
-        .and_then(|_| Limits::check("tree nodes", header.node_count, limits.max_tree_nodes))
-        .map_err(|e| (CheckId::Limit, e.to_string()))?;
-    let trunc = |e: Error| (CheckId::Truncated, e.to_string());
-    let lv = c.take(header.level_count as usize * LEVEL_ENTRY_LEN, "level table").map_err(trunc)?;
-    let bl_len = (header.block_count as usize).checked_mul(BLOCK_ENTRY_LEN).ok_or_else(|| mal(CheckId::TreeIndex, "block count overflows".into()))?;
-    let bl = c.take(bl_len, "block table").map_err(trunc)?;
-    let mut lc = Cursor::new(lv, at + TREE_HEADER_LEN as u64);
-    let levels: Vec<LevelEntry> = (0..header.level_count).map(|_| LevelEntry::parse(&mut lc)).collect::<crate::Result<_>>().map_err(trunc)?;
-    let mut bc = Cursor::new(bl, lc.offset());
-    let blocks: Vec<BlockEntry> = (0..header.block_count).map(|_| BlockEntry::parse(&mut bc)).collect::<crate::Result<_>>().map_err(trunc)?;
-    let ti = |s: String| Err(mal(CheckId::TreeIndex, s));
-    let node_sum = levels.iter().try_fold(0u64, |s, l| s.checked_add(l.node_count));
-    if node_sum != Some(header.node_count) {
-        return ti(format!("levels hold {node_sum:?} nodes, the header says {}", header.node_count));
-    }
-    if header.node_count > 0 && header.node_count != header.leaf_count.saturating_mul(2).saturating_sub(1) {
-        return ti(format!("{} nodes cannot form a full binary tree of {} leaves", header.node_count, header.leaf_count));
-    }
-    if header.node_count == 0 && (header.level_count != 0 || header.block_count != 0) {
-        return ti("empty tree with levels or blocks".into());
-    }
-    let mut next_block = 0u32;
-    for (d, l) in levels.iter().enumerate() {
-        if d == 0 {
-            if l.node_count != 1 || l.block_count != 0 {
-                return ti("level 0 must hold exactly the root and no blocks".into());
-            }
-            if (header.root_internal == 1) != (levels.len() > 1) {
-                return ti("root internal flag disagrees with the level count".into());
-            }
-            continue;
-        }
-        if l.node_count == 0 || l.node_count % 2 != 0 || l.first_block != next_block || l.block_count == 0 {
-            return ti(format!("level {d} entry is inconsistent ({l:?})"));
-        }
-        next_block = match next_block.checked_add(l.block_count) {
-            Some(n) if n <= header.block_count => n,
-            _ => return ti(format!("level {d} refers to blocks past the block table")),
-        };
-        if l.node_count > levels[d - 1].node_count.saturating_mul(2) {
-            return ti(format!("level {d} has more nodes than its parents can have"));
-        }
-        let (mut first, mut before) = (0u64, 0u64);
-        for (k, b) in blocks[l.first_block as usize..next_block as usize].iter().enumerate() {
-            let bi = l.first_block as usize + k;
-            if b.offset.checked_add(b.stored_len as u64).map_or(true, |end| end > e.stored_len) {
-                return Err((CheckId::Truncated, format!("block {bi} (level {d}) extends past the end of its tree section")));
-            }
-            let ok = b.level == d as u32
-                && b.first_node == first
-                && b.node_count > 0
-                && b.node_count % 2 == 0
-                && b.internal_before >= before
-                && b.internal_before <= b.first_node
-                && b.flags & !1 == 0;
-            if !ok {
-                return ti(format!("block entry {bi} of level {d} is inconsistent ({b:?})"));
-            }
-            if b.raw_len as u64 > limits.max_decompressed_bytes {
-                return Err((CheckId::Limit, format!("block {bi} claims {} decompressed bytes", b.raw_len)));
-            }
-            first += b.node_count as u64;
-            before = b.internal_before;
-        }
-        if first != l.node_count {
-            return ti(format!("blocks of level {d} hold {first} nodes, the level {}", l.node_count));
-        }
-    }
-    if next_block != header.block_count {
-        return ti("block table has blocks no level uses".into());
-    }
-    Ok(TreeIdx { section: e.clone(), params: CodecParams { alpha: header.flags & 1 == 1 }, profile, header, levels, blocks })
+/// Parses a tree's index with the reader's parser, naming the failed check.
+fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits) -> Result<TreeIndex, Problem> {
+    crate::read::parse_tree_index(section, e, limits)
+        .map_err(|er| (classify(&er, CheckId::TreeIndex), format!("{er} (tree section at byte {})", e.offset)))
 }
 
 /// A graph parsed leniently, with per-node transform problems.
@@ -414,107 +305,41 @@ fn transform_problems(t: &Similarity) -> Vec<Problem> {
     out
 }
 
+/// Parses the graph with the reader's parser, keeping per-node problems (bad references,
+/// flags, inline paths, transforms, inline bounds) to report at each node's path.
 fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, issues: &mut Vec<Problem>) -> Option<Graph> {
-    let mut c = Cursor::new(bytes, offset);
-    let fail = |e: Error, issues: &mut Vec<Problem>| {
-        issues.push((classify(&e, CheckId::Graph), e.to_string()));
-        None
+    let (graph, problems) = match crate::read::parse_graph(bytes, offset, limits) {
+        Ok(g) => g,
+        Err(e) => {
+            issues.push((classify(&e, CheckId::Graph), e.to_string()));
+            return None;
+        }
     };
-    let n = match c.count(5, "graph node count") {
-        Ok(n) => n,
-        Err(e) => return fail(e, issues),
-    };
-    if let Err(e) = Limits::check("graph nodes", n as u64, limits.max_graph_nodes) {
-        return fail(e, issues);
-    }
-    let root = match c.u32("graph root") {
-        Ok(r) => r,
-        Err(e) => return fail(e, issues),
-    };
-    let mut nodes = Vec::with_capacity(n);
     let mut node_problems: HashMap<u32, Vec<Problem>> = HashMap::new();
-    for i in 0..n {
-        let mut probs = Vec::new();
-        let bad_ref = |r: u32, what: &str| -> Option<Problem> {
-            (r as usize >= i)
-                .then(|| (CheckId::Graph, format!("graph node {i}: {what} {r} is not an earlier node (references must point backwards)")))
+    for p in problems {
+        match p.node {
+            Some(i) => node_problems.entry(i).or_default().push((CheckId::Graph, p.message)),
+            None => issues.push((CheckId::Graph, p.message)),
+        }
+    }
+    for (i, n) in graph.nodes.iter().enumerate() {
+        let probs = match n {
+            GraphNode::Instance { transform, .. } => transform_problems(transform),
+            GraphNode::Inline { bound, .. } if !bound.is_finite() => {
+                vec![(CheckId::NonFinite, format!("inline bound has non-finite attributes: {bound:?}"))]
+            }
+            _ => continue,
         };
-        let r: crate::Result<GraphNode> = (|| {
-            Ok(match c.u8("graph node kind")? {
-                kind::TREE => GraphNode::Tree { tree: c.u32("tree index")? },
-                kind::GROUP => {
-                    let tree = c.u32("group tree")?;
-                    let k = c.count(4, "group child count")?;
-                    let mut children = Vec::with_capacity(k);
-                    for _ in 0..k {
-                        let r = c.u32("group child")?;
-                        // Keep the slot (leaf j maps to child j) but point a bad reference nowhere.
-                        children.push(match bad_ref(r, "group child") {
-                            Some(p) => {
-                                probs.push(p);
-                                u32::MAX
-                            }
-                            None => r,
-                        });
-                    }
-                    GraphNode::Group { children, tree }
-                }
-                kind::INSTANCE => {
-                    let r = c.u32("instance child")?;
-                    let child = match bad_ref(r, "instance child") {
-                        Some(p) => {
-                            probs.push(p);
-                            u32::MAX
-                        }
-                        None => r,
-                    };
-                    let transform = read_similarity(&mut c)?;
-                    let flags = c.u8("instance flags")?;
-                    let tint = c.array::<4>("tint")?;
-                    if flags & !7 != 0 {
-                        probs.push((CheckId::Graph, format!("graph node {i}: reserved instance flag bits set ({flags:#04x})")));
-                    }
-                    probs.extend(transform_problems(&transform));
-                    let prop = |bit: u8| if flags & bit != 0 { Propagation::PushDown } else { Propagation::PullUp };
-                    let attrs = InstanceAttrs { size: prop(1), color: prop(2), tint: (flags & 4 != 0).then_some(tint) };
-                    GraphNode::Instance { child, transform, attrs }
-                }
-                kind::INLINE => {
-                    let path = c.string(limits.max_string_bytes, "inline path")?;
-                    let hash = c.array::<32>("inline hash")?;
-                    let bound = crate::codec::raw::read_node(&c.array("inline bound")?);
-                    if path.is_empty() || path.starts_with('/') || path.contains('\\') || path.contains('\0') {
-                        probs.push((CheckId::Graph, format!("graph node {i}: inline path {path:?} is not a relative '/'-separated path")));
-                    }
-                    if !bound.is_finite() {
-                        probs.push((CheckId::NonFinite, format!("graph node {i}: inline bound has non-finite attributes: {bound:?}")));
-                    }
-                    GraphNode::Inline { path, hash, bound }
-                }
-                k => return Err(Error::malformed(c.offset() - 1, format!("graph node {i} has unknown kind {k}"))),
-            })
-        })();
-        match r {
-            Ok(node) => nodes.push(node),
-            Err(e) => return fail(e, issues),
-        }
         if !probs.is_empty() {
-            node_problems.insert(i as u32, probs);
+            node_problems.entry(i as u32).or_default().extend(probs);
         }
     }
-    if let Err(e) = c.finish("scene graph") {
-        issues.push((CheckId::Graph, e.to_string()));
-    }
-    if n == 0 || root as usize >= n {
-        issues.push((CheckId::Graph, format!("graph root {root} out of range ({n} nodes)")));
-        return None;
-    }
-    Some(Graph { graph: SceneGraph { nodes, root }, node_problems })
+    Some(Graph { graph, node_problems })
 }
 
 /// The bound of graph node `node` in its file's frame (instances applied, push-down tints
 /// included), from the parsed index.
-fn bound_of(g: &SceneGraph, trees: &[Option<TreeIdx>], node: u32) -> Option<Node> {
+fn bound_of(g: &SceneGraph, trees: &[Option<TreeIndex>], node: u32) -> Option<Node> {
     crate::traverse::bound_in_graph(g, node, |t| {
         let t = trees.get(t as usize)?.as_ref()?;
         (t.header.node_count > 0).then_some(t.header.root)
@@ -528,45 +353,11 @@ struct BlockOut {
     issues: Vec<(u64, CheckId, String)>,
 }
 
-fn decode_block(data: &[u8], idx: &TreeIdx, b: usize, parents: &[Node], limits: &Limits) -> Result<(Vec<Node>, Vec<bool>), Problem> {
-    let e = &idx.blocks[b];
-    let start = idx.section.offset + e.offset;
-    let stored = usize::try_from(start)
-        .ok()
-        .and_then(|s| data.get(s..s.checked_add(e.stored_len as usize)?))
-        .ok_or_else(|| (CheckId::Truncated, format!("block {b} lies outside the file")))?;
-    let computed = crc32fast::hash(stored);
-    if computed != e.crc {
-        return Err((CheckId::Checksum, format!("block {b} (level {}) CRC stored {:#010x}, computed {computed:#010x}", e.level, e.crc)));
-    }
-    let owned;
-    let payload: &[u8] = if e.flags & 1 != 0 {
-        owned = decompress(stored, e.raw_len as u64, start, limits).map_err(|er| (classify(&er, CheckId::BlockDecode), format!("block {b}: {er}")))?;
-        &owned
-    } else {
-        if e.raw_len != e.stored_len {
-            return Err((CheckId::BlockDecode, format!("uncompressed block {b} with raw length != stored length")));
-        }
-        stored
-    };
-    let n = e.node_count as usize;
-    let mask_len = n.div_ceil(8);
-    let mask = payload.get(..mask_len).ok_or_else(|| (CheckId::BlockDecode, format!("block {b} is shorter than its child-flag mask")))?;
-    let flags: Vec<bool> = (0..n).map(|i| mask[i / 8] >> (i % 8) & 1 == 1).collect();
-    if n % 8 != 0 && mask[mask_len - 1] >> (n % 8) != 0 {
-        return Err((CheckId::BlockDecode, format!("block {b}: padding bits of the child-flag mask are not zero")));
-    }
-    let mut nodes = Vec::with_capacity(n);
-    decode_children(idx.profile, idx.params, parents, &payload[mask_len..], start, &mut nodes)
-        .map_err(|er| (classify(&er, CheckId::BlockDecode), format!("block {b}: {er}")))?;
-    if nodes.len() != n {
-        return Err((CheckId::BlockDecode, format!("block {b} decoded to {} nodes, expected {n}", nodes.len())));
-    }
-    let here = flags.iter().filter(|&&f| f).count() as u64;
-    if here != idx.internal_in_block(b) {
-        return Err((CheckId::BlockDecode, format!("block {b} has {here} internal nodes, the index implies {}", idx.internal_in_block(b))));
-    }
-    Ok((nodes, flags))
+/// Decodes a block with the reader's decoder, naming the failed check.
+fn decode_block(data: &[u8], idx: &TreeIndex, b: usize, parents: &[Node], limits: &Limits) -> Result<(Vec<Node>, Vec<bool>), Problem> {
+    crate::read::decode_block_in(data, idx, b, parents, limits)
+        .map(|d| (d.nodes, d.internal))
+        .map_err(|er| (classify(&er, CheckId::BlockDecode), er.to_string()))
 }
 
 fn non_finite_what(n: &Node) -> String {
@@ -684,7 +475,7 @@ fn check_pair(p: &Node, a: &Node, b: &Node, first: u64, profile: Profile, out: &
 /// Marks an issue index as "the parent of child `index`".
 const PARENT_BIT: u64 = 1 << 63;
 
-fn check_block(data: &[u8], idx: &TreeIdx, b: usize, parents: &[Node], limits: &Limits) -> Result<BlockOut, Problem> {
+fn check_block(data: &[u8], idx: &TreeIndex, b: usize, parents: &[Node], limits: &Limits) -> Result<BlockOut, Problem> {
     let (nodes, flags) = decode_block(data, idx, b, parents, limits)?;
     let first = idx.blocks[b].first_node;
     let mut issues = Vec::new();
@@ -808,7 +599,7 @@ impl<'o> Validator<'o> {
         }
         // Trees.
         let tree_secs: Vec<(usize, &SectionEntry)> = c.sections.iter().enumerate().filter(|(_, e)| e.tag == tags::TREE).collect();
-        let mut trees: Vec<Option<TreeIdx>> = Vec::with_capacity(tree_secs.len());
+        let mut trees: Vec<Option<TreeIndex>> = Vec::with_capacity(tree_secs.len());
         for (t, (si, e)) in tree_secs.iter().enumerate() {
             self.report.trees += 1;
             if bad_crc.contains(si) {
@@ -897,7 +688,7 @@ impl<'o> Validator<'o> {
     /// Walks the graph from the root, naming each node by its abstract path, checking group
     /// leaves against their children and following inlines.
     #[allow(clippy::too_many_arguments)]
-    fn walk(&mut self, data: &[u8], path: Option<&Path>, g: &Graph, trees: &[Option<TreeIdx>], tree_paths: &mut [Option<String>], prefix: &str, label: &str) {
+    fn walk(&mut self, data: &[u8], path: Option<&Path>, g: &Graph, trees: &[Option<TreeIndex>], tree_paths: &mut [Option<String>], prefix: &str, label: &str) {
         let nodes = &g.graph.nodes;
         let mut visited = vec![false; nodes.len()];
         let mut stack = vec![(g.graph.root, prefix.to_string())];
@@ -972,30 +763,16 @@ impl<'o> Validator<'o> {
     }
 
     /// Decodes a (group) tree completely; group trees have one leaf per child, so small.
-    fn decode_small_tree(&self, data: &[u8], idx: &TreeIdx) -> Result<SceneTree, Problem> {
-        let mut nodes = vec![idx.header.root];
-        let mut flags = vec![idx.header.root_internal == 1];
-        let mut parents: Vec<Node> = if flags[0] { vec![idx.header.root] } else { Vec::new() };
-        for d in 1..idx.levels.len() {
-            let mut next = Vec::new();
-            for b in idx.level_blocks(d) {
-                let e = &idx.blocks[b];
-                let lo = (e.first_node / 2) as usize;
-                let ps = parents.get(lo..lo + e.node_count as usize / 2).ok_or((CheckId::BlockDecode, "missing parents".to_string()))?;
-                let (ns, fs) = decode_block(data, idx, b, ps, &self.opts.limits)?;
-                next.extend(ns.iter().zip(&fs).filter(|(_, &f)| f).map(|(n, _)| *n));
-                nodes.extend(ns);
-                flags.extend(fs);
-            }
-            parents = next;
-        }
-        SceneTree::from_bfs(nodes, flags).map_err(|e| (CheckId::BlockDecode, e.to_string()))
+    fn decode_small_tree(&self, data: &[u8], idx: &TreeIndex) -> Result<SceneTree, Problem> {
+        let limits = &self.opts.limits;
+        crate::read::read_levels(idx, usize::MAX, |b, ps| crate::read::decode_block_in(data, idx, b, ps, limits))
+            .map_err(|er| (classify(&er, CheckId::BlockDecode), er.to_string()))
     }
 
     /// Group leaf `j` must stand for child `j`: contain its bound and carry its area, cone
     /// and colour (§5.10.5 virtual roots; instance transforms and push-down tints applied).
     #[allow(clippy::too_many_arguments)]
-    fn check_group(&mut self, g: &SceneGraph, trees: &[Option<TreeIdx>], gt: &SceneTree, children: &[u32], paths: &[String], profile: Profile, label: &str) {
+    fn check_group(&mut self, g: &SceneGraph, trees: &[Option<TreeIndex>], gt: &SceneTree, children: &[u32], paths: &[String], profile: Profile, label: &str) {
         let leaves: Vec<usize> = gt.leaves().collect();
         let slack = Profile::Raw.containment_slack().max(profile.containment_slack());
         for (j, &c) in children.iter().enumerate() {
@@ -1082,7 +859,7 @@ impl<'o> Validator<'o> {
     }
 
     /// Deep check of one tree, level by level.
-    fn check_tree(&mut self, data: &[u8], idx: &TreeIdx, prefix: &str, label: &str) {
+    fn check_tree(&mut self, data: &[u8], idx: &TreeIndex, prefix: &str, label: &str) {
         if idx.header.node_count == 0 {
             return;
         }
