@@ -11,5 +11,7 @@ pub mod tree;
 
 pub use error::BuildError;
 pub use tree::{build_tree, build_tree_with_map, BuildOptions, BuildStats, Weld};
+pub mod batch;
+pub mod convert;
 pub mod pipeline;
 pub mod scene;

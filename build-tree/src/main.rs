@@ -1,31 +1,48 @@
-//! `sct-build-tree`: samples → SCT scene tree file. Parses flags, runs
-//! [`build_tree::pipeline::run`], prints the summary or the error once.
+//! `sct-build-tree`: samples or meshes → SCT scene tree file, or a directory of meshes →
+//! a directory of SCT files. Parses flags, runs the library ([`build_tree::pipeline`],
+//! [`build_tree::convert`], [`build_tree::batch`]), prints the summary or the error once.
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::time::Instant;
 
-use build_tree::pipeline::{run, Config};
+use build_tree::batch::{self, run_batch, BatchOptions, JobResult, Shard};
+use build_tree::convert::{convert_meshes, is_mesh_path, ConvertReport};
+use build_tree::pipeline::{run, run_samples, Config, Report, Upstream};
 use build_tree::{BuildOptions, Weld};
 use clap::Parser;
+use sct_format::samples::SamplesFile;
 use sct_format::Profile;
+use voxelize::args::SamplingArgs;
 
 const EXAMPLES: &str = "Examples:
-  sct-build-tree bunny.samples -o bunny.sct
+  sct-build-tree bunny.samples -o bunny.sct                  # samples from sct-voxelize
+  sct-build-tree model.glb -o model.sct                      # one step: mesh -> SCT (voxelizes in memory)
+  sct-build-tree spot.obj --texture spot.png --k 2 -o spot.sct
+  sct-build-tree assets/ -o sct/ --json                      # batch: a library, folders mirrored
+  sct-build-tree assets/ -o sct/ --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT
   sct-build-tree bunny.samples -o bunny.sct --profile canopy --json
   sct-build-tree bunny.samples -o grid.sct --scene grid.json
-  sct-build-tree scan.samples -o scan.sct --weld-tolerance 0.0001
+  sct-build-tree --scene shards.json -o city.sct             # a scene of inlines only
 
-Exit status: 0 success, 1 bad input (samples, scene or inlined file), 2 usage or I/O error.";
+Input: a samples file (by its magic), mesh files (.obj .gltf .glb .ply, sampled in one
+grid with the sampling options below), or a directory (batch mode: -o is a directory).
 
-/// Builds a compressed SCT scene tree from a samples file (thesis §5.3), optionally
-/// composing a scene of groups, instances and inlines (§5.10) from a scene.json file.
+Exit status: 0 success, 1 bad input (mesh, samples, scene or inlined file; in batch mode:
+any input failed), 2 usage or I/O error.";
+
+/// Builds a compressed SCT scene tree (thesis §5.3) from a samples file or directly from
+/// meshes, composes scenes of groups, instances and inlines (§5.10) from a scene.json
+/// file, and batch-converts whole asset libraries.
 #[derive(Parser, Debug)]
 #[command(name = "sct-build-tree", version, after_help = EXAMPLES)]
 struct Cli {
-    /// Samples file written by sct-voxelize.
-    samples: PathBuf,
-    /// Output SCT file (written atomically).
+    /// Samples file, mesh file(s), or one directory of meshes (batch mode). May be
+    /// omitted with --scene when the scene uses only inlines.
+    #[arg(required_unless_present = "scene")]
+    inputs: Vec<PathBuf>,
+    /// Output SCT file (written atomically); in batch mode, the output directory.
     #[arg(short, long)]
     output: PathBuf,
     /// Node profile: default (compressed streams), canopy (thesis 86-bit nodes) or raw.
@@ -47,9 +64,66 @@ struct Cli {
     /// Scene description (spec/scene-json.md); inline paths are relative to the output.
     #[arg(long)]
     scene: Option<PathBuf>,
-    /// Print a JSON summary on stdout.
+    /// Batch: convert even outputs that are up to date.
+    #[arg(long)]
+    force: bool,
+    /// Batch: convert only shard K of N (a stable hash of each relative path), e.g. 3/16.
+    #[arg(long, value_name = "K/N")]
+    shard: Option<Shard>,
+    /// Batch: files converted at the same time (default: the number of cores).
+    #[arg(long, value_name = "N")]
+    jobs: Option<usize>,
+    /// Print a JSON summary on stdout (batch: schema sct-build-tree-batch/1).
     #[arg(long)]
     json: bool,
+    // Last, so its help heading does not swallow the options above.
+    #[command(flatten)]
+    sampling: SamplingArgs,
+}
+
+/// What the positional inputs are.
+enum Mode {
+    Samples(PathBuf),
+    Meshes(Vec<PathBuf>),
+    Batch(PathBuf),
+    SceneOnly,
+}
+
+fn mode(inputs: &[PathBuf]) -> Result<Mode, String> {
+    match inputs {
+        [] => Ok(Mode::SceneOnly),
+        [one] if one.is_dir() => Ok(Mode::Batch(one.clone())),
+        [one] if !is_mesh_path(one) => Ok(Mode::Samples(one.clone())),
+        many => {
+            if let Some(bad) = many.iter().find(|p| p.is_dir() || !is_mesh_path(p)) {
+                return Err(format!(
+                    "{}: with several inputs every one must be a mesh (.obj .gltf .glb .ply)",
+                    bad.display()
+                ));
+            }
+            Ok(Mode::Meshes(many.to_vec()))
+        }
+    }
+}
+
+fn print_json<T: serde::Serialize>(v: &T) -> bool {
+    match serde_json::to_string_pretty(v) {
+        Ok(s) => {
+            println!("{s}");
+            true
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            false
+        }
+    }
+}
+
+fn print_build(rep: &Report) {
+    eprintln!(
+        "{}: {} leaves, {} nodes, depth {}, {} welded, {} bytes ({:.2} B/leaf), {:.2} s",
+        rep.output, rep.leaves, rep.nodes, rep.depth, rep.welded, rep.bytes, rep.bytes_per_leaf, rep.seconds.total
+    );
 }
 
 fn main() -> ExitCode {
@@ -63,13 +137,42 @@ fn main() -> ExitCode {
         }
         (false, None) => BuildOptions::default().weld,
     };
+    let mode = match mode(&cli.inputs) {
+        Ok(m) => m,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let build = BuildOptions { weld, depth_slack: cli.depth_slack };
+    if let Mode::Batch(dir) = &mode {
+        if cli.scene.is_some() {
+            eprintln!("error: --scene does not apply to a directory of meshes");
+            return ExitCode::from(2);
+        }
+        let opts = BatchOptions {
+            input_dir: dir.clone(),
+            output_dir: cli.output.clone(),
+            sampling: cli.sampling.clone(),
+            profile: cli.profile,
+            compression_level: cli.compression_level,
+            build,
+            force: cli.force,
+            shard: cli.shard,
+            jobs: cli.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
+        };
+        return run_batch_cli(&opts, cli.json);
+    }
     let cfg = Config {
-        samples: cli.samples,
+        samples: match &mode {
+            Mode::Samples(p) => p.clone(),
+            _ => PathBuf::new(),
+        },
         output: cli.output,
         scene: cli.scene,
         profile: cli.profile,
         compression_level: cli.compression_level,
-        build: BuildOptions { weld, depth_slack: cli.depth_slack },
+        build,
     };
     // A spinner only for a person watching: never in pipes or logs.
     let bar = std::io::stderr().is_terminal().then(|| {
@@ -77,31 +180,97 @@ fn main() -> ExitCode {
         b.enable_steady_tick(std::time::Duration::from_millis(120));
         b
     });
-    let result = run(&cfg, &mut |msg| {
+    let mut phase = |msg: &str| {
         if let Some(b) = &bar {
             b.set_message(msg.to_string());
         }
+    };
+    let result = match mode {
+        Mode::Meshes(meshes) => convert_meshes(&meshes, &cli.sampling, &cfg, None, &mut phase)
+            .map(Outcome::Converted)
+            .map_err(|e| (e.to_string(), e.exit_code())),
+        Mode::SceneOnly => run_samples(&cfg, SamplesFile::default(), Upstream::None, Instant::now(), &mut phase)
+            .map(Outcome::Built)
+            .map_err(|e| (e.to_string(), e.exit_code())),
+        _ => run(&cfg, &mut phase).map(Outcome::Built).map_err(|e| (e.to_string(), e.exit_code())),
+    };
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    match result {
+        Ok(outcome) => {
+            let (rep, warnings) = match &outcome {
+                Outcome::Built(r) => (r, &[][..]),
+                Outcome::Converted(c) => (&c.build, &c.sampling.warnings[..]),
+            };
+            for w in warnings {
+                eprintln!("warning: {w}");
+            }
+            let printed = match (&outcome, cli.json) {
+                (_, false) => {
+                    print_build(rep);
+                    true
+                }
+                (Outcome::Built(r), true) => print_json(r),
+                (Outcome::Converted(c), true) => print_json(c),
+            };
+            if printed {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(2)
+            }
+        }
+        Err((e, code)) => {
+            eprintln!("error: {e}");
+            ExitCode::from(code as u8)
+        }
+    }
+}
+
+/// A single build's report: from samples, or sampling + build (one step).
+enum Outcome {
+    Built(Report),
+    Converted(ConvertReport),
+}
+
+fn run_batch_cli(opts: &BatchOptions, json: bool) -> ExitCode {
+    let bar = std::io::stderr().is_terminal().then(|| {
+        let b = indicatif::ProgressBar::new(0);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{spinner} {pos}/{len} files [{bar:40}] {eta} {msg}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b
     });
+    let done = |job: &JobResult, n: usize| {
+        if let Some(b) = &bar {
+            b.set_position(n as u64);
+            b.set_message(job.input.clone());
+        }
+    };
+    if let Some(b) = &bar {
+        if let Ok((files, _)) = batch::discover(&opts.input_dir, Some(&opts.output_dir)) {
+            b.set_length(files.len() as u64);
+        }
+    }
+    let result = run_batch(opts, &done);
     if let Some(b) = &bar {
         b.finish_and_clear();
     }
     match result {
         Ok(rep) => {
-            if cli.json {
-                match serde_json::to_string_pretty(&rep) {
-                    Ok(s) => println!("{s}"),
-                    Err(e) => {
-                        eprintln!("error: {e}");
-                        return ExitCode::from(2);
-                    }
+            if json {
+                if !print_json(&rep) {
+                    return ExitCode::from(2);
                 }
             } else {
-                eprintln!(
-                    "{}: {} leaves, {} nodes, depth {}, {} welded, {} bytes ({:.2} B/leaf), {:.2} s",
-                    rep.output, rep.leaves, rep.nodes, rep.depth, rep.welded, rep.bytes, rep.bytes_per_leaf, rep.seconds.total
-                );
+                print!("{}", batch::format_table(&rep));
             }
-            ExitCode::SUCCESS
+            if rep.failed > 0 {
+                ExitCode::from(1)
+            } else {
+                ExitCode::SUCCESS
+            }
         }
         Err(e) => {
             eprintln!("error: {e}");

@@ -108,6 +108,8 @@ pub enum Upstream {
     /// Sampled in this process from meshes (one-step conversion): the voxelizer's own
     /// generator record, whose sources are the meshes and resources it read.
     Sampled(Generator),
+    /// No samples (a scene of inlines only).
+    None,
 }
 
 /// Builds from samples already in memory (`cfg.samples` is not read). `t0` is when the
@@ -208,6 +210,7 @@ pub fn bake_affine_instances(samples: &mut SamplesFile) {
 fn generator(cfg: &Config, upstream: &Upstream, inlines: &[(String, String)]) -> Result<Generator, BuildError> {
     let (mut sources, sampling) = match upstream {
         Upstream::SamplesFile(s) => (vec![s.clone()], serde_json::Value::Null),
+        Upstream::None => (Vec::new(), serde_json::Value::Null),
         Upstream::Sampled(g) => (
             g.sources.clone(),
             serde_json::json!({ "tool": g.tool, "version": g.version, "parameters": g.parameters }),

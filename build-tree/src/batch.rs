@@ -1,0 +1,500 @@
+//! Batch conversion of an asset library: every mesh under a directory becomes an SCT file
+//! under an output directory with the same folder structure.
+//!
+//! - **Parallel**: `jobs` files at a time, each conversion itself parallel (rayon).
+//! - **Incremental**: an output is up to date when its own provenance (`GENR`) records this
+//!   tool version, the same job key (a hash of every sampling and build parameter) and
+//!   sources whose current BLAKE3 hashes still match; such files are skipped.
+//! - **Robust**: a failing input is reported and the batch goes on; outputs are written
+//!   atomically, so an interrupted run leaves only whole files (and stale temporary files,
+//!   which the next run removes) and simply resumes.
+//! - **Shardable**: `shard` picks a deterministic subset by a hash of each relative path, so
+//!   N machines each run `--shard k/N` with no coordination (see the README).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::time::Instant;
+
+use sct_format::{Limits, Profile, SctReader};
+use voxelize::args::SamplingArgs;
+
+use crate::convert::{convert_meshes, is_mesh_path};
+use crate::error::BuildError;
+use crate::pipeline::Config;
+use crate::tree::BuildOptions;
+
+/// Version of the `--json` batch report layout.
+pub const REPORT_SCHEMA: &str = "sct-build-tree-batch/1";
+
+/// One shard of a batch: this run converts the inputs whose path hash is `index` mod `count`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Shard {
+    /// This shard, `0 ≤ index < count`.
+    pub index: u32,
+    /// Number of shards.
+    pub count: u32,
+}
+
+impl std::str::FromStr for Shard {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (k, n) = s.split_once('/').ok_or_else(|| format!("expected K/N (e.g. 0/8), got {s:?}"))?;
+        let index: u32 = k.trim().parse().map_err(|_| format!("bad shard index {k:?}"))?;
+        let count: u32 = n.trim().parse().map_err(|_| format!("bad shard count {n:?}"))?;
+        if count == 0 || index >= count {
+            return Err(format!("shard index must be in 0..{count}, got {index}"));
+        }
+        Ok(Shard { index, count })
+    }
+}
+
+impl Shard {
+    /// Whether the input at `rel` (relative path, `/`-separated) belongs to this shard. The
+    /// hash of the path, not its position in a listing, so adding files elsewhere in the
+    /// library does not move existing files between shards.
+    pub fn contains(&self, rel: &str) -> bool {
+        let h = blake3::hash(rel.as_bytes());
+        let mut b = [0u8; 8];
+        b.copy_from_slice(&h.as_bytes()[..8]);
+        u64::from_le_bytes(b) % u64::from(self.count) == u64::from(self.index)
+    }
+}
+
+/// What to convert and how.
+#[derive(Clone, Debug)]
+pub struct BatchOptions {
+    /// Library root; every `.obj`, `.gltf`, `.glb` and `.ply` below it is an input.
+    pub input_dir: PathBuf,
+    /// Output root (created if missing); mirrors the input folders.
+    pub output_dir: PathBuf,
+    /// Sampling flags (as `sct-voxelize`).
+    pub sampling: SamplingArgs,
+    /// Node profile.
+    pub profile: Profile,
+    /// zstd level override.
+    pub compression_level: Option<i32>,
+    /// Tree options.
+    pub build: BuildOptions,
+    /// Convert even when the output is up to date.
+    pub force: bool,
+    /// Only this shard's inputs.
+    pub shard: Option<Shard>,
+    /// Files converted at the same time (each conversion is itself parallel).
+    pub jobs: usize,
+}
+
+/// Outcome of one input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum JobStatus {
+    /// Converted now.
+    Converted,
+    /// Skipped: the output's provenance matches the source and parameters.
+    UpToDate,
+    /// Failed; the batch went on.
+    Failed,
+}
+
+/// One input's line in the report.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct JobResult {
+    /// Input path relative to the library root (`/`-separated).
+    pub input: String,
+    /// Output path relative to the output root.
+    pub output: String,
+    /// What happened.
+    pub status: JobStatus,
+    /// The error, for failed inputs.
+    pub error: Option<String>,
+    /// Exit code the single-file command would have given (0, 1 or 2).
+    pub exit_code: i32,
+    /// Samples made (converted inputs).
+    pub samples: u64,
+    /// Leaves in the output (converted inputs).
+    pub leaves: u64,
+    /// Output size in bytes (converted and up-to-date inputs).
+    pub bytes: u64,
+    /// Seconds spent on this input.
+    pub seconds: f64,
+}
+
+/// The whole batch (`--json` output, schema [`REPORT_SCHEMA`]).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct BatchReport {
+    /// Report layout version.
+    pub schema: &'static str,
+    /// Library root.
+    pub input_dir: String,
+    /// Output root.
+    pub output_dir: String,
+    /// The shard this run converted, if any.
+    pub shard: Option<Shard>,
+    /// Hash of every sampling and build parameter (recorded in each output's provenance).
+    pub job_key: String,
+    /// Mesh files found in the library (all shards).
+    pub found: u64,
+    /// Per input of this shard, sorted by path.
+    pub jobs: Vec<JobResult>,
+    /// Inputs converted now.
+    pub converted: u64,
+    /// Inputs skipped as up to date.
+    pub up_to_date: u64,
+    /// Inputs that failed.
+    pub failed: u64,
+    /// Stale temporary files of interrupted runs removed.
+    pub stale_temp_files_removed: u64,
+    /// Wall-clock seconds.
+    pub seconds: f64,
+}
+
+/// Hash of everything that determines an output besides its sources: tool version,
+/// sampling flags and build parameters.
+pub fn job_key(opts: &BatchOptions) -> String {
+    let v = serde_json::json!({
+        "tool": "sct-build-tree",
+        "version": env!("CARGO_PKG_VERSION"),
+        "sampling": serde_json::to_value(&opts.sampling).unwrap_or(serde_json::Value::Null),
+        "profile": opts.profile.name(),
+        "compression_level": opts.compression_level,
+        "weld": format!("{:?}", opts.build.weld),
+        "depth_slack": opts.build.depth_slack,
+    });
+    blake3::hash(v.to_string().as_bytes()).to_hex().to_string()
+}
+
+/// Every mesh file below `root`, as sorted relative paths. Hidden entries (names starting
+/// with `.`) and `skip` (the output root, when it lies inside the library) are left out;
+/// directory symlinks are not followed (no cycles). Unreadable directories are returned in
+/// the second list.
+pub fn discover(root: &Path, skip: Option<&Path>) -> Result<(Vec<PathBuf>, Vec<(PathBuf, String)>), BuildError> {
+    let meta = std::fs::metadata(root).map_err(|e| BuildError::Io(format!("{}: {e}", root.display())))?;
+    if !meta.is_dir() {
+        return Err(BuildError::Io(format!("{}: not a directory", root.display())));
+    }
+    let skip = skip.and_then(|s| s.canonicalize().ok());
+    let mut found = Vec::new();
+    let mut unreadable = Vec::new();
+    let mut stack = vec![PathBuf::new()];
+    while let Some(rel) = stack.pop() {
+        let dir = root.join(&rel);
+        if skip.as_deref().is_some_and(|s| dir.canonicalize().ok().as_deref() == Some(s)) {
+            continue;
+        }
+        let entries = match std::fs::read_dir(&dir) {
+            Ok(e) => e,
+            Err(e) => {
+                unreadable.push((rel, e.to_string()));
+                continue;
+            }
+        };
+        for entry in entries {
+            let entry = match entry {
+                Ok(e) => e,
+                Err(e) => {
+                    unreadable.push((rel.clone(), e.to_string()));
+                    continue;
+                }
+            };
+            let name = entry.file_name();
+            if name.to_string_lossy().starts_with('.') {
+                continue;
+            }
+            let child = rel.join(&name);
+            match entry.file_type() {
+                Ok(t) if t.is_dir() => stack.push(child),
+                Ok(t) if (t.is_file() || t.is_symlink()) && is_mesh_path(&child) => found.push(child),
+                Ok(_) => {}
+                Err(e) => unreadable.push((child, e.to_string())),
+            }
+        }
+    }
+    found.sort();
+    unreadable.sort();
+    Ok((found, unreadable))
+}
+
+/// Output paths (relative) for the inputs: `name.ext` → `name.sct`, except that inputs
+/// whose outputs would collide (`chair.obj` and `chair.ply` in one folder) keep their
+/// extension: `chair.obj.sct`, `chair.ply.sct`.
+pub fn output_paths(inputs: &[PathBuf]) -> Vec<PathBuf> {
+    let plain: Vec<PathBuf> = inputs.iter().map(|p| p.with_extension("sct")).collect();
+    let mut count: BTreeMap<&Path, usize> = BTreeMap::new();
+    for p in &plain {
+        *count.entry(p.as_path()).or_default() += 1;
+    }
+    inputs
+        .iter()
+        .zip(&plain)
+        .map(|(input, out)| {
+            if count.get(out.as_path()).copied().unwrap_or(0) > 1 {
+                let mut name = input.file_name().unwrap_or_default().to_os_string();
+                name.push(".sct");
+                input.with_file_name(name)
+            } else {
+                out.clone()
+            }
+        })
+        .collect()
+}
+
+fn slash(p: &Path) -> String {
+    p.components().map(|c| c.as_os_str().to_string_lossy()).collect::<Vec<_>>().join("/")
+}
+
+/// Whether `output` was made by this tool version with `key` from sources that are
+/// unchanged. Any doubt (unreadable, invalid, other parameters, a source gone or changed)
+/// means "convert again".
+pub fn is_up_to_date(output: &Path, key: &str) -> bool {
+    let Ok(reader) = SctReader::open(output, &Limits::default()) else {
+        return false;
+    };
+    let g = reader.generator();
+    let recorded = g.parameters.get("sampling").and_then(|s| s.get("parameters")).and_then(|p| p.get("job_key"));
+    if g.tool != "sct-build-tree" || g.version != env!("CARGO_PKG_VERSION") || recorded.and_then(|v| v.as_str()) != Some(key) {
+        return false;
+    }
+    !g.sources.is_empty()
+        && g.sources.iter().all(|s| sct_format::atomic::hash_file(Path::new(&s.path)).is_ok_and(|h| h == s.blake3))
+}
+
+/// Removes temporary files (`.NAME.PID.tmp`, see `sct_format::atomic`) that an interrupted
+/// run left beside `output`. Returns how many were removed.
+fn remove_stale_temp_files(output: &Path) -> u64 {
+    let (Some(dir), Some(name)) = (output.parent(), output.file_name()) else {
+        return 0;
+    };
+    let prefix = format!(".{}.", name.to_string_lossy());
+    let ours = format!(".{}.tmp", std::process::id());
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for e in entries.flatten() {
+        let n = e.file_name().to_string_lossy().into_owned();
+        let Some(pid) = n.strip_prefix(&prefix).and_then(|r| r.strip_suffix(".tmp")) else {
+            continue;
+        };
+        // Only `.NAME.<digits>.tmp`, never this process's own file in flight.
+        if !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()) && !n.ends_with(&ours) && std::fs::remove_file(e.path()).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
+}
+
+/// Converts the library. Per-input failures are in the report (the batch goes on); only a
+/// failure of the batch itself (an unreadable library root, an output root that cannot be
+/// created) is an error. `done` is called once per finished input (for progress display),
+/// from worker threads.
+pub fn run_batch(opts: &BatchOptions, done: &(dyn Fn(&JobResult, usize) + Sync)) -> Result<BatchReport, BuildError> {
+    let t0 = Instant::now();
+    std::fs::create_dir_all(&opts.output_dir).map_err(|e| BuildError::Io(format!("{}: {e}", opts.output_dir.display())))?;
+    let (all, unreadable) = discover(&opts.input_dir, Some(&opts.output_dir))?;
+    let outputs = output_paths(&all);
+    let key = job_key(opts);
+    let mine: Vec<(PathBuf, PathBuf)> = all
+        .iter()
+        .zip(outputs)
+        .filter(|(rel, _)| opts.shard.is_none_or(|s| s.contains(&slash(rel))))
+        .map(|(a, b)| (a.clone(), b))
+        .collect();
+    let total = mine.len();
+    let results: Vec<Mutex<Option<(JobResult, u64)>>> = (0..total).map(|_| Mutex::new(None)).collect();
+    let next = AtomicUsize::new(0);
+    let finished = AtomicUsize::new(0);
+    let workers = opts.jobs.clamp(1, total.max(1));
+    std::thread::scope(|scope| {
+        for _ in 0..workers {
+            scope.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some((rel, out_rel)) = mine.get(i) else { break };
+                let r = run_one(opts, &key, rel, out_rel);
+                let n = finished.fetch_add(1, Ordering::Relaxed) + 1;
+                done(&r.0, n);
+                if let Ok(mut slot) = results[i].lock() {
+                    *slot = Some(r);
+                }
+            });
+        }
+    });
+    let mut jobs = Vec::with_capacity(total + unreadable.len());
+    let mut stale = 0;
+    for (i, slot) in results.into_iter().enumerate() {
+        let r = slot.into_inner().ok().flatten();
+        match r {
+            Some((job, removed)) => {
+                stale += removed;
+                jobs.push(job);
+            }
+            // A worker panicked on this input: report it rather than lose it.
+            None => jobs.push(failed(&mine[i].0, &mine[i].1, "internal error: the conversion panicked".into(), 2, 0.0)),
+        }
+    }
+    for (dir, e) in unreadable {
+        if opts.shard.is_none_or(|s| s.contains(&slash(&dir))) {
+            jobs.push(failed(&dir, Path::new(""), format!("cannot read: {e}"), 2, 0.0));
+        }
+    }
+    let count = |s: JobStatus| jobs.iter().filter(|j| j.status == s).count() as u64;
+    Ok(BatchReport {
+        schema: REPORT_SCHEMA,
+        input_dir: opts.input_dir.display().to_string(),
+        output_dir: opts.output_dir.display().to_string(),
+        shard: opts.shard,
+        job_key: key,
+        found: all.len() as u64,
+        converted: count(JobStatus::Converted),
+        up_to_date: count(JobStatus::UpToDate),
+        failed: count(JobStatus::Failed),
+        jobs,
+        stale_temp_files_removed: stale,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+fn failed(rel: &Path, out_rel: &Path, error: String, exit_code: i32, seconds: f64) -> JobResult {
+    JobResult {
+        input: slash(rel),
+        output: slash(out_rel),
+        status: JobStatus::Failed,
+        error: Some(error),
+        exit_code,
+        samples: 0,
+        leaves: 0,
+        bytes: 0,
+        seconds,
+    }
+}
+
+/// Converts one input; returns its result and the number of stale temp files removed.
+fn run_one(opts: &BatchOptions, key: &str, rel: &Path, out_rel: &Path) -> (JobResult, u64) {
+    let t = Instant::now();
+    let input = opts.input_dir.join(rel);
+    let output = opts.output_dir.join(out_rel);
+    let removed = remove_stale_temp_files(&output);
+    if !opts.force && is_up_to_date(&output, key) {
+        let bytes = std::fs::metadata(&output).map(|m| m.len()).unwrap_or(0);
+        let job = JobResult {
+            input: slash(rel),
+            output: slash(out_rel),
+            status: JobStatus::UpToDate,
+            error: None,
+            exit_code: 0,
+            samples: 0,
+            leaves: 0,
+            bytes,
+            seconds: t.elapsed().as_secs_f64(),
+        };
+        return (job, removed);
+    }
+    if let Some(parent) = output.parent() {
+        if let Err(e) = std::fs::create_dir_all(parent) {
+            return (failed(rel, out_rel, format!("{}: {e}", parent.display()), 2, t.elapsed().as_secs_f64()), removed);
+        }
+    }
+    let cfg = Config {
+        samples: PathBuf::new(),
+        output,
+        scene: None,
+        profile: opts.profile,
+        compression_level: opts.compression_level,
+        build: opts.build,
+    };
+    let job = match convert_meshes(&[input], &opts.sampling, &cfg, Some(key), &mut |_| {}) {
+        Ok(rep) => JobResult {
+            input: slash(rel),
+            output: slash(out_rel),
+            status: JobStatus::Converted,
+            error: None,
+            exit_code: 0,
+            samples: rep.build.samples,
+            leaves: rep.build.leaves,
+            bytes: rep.build.bytes,
+            seconds: t.elapsed().as_secs_f64(),
+        },
+        Err(e) => failed(rel, out_rel, e.to_string(), e.exit_code(), t.elapsed().as_secs_f64()),
+    };
+    (job, removed)
+}
+
+/// The summary table printed on stdout (one line per input, then totals).
+pub fn format_table(rep: &BatchReport) -> String {
+    use std::fmt::Write;
+    let w = rep.jobs.iter().map(|j| j.input.len()).max().unwrap_or(5).max(5);
+    let mut s = String::new();
+    let _ = writeln!(s, "{:<10} {:<w$} {:>11} {:>11} {:>10} {:>8}  error", "status", "input", "samples", "leaves", "bytes", "seconds");
+    for j in &rep.jobs {
+        let status = match j.status {
+            JobStatus::Converted => "converted",
+            JobStatus::UpToDate => "up-to-date",
+            JobStatus::Failed => "FAILED",
+        };
+        let _ = writeln!(
+            s,
+            "{:<10} {:<w$} {:>11} {:>11} {:>10} {:>8.2}  {}",
+            status,
+            j.input,
+            j.samples,
+            j.leaves,
+            j.bytes,
+            j.seconds,
+            // One line per input, whatever the error text holds (parsers quote whole lines).
+            j.error.as_deref().unwrap_or("").split_whitespace().collect::<Vec<_>>().join(" ")
+        );
+    }
+    let shard = rep.shard.map(|s| format!(" (shard {}/{})", s.index, s.count)).unwrap_or_default();
+    let _ = writeln!(
+        s,
+        "{} inputs{shard}: {} converted, {} up to date, {} failed in {:.2} s",
+        rep.jobs.len(),
+        rep.converted,
+        rep.up_to_date,
+        rep.failed,
+        rep.seconds
+    );
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shard_parsing_and_partition() {
+        assert_eq!("1/4".parse::<Shard>(), Ok(Shard { index: 1, count: 4 }));
+        assert!("4/4".parse::<Shard>().is_err());
+        assert!("0/0".parse::<Shard>().is_err());
+        assert!("x".parse::<Shard>().is_err());
+        // Every path lands in exactly one shard.
+        let shards: Vec<Shard> = (0..3).map(|index| Shard { index, count: 3 }).collect();
+        for i in 0..200 {
+            let p = format!("dir{}/model{i}.obj", i % 7);
+            assert_eq!(shards.iter().filter(|s| s.contains(&p)).count(), 1, "{p}");
+        }
+        // And the split is not degenerate.
+        let in0 = (0..200).filter(|i| shards[0].contains(&format!("m{i}.obj"))).count();
+        assert!((30..=110).contains(&in0), "{in0}");
+    }
+
+    #[test]
+    fn colliding_outputs_keep_their_extension() {
+        let inputs: Vec<PathBuf> = ["a/chair.obj", "a/chair.ply", "a/table.glb", "b/chair.obj"].iter().map(PathBuf::from).collect();
+        let out: Vec<String> = output_paths(&inputs).iter().map(|p| slash(p)).collect();
+        assert_eq!(out, ["a/chair.obj.sct", "a/chair.ply.sct", "a/table.sct", "b/chair.sct"]);
+    }
+
+    #[test]
+    fn stale_temp_files_are_removed_but_not_others() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = dir.path().join("m.sct");
+        for n in [".m.sct.123.tmp", ".m.sct.x1.tmp", ".n.sct.5.tmp", "m.sct"] {
+            std::fs::write(dir.path().join(n), b"x").expect("write");
+        }
+        assert_eq!(remove_stale_temp_files(&out), 1);
+        assert!(!dir.path().join(".m.sct.123.tmp").exists());
+        assert!(dir.path().join(".m.sct.x1.tmp").exists() && dir.path().join(".n.sct.5.tmp").exists());
+        assert!(out.exists());
+    }
+}

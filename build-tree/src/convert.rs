@@ -1,0 +1,79 @@
+//! One-step conversion: meshes → SCT in one process, running the voxelizer in memory (no
+//! samples file on disk). Used by `sct-build-tree model.glb -o model.sct` and by
+//! [`crate::batch`].
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use voxelize::args::SamplingArgs;
+
+use crate::error::BuildError;
+use crate::pipeline::{run_samples, Config, Report, Upstream};
+
+/// File extensions (lowercase) that are converted as meshes.
+pub const MESH_EXTENSIONS: [&str; 4] = ["obj", "gltf", "glb", "ply"];
+
+/// Whether `path` names a mesh the voxelizer reads (by extension, case-insensitive).
+pub fn is_mesh_path(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| MESH_EXTENSIONS.iter().any(|m| m.eq_ignore_ascii_case(e)))
+}
+
+/// A failed conversion: the sampling step or the build step.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ConvertError {
+    /// Loading or sampling the meshes failed.
+    #[error("sampling: {0}")]
+    Sample(#[from] voxelize::Error),
+    /// Building or writing the SCT file failed.
+    #[error(transparent)]
+    Build(#[from] BuildError),
+}
+
+impl ConvertError {
+    /// Process exit code: 1 for bad input, 2 for usage and I/O errors.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            ConvertError::Sample(e) => e.exit_code(),
+            ConvertError::Build(e) => e.exit_code(),
+        }
+    }
+}
+
+/// What a one-step conversion did: the voxelizer's summary and the build report.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ConvertReport {
+    /// The sampling step (as `sct-voxelize --json` prints it; nothing written).
+    pub sampling: voxelize::Summary,
+    /// The build step (as `sct-build-tree --json` prints it).
+    pub build: Report,
+}
+
+/// Samples `inputs` in one grid with `sampling`'s options and builds `cfg.output` from the
+/// samples in memory (`cfg.samples` is ignored). `job_key`, when given, is recorded in the
+/// provenance (batch mode uses it to recognise up-to-date outputs).
+pub fn convert_meshes(
+    inputs: &[PathBuf],
+    sampling: &SamplingArgs,
+    cfg: &Config,
+    job_key: Option<&str>,
+    phase: &mut dyn FnMut(&str),
+) -> Result<ConvertReport, ConvertError> {
+    let t0 = Instant::now();
+    phase("sampling meshes");
+    let opts = voxelize::Options {
+        inputs: inputs.to_vec(),
+        output: None,
+        load: sampling.load_options(),
+        sample: sampling.sample_options(),
+    };
+    let (samples, summary) = voxelize::sample_in_memory(&opts, &|_, _| {})?;
+    let mut generator = samples.generator.clone();
+    if let (Some(key), Some(map)) = (job_key, generator.parameters.as_object_mut()) {
+        map.insert("job_key".into(), serde_json::Value::String(key.to_string()));
+    }
+    let build = run_samples(cfg, samples, Upstream::Sampled(generator), t0, phase)?;
+    Ok(ConvertReport { sampling: summary, build })
+}

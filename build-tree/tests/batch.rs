@@ -1,0 +1,189 @@
+//! One-step mesh conversion and batch conversion of a small library of real models
+//! (copied from ../shared/models, nasty files included), through the `sct-build-tree` binary.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use sct_format::validate::{validate_file, ValidateOptions};
+use sct_format::{Limits, SctReader};
+
+fn models() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models")
+}
+
+fn bin(args: &[&std::ffi::OsStr]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sct-build-tree")).args(args).output().expect("run sct-build-tree")
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).expect("mkdir");
+    for e in std::fs::read_dir(from).expect("read_dir") {
+        let e = e.expect("entry");
+        let target = to.join(e.file_name());
+        if e.file_type().expect("type").is_dir() {
+            copy_dir(&e.path(), &target);
+        } else {
+            std::fs::copy(e.path(), &target).expect("copy");
+        }
+    }
+}
+
+/// A library with folders: two good OBJ models (one with MTL + texture), a glTF with
+/// external buffers, a file that must fail (truncated PLY) and one that is refused (Draco).
+fn library(root: &Path) {
+    let m = models();
+    copy_dir(&m.join("nasty/obj-negative-indices-cube"), &root.join("props/cube"));
+    copy_dir(&m.join("nasty/obj-concave-ngons-wallhole"), &root.join("props/wall"));
+    copy_dir(&m.join("gltf/Box"), &root.join("gltf/box"));
+    copy_dir(&m.join("nasty/ply-truncated-ant-half"), &root.join("broken"));
+    copy_dir(&m.join("nasty/gltf-draco-duck"), &root.join("broken/draco"));
+}
+
+fn json(out: &Output) -> serde_json::Value {
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stdout)))
+}
+
+fn jobs_by_status(rep: &serde_json::Value, status: &str) -> Vec<String> {
+    rep["jobs"]
+        .as_array()
+        .expect("jobs")
+        .iter()
+        .filter(|j| j["status"] == status)
+        .map(|j| j["input"].as_str().expect("input").to_string())
+        .collect()
+}
+
+#[test]
+fn batch_converts_mirrors_skips_up_to_date_and_reports_failures() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (lib, out) = (dir.path().join("lib"), dir.path().join("out"));
+    library(&lib);
+
+    let first = bin(&[lib.as_os_str(), "-o".as_ref(), out.as_os_str(), "--json".as_ref()]);
+    assert_eq!(first.status.code(), Some(1), "a failed input makes the batch exit 1");
+    let rep = json(&first);
+    assert_eq!(rep["schema"], "sct-build-tree-batch/1");
+    let failed = jobs_by_status(&rep, "failed");
+    assert!(failed.iter().any(|p| p.ends_with(".ply")), "{failed:?}");
+    assert!(failed.iter().any(|p| p.contains("draco")), "{failed:?}");
+    let converted = jobs_by_status(&rep, "converted");
+    assert!(converted.len() >= 3, "{converted:?}");
+    // Every converted output mirrors its input's folder and validates deeply.
+    for job in rep["jobs"].as_array().expect("jobs").iter().filter(|j| j["status"] == "converted") {
+        let input = job["input"].as_str().expect("input");
+        let output = job["output"].as_str().expect("output");
+        assert_eq!(Path::new(output).parent(), Path::new(input).parent(), "{input} -> {output}");
+        let r = validate_file(&out.join(output), &ValidateOptions { deep: true, ..Default::default() }).expect("validate");
+        assert!(r.issues.is_empty(), "{output}: {:?}", r.issues);
+    }
+    // The failed input's error names the file.
+    let ply_err = rep["jobs"].as_array().expect("jobs").iter().find(|j| j["input"].as_str().is_some_and(|p| p.ends_with(".ply"))).expect("ply job");
+    assert!(ply_err["error"].as_str().is_some_and(|e| e.contains("ant-half.ply")), "{ply_err}");
+
+    // Second run: nothing to do, outputs untouched.
+    let before: Vec<Vec<u8>> = converted.iter().map(|c| std::fs::read(out.join(Path::new(c).with_extension("sct"))).expect("read")).collect();
+    let rep2 = json(&bin(&[lib.as_os_str(), "-o".as_ref(), out.as_os_str(), "--json".as_ref()]));
+    assert_eq!(jobs_by_status(&rep2, "up-to-date").len(), converted.len());
+    assert!(jobs_by_status(&rep2, "converted").is_empty());
+    let after: Vec<Vec<u8>> = converted.iter().map(|c| std::fs::read(out.join(Path::new(c).with_extension("sct"))).expect("read")).collect();
+    assert!(before == after);
+
+    // A changed source (or a changed resource of it) is converted again; only it.
+    let cube = lib.join("props/cube/negative_indices.obj");
+    let mut text = std::fs::read_to_string(&cube).expect("read obj");
+    text.push_str("\n# edited\n");
+    std::fs::write(&cube, text).expect("write obj");
+    // An interrupted run: a stale temporary file and a truncated output.
+    let wall_out = out.join("props/wall/wallhole.sct");
+    let wall = std::fs::read(&wall_out).expect("read");
+    std::fs::write(&wall_out, &wall[..wall.len() / 2]).expect("truncate");
+    std::fs::write(out.join("props/wall/.wallhole.sct.999999.tmp"), b"partial").expect("stale");
+    let rep3 = json(&bin(&[lib.as_os_str(), "-o".as_ref(), out.as_os_str(), "--json".as_ref()]));
+    let mut again = jobs_by_status(&rep3, "converted");
+    again.sort();
+    assert_eq!(again, ["props/cube/negative_indices.obj", "props/wall/wallhole.obj"]);
+    assert_eq!(rep3["stale_temp_files_removed"], 1);
+    assert!(!out.join("props/wall/.wallhole.sct.999999.tmp").exists());
+    assert_eq!(std::fs::read(&wall_out).expect("read"), wall, "reconversion is deterministic");
+
+    // Other parameters make every output stale.
+    let rep4 = json(&bin(&[lib.as_os_str(), "-o".as_ref(), out.as_os_str(), "--json".as_ref(), "--k".as_ref(), "2".as_ref()]));
+    assert_eq!(jobs_by_status(&rep4, "converted").len(), converted.len());
+}
+
+#[test]
+fn shards_partition_the_library() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let lib = dir.path().join("lib");
+    library(&lib);
+    let mut all = Vec::new();
+    for k in 0..3 {
+        let out = dir.path().join(format!("out{k}"));
+        let shard = format!("{k}/3");
+        let rep = json(&bin(&[lib.as_os_str(), "-o".as_ref(), out.as_os_str(), "--json".as_ref(), "--shard".as_ref(), shard.as_ref()]));
+        assert_eq!(rep["shard"]["index"], k);
+        all.extend(rep["jobs"].as_array().expect("jobs").iter().map(|j| j["input"].as_str().expect("input").to_string()));
+    }
+    let n = all.len();
+    all.sort();
+    all.dedup();
+    assert_eq!(all.len(), n, "an input in two shards");
+    let whole = json(&bin(&[lib.as_os_str(), "-o".as_ref(), dir.path().join("whole").as_os_str(), "--json".as_ref()]));
+    assert_eq!(whole["jobs"].as_array().expect("jobs").len(), n, "shards miss an input");
+    let bad = bin(&[lib.as_os_str(), "-o".as_ref(), dir.path().join("x").as_os_str(), "--shard".as_ref(), "3/3".as_ref()]);
+    assert_eq!(bad.status.code(), Some(2));
+}
+
+#[test]
+fn one_step_conversion_equals_voxelize_then_build() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let model = models().join("nasty/obj-concave-ngons-wallhole/wallhole.obj");
+    let one = dir.path().join("one.sct");
+    let out = bin(&[model.as_os_str(), "-o".as_ref(), one.as_os_str(), "--k".as_ref(), "2".as_ref(), "--json".as_ref()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rep = json(&out);
+    assert!(rep["sampling"]["samples"].as_u64().is_some_and(|n| n > 100), "{rep}");
+    assert_eq!(rep["sampling"]["samples"], rep["build"]["samples"]);
+
+    // The same through a samples file on disk.
+    let samples = dir.path().join("two.samples");
+    let opts = voxelize::Options {
+        inputs: vec![model.clone()],
+        output: Some(samples.clone()),
+        load: Default::default(),
+        sample: voxelize::SampleOptions {
+            density: voxelize::Density::Auto { k: 2.0, gamma: 2.0, min_base: None },
+            ..Default::default()
+        },
+    };
+    voxelize::run(&opts, &|_, _| {}).expect("voxelize");
+    let two = dir.path().join("two.sct");
+    let out2 = bin(&[samples.as_os_str(), "-o".as_ref(), two.as_os_str()]);
+    assert!(out2.status.success(), "{}", String::from_utf8_lossy(&out2.stderr));
+
+    let (a, b) = (SctReader::open(&one, &Limits::default()).expect("one"), SctReader::open(&two, &Limits::default()).expect("two"));
+    assert_eq!(a.trees().len(), b.trees().len());
+    for t in 0..a.trees().len() {
+        assert_eq!(a.read_tree(t).expect("tree").nodes(), b.read_tree(t).expect("tree").nodes());
+    }
+    // Provenance: the one-step file names the mesh as its source and records the sampling.
+    let g = a.generator();
+    assert!(g.sources.iter().any(|s| s.path.ends_with("wallhole.obj")), "{:?}", g.sources);
+    assert_eq!(g.parameters["sampling"]["tool"], "sct-voxelize");
+}
+
+#[test]
+fn inputs_are_checked() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let o = dir.path().join("x.sct");
+    let m = models().join("nasty/obj-negative-indices-cube/negative_indices.obj");
+    // Mixing a mesh and a non-mesh is a usage error.
+    let out = bin(&[m.as_os_str(), Path::new("x.samples").as_os_str(), "-o".as_ref(), o.as_os_str()]);
+    assert_eq!(out.status.code(), Some(2));
+    // A mesh that fails to load is bad input, named in the message.
+    let bad = models().join("nasty/ply-truncated-ant-half/ant-half.ply");
+    let out = bin(&[bad.as_os_str(), "-o".as_ref(), o.as_os_str()]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("ant-half.ply"));
+    assert!(!o.exists(), "no output for a failed conversion");
+}
