@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use sct_format::samples::{MeshEntry, SampleInstance, SamplesFile};
+use sct_format::samples::{AffineInstance, MeshEntry, SampleInstance, SamplesFile};
 use sct_format::{Generator, SourceRef};
 use serde_json::json;
 
@@ -52,8 +52,10 @@ pub struct Summary {
     pub triangles_instanced: u64,
     /// Meshes written.
     pub meshes: u64,
-    /// Instances written.
+    /// Instances written (similarity and affine).
     pub instances: u64,
+    /// Of those, affine (non-similarity) instances (samples-file `AFFI` section).
+    pub affine_instances: u64,
     /// Samples before merging.
     pub samples_before_merge: u64,
     /// Samples written.
@@ -149,12 +151,14 @@ pub fn load_all(inputs: &[PathBuf], opts: &LoadOptions) -> Result<LoadedScene, E
 pub fn to_samples_file(sampled: &Sampled, points: Vec<sct_format::Node>, generator: Generator) -> SamplesFile {
     let mut meshes = Vec::new();
     let mut instances = Vec::new();
+    let mut affine_instances = Vec::new();
     let mut samples = Vec::new();
     for m in &sampled.meshes {
         let idx = meshes.len() as u32;
         meshes.push(MeshEntry { name: m.name.clone(), first: samples.len() as u64, count: m.samples.len() as u64 });
         samples.extend_from_slice(&m.samples);
         instances.extend(m.instances.iter().map(|t| SampleInstance { mesh: idx, transform: *t }));
+        affine_instances.extend(m.affine.iter().map(|a| AffineInstance { mesh: idx, matrix: *a }));
     }
     if !points.is_empty() {
         let idx = meshes.len() as u32;
@@ -162,7 +166,7 @@ pub fn to_samples_file(sampled: &Sampled, points: Vec<sct_format::Node>, generat
         samples.extend(points);
         instances.push(SampleInstance { mesh: idx, transform: sct_format::Similarity::IDENTITY });
     }
-    SamplesFile { generator, meshes, instances, samples }
+    SamplesFile { generator, meshes, instances, affine_instances, samples }
 }
 
 fn method_name(m: Method) -> &'static str {
@@ -256,7 +260,7 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
     let rel = if st.mesh_area > 0.0 { (st.sample_area - st.mesh_area) / st.mesh_area } else { 0.0 };
     let mut warnings = scene.warnings.clone();
     if st.baked_non_similar > 0 {
-        warnings.push(format!("{} reused mesh(es) had a non-similarity instance transform and were baked per instance", st.baked_non_similar));
+        warnings.push(format!("{} placement(s) of reused meshes had a projective or singular transform and were baked into world space", st.baked_non_similar));
     }
     let summary = Summary {
         inputs: sources,
@@ -271,7 +275,8 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
         primitives_skipped: scene.stats.skipped_primitives,
         triangles_instanced: scene.instanced_triangle_count(),
         meshes: file.meshes.len() as u64,
-        instances: file.instances.len() as u64,
+        instances: (file.instances.len() + file.affine_instances.len()) as u64,
+        affine_instances: file.affine_instances.len() as u64,
         samples_before_merge: st.samples_before_merge + n_points,
         samples: file.samples.len() as u64,
         samples_dropped_alpha: st.dropped_alpha,

@@ -126,8 +126,11 @@ pub struct SampledMesh {
     pub name: String,
     /// Samples in the mesh's frame.
     pub samples: Vec<Node>,
-    /// Placements (identity for meshes baked into world space).
+    /// Similarity placements (identity for meshes baked into world space).
     pub instances: Vec<sct_format::Similarity>,
+    /// Affine placements (non-uniform scale, shear, mirror) as row-major 3 × 4 matrices;
+    /// written to the samples file's `AFFI` section (spec §8).
+    pub affine: Vec<[[f64; 4]; 3]>,
 }
 
 /// Counters of a sampling run.
@@ -143,8 +146,11 @@ pub struct SampleStats {
     pub triangles: u64,
     /// Meshes instanced (sampled once, placed several times).
     pub instanced_meshes: u64,
-    /// Meshes baked into world space because an instance was not a similarity.
+    /// Placements baked into world space because they were neither a similarity nor an
+    /// invertible affine map (projective or singular matrices).
     pub baked_non_similar: u64,
+    /// Affine (non-similarity) placements kept as instances.
+    pub affine_instances: u64,
     /// Sum of sample areas over the scene (instances included, scaled).
     pub sample_area: f64,
     /// Mesh area over the scene (instances included).
@@ -243,6 +249,17 @@ struct Unit {
     h: f64,
     name: String,
     instances: Vec<sct_format::Similarity>,
+    affine: Vec<[[f64; 4]; 3]>,
+}
+
+/// The samples-file form (row-major 3 × 4) of an affine `Mat4` (column-major), when it is
+/// affine (last row 0 0 0 1) and invertible.
+fn to_affine(m: &Mat4) -> Option<sct_format::samples::AffineInstance> {
+    if m[0][3] != 0.0 || m[1][3] != 0.0 || m[2][3] != 0.0 || m[3][3] != 1.0 {
+        return None;
+    }
+    let a = sct_format::samples::AffineInstance { mesh: 0, matrix: std::array::from_fn(|r| std::array::from_fn(|c| m[c][r])) };
+    a.is_valid().then_some(a)
 }
 
 fn plan_units(scene: &LoadedScene, h: f64, stats: &mut SampleStats) -> Vec<Unit> {
@@ -252,27 +269,40 @@ fn plan_units(scene: &LoadedScene, h: f64, stats: &mut SampleStats) -> Vec<Unit>
         if insts.is_empty() {
             continue;
         }
-        // Similarity placements share one local sampling; anything else (non-uniform scale,
-        // shear, mirror) cannot be a samples-file instance and is baked into world space.
+        // A reused mesh is sampled once in its own frame and placed by similarity or affine
+        // instances; a single placement, or a projective/singular one, is baked into world
+        // space (exact world grid).
         let mut sims = Vec::new();
-        let mut sim_mats = Vec::new();
+        let mut affs = Vec::new();
         let mut baked = Vec::new();
         for inst in &insts {
-            match to_similarity(&inst.transform) {
-                Some(s) => {
-                    sims.push(s);
-                    sim_mats.push(inst.transform);
-                }
-                None => baked.push(inst.transform),
+            if let Some(s) = to_similarity(&inst.transform) {
+                sims.push(s);
+            } else if let Some(a) = to_affine(&inst.transform) {
+                affs.push(a);
+            } else {
+                baked.push(inst.transform);
             }
         }
-        if sims.len() >= 2 {
-            // The finest instance scale decides the local voxel so no instance is undersampled.
-            let smin = sims.iter().map(|s| s.scale).fold(f64::INFINITY, f64::min);
+        if sims.len() + affs.len() >= 2 {
+            // The largest stretch of any placement decides the local voxel, so no placement
+            // is sampled coarser than the world voxel.
+            let stretch = sims.iter().map(|s| s.scale).chain(affs.iter().map(|a| a.max_stretch())).fold(0.0f64, f64::max);
             stats.instanced_meshes += 1;
-            units.push(Unit { mesh: mi, bake: None, h: h / smin, name: mesh.name.clone(), instances: sims });
-        } else if let Some(m) = sim_mats.first() {
-            baked.insert(0, *m);
+            stats.affine_instances += affs.len() as u64;
+            units.push(Unit {
+                mesh: mi,
+                bake: None,
+                h: h / stretch,
+                name: mesh.name.clone(),
+                instances: sims,
+                affine: affs.iter().map(|a| a.matrix).collect(),
+            });
+        } else {
+            // At most one usable placement: bake it (its original matrix).
+            baked.extend(
+                insts.iter().filter(|i| to_similarity(&i.transform).is_some() || to_affine(&i.transform).is_some()).map(|i| i.transform),
+            );
         }
         if !baked.is_empty() && insts.len() > 1 {
             stats.baked_non_similar += baked.len() as u64;
@@ -280,7 +310,7 @@ fn plan_units(scene: &LoadedScene, h: f64, stats: &mut SampleStats) -> Vec<Unit>
         let many = baked.len() > 1;
         for (k, m) in baked.into_iter().enumerate() {
             let name = if many { format!("{}#{k}", mesh.name) } else { mesh.name.clone() };
-            units.push(Unit { mesh: mi, bake: Some(m), h, name, instances: vec![sct_format::Similarity::IDENTITY] });
+            units.push(Unit { mesh: mi, bake: Some(m), h, name, instances: vec![sct_format::Similarity::IDENTITY], affine: Vec::new() });
         }
     }
     units
@@ -468,7 +498,12 @@ pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn F
         stats.samples += nodes.len() as u64;
         let area: f64 = nodes.iter().map(|n| f64::from(n.area)).sum();
         stats.sample_area += u.instances.iter().map(|s| area * s.scale * s.scale).sum::<f64>();
-        out.push(SampledMesh { name: u.name.clone(), samples: nodes, instances: u.instances.clone() });
+        for m in &u.affine {
+            let a = sct_format::samples::AffineInstance { mesh: 0, matrix: *m };
+            let st = a.max_stretch();
+            stats.sample_area += nodes.iter().map(|n| f64::from(a.transform_node(n, st).area)).sum::<f64>();
+        }
+        out.push(SampledMesh { name: u.name.clone(), samples: nodes, instances: u.instances.clone(), affine: u.affine.clone() });
     }
     stats.mesh_area = scene.world_area();
     Ok(Sampled { meshes: out, voxel, stats })
@@ -975,13 +1010,22 @@ impl Grid {
     }
 }
 
-/// World-space spheres (centre, radius) of sampled meshes, every instance applied.
-pub fn world_spheres(meshes: &[(Vec<Node>, Vec<sct_format::Similarity>)]) -> Vec<([f64; 3], f64)> {
+/// World-space spheres (centre, radius) of sampled meshes, every instance applied (affine
+/// ones baked as a samples-file consumer does, spec §8).
+pub fn world_spheres(meshes: &[SampledMesh]) -> Vec<([f64; 3], f64)> {
     let mut out = Vec::new();
-    for (nodes, insts) in meshes {
-        for s in insts {
-            for n in nodes {
+    for m in meshes {
+        for s in &m.instances {
+            for n in &m.samples {
                 out.push((s.apply_point(n.center.map(f64::from)), f64::from(n.radius) * s.scale));
+            }
+        }
+        for mat in &m.affine {
+            let a = sct_format::samples::AffineInstance { mesh: 0, matrix: *mat };
+            let st = a.max_stretch();
+            for n in &m.samples {
+                let b = a.transform_node(n, st);
+                out.push((b.center.map(f64::from), f64::from(b.radius)));
             }
         }
     }

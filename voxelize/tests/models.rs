@@ -52,9 +52,12 @@ fn every_non_nasty_model_voxelizes() {
             assert!(m.samples.iter().all(|n| n.is_finite()), "{name}: non-finite sample");
         }
         let rel = (s.stats.sample_area - s.stats.mesh_area).abs() / s.stats.mesh_area;
-        // Alpha-dropped samples remove area (AlphaBlendModeTest); elsewhere exact.
+        // Alpha-dropped samples remove area (AlphaBlendModeTest); elsewhere exact, except that
+        // merged samples on creases under a non-uniform affine placement carry a mean normal
+        // (see instancing_samples_once; SimpleInstancing's tiny cubes: 0.9 %).
+        let tol = if s.stats.affine_instances > 0 { 0.02 } else { 1e-4 };
         if s.stats.dropped_alpha == 0 {
-            assert!(rel < 1e-4, "{name}: area error {rel}");
+            assert!(rel < tol, "{name}: area error {rel}");
         }
     }
 }
@@ -219,9 +222,8 @@ fn area_sum_matches_mesh_area() {
     assert!((s.stats.sample_area - s.stats.mesh_area).abs() / s.stats.mesh_area < 1e-6);
 }
 
-/// SimpleInstancing: one mesh placed 125 times. The samples file can only hold similarity
-/// instances, and 120 of the 125 have non-uniform SCALE, so the mesh is sampled once for the 5
-/// uniform placements and baked for the other 120 — still 125 placements in all.
+/// SimpleInstancing: one mesh placed 125 times, 120 of them with non-uniform SCALE: one
+/// sample set, 5 similarity + 120 affine instances, and so in the samples file.
 #[test]
 fn instancing_samples_once() {
     let Some(path) = model("gltf/SimpleInstancing/glTF-Binary/SimpleInstancing.glb") else { return };
@@ -229,11 +231,23 @@ fn instancing_samples_once() {
     assert_eq!(scene.meshes.len(), 1, "the mesh is loaded once");
     assert_eq!(scene.instances.len(), 125);
     let s = sample(&scene, coarse(&scene, 100.0), true);
-    let placements: usize = s.meshes.iter().map(|m| m.instances.len()).sum();
-    assert_eq!(placements, 125);
+    assert_eq!(s.meshes.len(), 1, "one sample set");
+    assert_eq!(s.meshes[0].instances.len(), 5);
+    assert_eq!(s.meshes[0].affine.len(), 120);
     assert_eq!(s.stats.instanced_meshes, 1);
-    assert_eq!(s.meshes.iter().filter(|m| m.instances.len() > 1).count(), 1);
-    assert_eq!(s.meshes.len(), 1 + 120);
+    assert_eq!(s.stats.baked_non_similar, 0);
+    // Unmerged samples of this flat-shaded cube carry their face's normal, so Nanson's formula
+    // keeps exact areas exact through the affine placements; merged samples on cube edges
+    // carry a mean normal, which the non-uniform scale weighs differently (measured 0.17 %).
+    let rel = |s: &voxelize::sample::Sampled| (s.stats.sample_area - s.stats.mesh_area).abs() / s.stats.mesh_area;
+    assert!(rel(&s) < 0.01, "merged: area error {}", rel(&s));
+    let unmerged = sample(&scene, coarse(&scene, 100.0), false);
+    assert!(rel(&unmerged) < 1e-5, "unmerged: area error {}", rel(&unmerged));
+    let f = voxelize::run::to_samples_file(&s, Vec::new(), sct_format::Generator::default());
+    let mut bytes = Vec::new();
+    f.write_to(&mut bytes).unwrap();
+    let back = sct_format::samples::SamplesFile::read(&bytes, &sct_format::Limits::default()).unwrap();
+    assert_eq!((back.meshes.len(), back.instances.len(), back.affine_instances.len()), (1, 5, 120));
     // Milk truck: wheels are one mesh reused by several nodes with rigid transforms.
     if let Some(p) = model("gltf/CesiumMilkTruck/glTF-Binary/CesiumMilkTruck.glb") {
         let scene = load(&p, &LoadOptions::default()).unwrap();

@@ -28,6 +28,5 @@ pub fn sample(scene: &LoadedScene, h: f64, merge: bool) -> Sampled {
 }
 
 pub fn spheres(s: &Sampled) -> Vec<([f64; 3], f64)> {
-    let m: Vec<_> = s.meshes.iter().map(|m| (m.samples.clone(), m.instances.clone())).collect();
-    voxelize::sample::world_spheres(&m)
+    voxelize::sample::world_spheres(&s.meshes)
 }
