@@ -43,6 +43,7 @@ pub mod atomic;
 pub mod codec;
 pub mod container;
 pub mod error;
+pub mod export;
 pub mod graph;
 pub mod geometry;
 pub mod limits;
