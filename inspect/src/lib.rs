@@ -19,8 +19,14 @@ use sct_format::{Generator, Limits, Node, Profile, SctReader};
 /// Version tag of the JSON report; bumped on any incompatible change.
 pub const SCHEMA: &str = "sct-inspect/1";
 
+pub mod export;
+pub mod coverage;
+
+pub use coverage::{coverage_against, AgainstOptions, CoverageReport};
+
 /// Failures that stop an inspection (as opposed to issues, which are results).
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum InspectError {
     /// The file could not be read or parsed.
     #[error(transparent)]
@@ -31,6 +37,12 @@ pub enum InspectError {
     /// A `--dump` path that names no node.
     #[error("{0}")]
     Usage(String),
+    /// The `--against` mesh could not be loaded.
+    #[error("mesh: {0}")]
+    Mesh(#[from] voxelize::LoadError),
+    /// The `--against` mesh loaded but has no surface to sample.
+    #[error("mesh: {0}")]
+    BadMesh(String),
 }
 
 impl InspectError {
@@ -38,6 +50,8 @@ impl InspectError {
     pub fn exit_code(&self) -> i32 {
         match self {
             InspectError::Sct(e) if e.is_invalid_input() => 1,
+            InspectError::Mesh(voxelize::LoadError::Io { .. }) => 2,
+            InspectError::Mesh(_) | InspectError::BadMesh(_) => 1,
             _ => 2,
         }
     }
@@ -211,17 +225,14 @@ pub struct Summary {
     pub root: Option<NodeReport>,
     /// Validation result when asked for.
     pub validation: Option<Validation>,
+    /// Coverage of a source mesh, only with `--against` (absent otherwise, so reports
+    /// without it are unchanged).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub coverage: Option<CoverageReport>,
 }
 
 fn tree_report(i: usize, t: &TreeIndex) -> TreeReport {
     let h = &t.header;
-    let internal_in_block = |b: usize| {
-        let e = &t.blocks[b];
-        let end = t.level_blocks(e.level as usize).end;
-        let next =
-            if b + 1 < end { t.blocks[b + 1].internal_before } else { t.levels.get(e.level as usize + 1).map_or(0, |l| l.node_count / 2) };
-        next.saturating_sub(e.internal_before)
-    };
     let per_level: Vec<LevelReport> = t
         .levels
         .iter()
@@ -229,7 +240,7 @@ fn tree_report(i: usize, t: &TreeIndex) -> TreeReport {
         .map(|(d, l)| {
             let internal = t.levels.get(d + 1).map_or(0, |n| n.node_count / 2);
             let blocks = t.level_blocks(d);
-            let leaf_blocks = blocks.clone().filter(|&b| internal_in_block(b) == 0).count() as u64;
+            let leaf_blocks = blocks.clone().filter(|&b| t.internal_in_block(b) == 0).count() as u64;
             LevelReport {
                 level: d,
                 nodes: l.node_count,
@@ -376,6 +387,7 @@ pub fn summarize(path: &Path, limits: &Limits) -> Result<Summary, InspectError> 
         },
         root: sct_format::traverse::graph_bound(&r, g.root).as_ref().map(NodeReport::from),
         validation: None,
+        coverage: None,
     })
 }
 
@@ -468,6 +480,37 @@ pub fn write_validation(v: &Validation, w: &mut dyn Write) -> std::io::Result<()
         for i in &v.issues {
             writeln!(w, "{i}")?;
         }
+    }
+    Ok(())
+}
+
+/// Writes a coverage result.
+pub fn write_coverage(c: &CoverageReport, w: &mut dyn Write) -> std::io::Result<()> {
+    writeln!(
+        w,
+        "coverage of {}: {:.4}% of {} surface points (seed {}) inside a leaf sphere: {} (threshold {:.4}%)",
+        c.mesh,
+        c.fraction * 100.0,
+        c.points,
+        c.seed,
+        if c.passed { "pass" } else { "FAIL" },
+        c.min_coverage * 100.0
+    )?;
+    writeln!(
+        w,
+        "  leaves: {} stored in {} trees, {} uses, {} expanded through instancing",
+        c.leaves, c.trees, c.tree_uses, c.leaves_expanded
+    )?;
+    match &c.worst_uncovered {
+        Some(u) => writeln!(
+            w,
+            "  worst uncovered point ({:.6}, {:.6}, {:.6}): {:.6} from the nearest leaf sphere = {:.3} leaf radii (radius {:.6})",
+            u.point[0], u.point[1], u.point[2], u.distance, u.leaf_radii, u.leaf_radius
+        )?,
+        None => writeln!(w, "  every point is covered")?,
+    }
+    for e in &c.errors {
+        writeln!(w, "  not followed: {e}")?;
     }
     Ok(())
 }

@@ -8,7 +8,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use inspect::{dump, summarize, validate_file, write_json, write_text, write_validation, InspectError, ValidateOptions};
+use inspect::coverage::{DEFAULT_MIN_COVERAGE, DEFAULT_POINTS, DEFAULT_SEED};
+use inspect::{
+    coverage_against, dump, summarize, validate_file, write_coverage, write_json, write_text, write_validation, AgainstOptions, InspectError,
+    ValidateOptions,
+};
 use sct_format::Limits;
 
 const EXAMPLES: &str = "\
@@ -18,13 +22,19 @@ Examples:
   sct-inspect bunny.sct --validate       quick structural validation (exit 1 when invalid)
   sct-inspect bunny.sct --deep --json    decode every block and check hierarchical consistency
   sct-inspect bunny.sct --dump root/0/1 --levels 2
-                                         print the graph and two levels below node root/0/1";
+                                         print the graph and two levels below node root/0/1
+  sct-inspect bunny.sct --against bunny.ply --min-coverage 0.99
+                                         fraction of 10^5 random surface points of the mesh inside
+                                         some leaf sphere (exit 1 below the threshold)
+  sct-inspect bunny.samples --export-ply samples.ply
+  sct-inspect bunny.sct --export-ply level12.ply --export-level 12
+                                         PLY point clouds for MeshLab / CloudCompare";
 
 /// Statistics, dumps and validation of SCT scene-tree files.
 #[derive(Parser, Debug)]
 #[command(name = "sct-inspect", version, after_help = EXAMPLES)]
 struct Cli {
-    /// The SCT file.
+    /// The SCT file (or, with --export-ply, a samples file).
     file: PathBuf,
     /// Print the report as JSON.
     #[arg(long)]
@@ -41,11 +51,51 @@ struct Cli {
     /// Levels printed by --dump.
     #[arg(long, value_name = "N", default_value_t = 3, requires = "dump")]
     levels: usize,
+    /// Coverage of a source mesh (OBJ, glTF/GLB, PLY): the fraction of random surface points
+    /// inside some leaf sphere, leaves in world space (instances and inlines applied).
+    #[arg(long, value_name = "MESH")]
+    against: Option<PathBuf>,
+    /// Surface points tested by --against.
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_POINTS, requires = "against")]
+    points: usize,
+    /// Seed of the --against points (same seed, same points).
+    #[arg(long, value_name = "S", default_value_t = DEFAULT_SEED, requires = "against")]
+    seed: u64,
+    /// Exit 1 when the covered fraction (0..1) is below this.
+    #[arg(long, value_name = "F", default_value_t = DEFAULT_MIN_COVERAGE, requires = "against", value_parser = fraction)]
+    min_coverage: f64,
+    /// Write a PLY point cloud (position, normal, colour, radius; world space) and exit: all
+    /// samples of a samples file, or an SCT file's leaves (or its cut at --export-level).
+    #[arg(long, value_name = "OUT.ply")]
+    export_ply: Option<PathBuf>,
+    /// Export the cut at this tree level (nodes at the level plus shallower leaves).
+    #[arg(long, value_name = "N", requires = "export_ply")]
+    export_level: Option<usize>,
+    /// Refuse exports of more points than this.
+    #[arg(long, value_name = "N", default_value_t = inspect::export::DEFAULT_MAX_POINTS, requires = "export_ply")]
+    max_points: u64,
+}
+
+fn fraction(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
+        _ => Err(format!("{s:?} is not a fraction in [0, 1]")),
+    }
 }
 
 fn run(cli: &Cli) -> Result<i32, InspectError> {
     let limits = Limits::default();
     let mut out = std::io::stdout().lock();
+    if let Some(ply) = &cli.export_ply {
+        let e = inspect::export::export_ply(&cli.file, ply, cli.export_level, cli.max_points, &limits)?;
+        if cli.json {
+            serde_json::to_writer_pretty(&mut out, &e).map_err(std::io::Error::from)?;
+            writeln!(out)?;
+        } else {
+            writeln!(out, "{}: {} points from {} placements, {} bytes", ply.display(), e.points, e.placements, e.bytes)?;
+        }
+        return Ok(0);
+    }
     if let Some(p) = &cli.dump {
         dump(&cli.file, p, cli.levels, &limits, &mut out)?;
         return Ok(0);
@@ -59,6 +109,10 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
     match summarize(&cli.file, &limits) {
         Ok(mut s) => {
             s.validation = validation;
+            if let Some(mesh) = &cli.against {
+                let opts = AgainstOptions { points: cli.points, seed: cli.seed, min_coverage: cli.min_coverage, limits: limits.clone() };
+                s.coverage = Some(coverage_against(&cli.file, mesh, &opts)?);
+            }
             if cli.json {
                 write_json(&s, &mut out)?;
             } else {
@@ -66,7 +120,13 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
                 if let Some(v) = &s.validation {
                     write_validation(v, &mut out)?;
                 }
+                if let Some(c) = &s.coverage {
+                    write_coverage(c, &mut out)?;
+                }
             }
+            out.flush()?;
+            let uncovered = s.coverage.as_ref().is_some_and(|c| !c.passed);
+            Ok(if invalid || uncovered { 1 } else { 0 })
         }
         // An unparsable file still gets its issues printed when validating.
         Err(e) if e.exit_code() == 1 && validation.is_some() => {
@@ -77,12 +137,10 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
             } else {
                 write_validation(&v, &mut out)?;
             }
-            return Ok(1);
+            Ok(1)
         }
-        Err(e) => return Err(e),
+        Err(e) => Err(e),
     }
-    out.flush()?;
-    Ok(if invalid { 1 } else { 0 })
 }
 
 fn main() -> ExitCode {

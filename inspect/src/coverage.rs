@@ -1,0 +1,496 @@
+//! `--against MESH`: how much of a source mesh's surface the decoded leaf spheres cover.
+//!
+//! Area-uniform random points on the mesh (every mesh instance applied, fixed seed) are
+//! tested against the leaves of every geometry tree reached from the graph root, in world
+//! space (instances and inlines through [`sct_format::traverse`]). A point is covered when it
+//! lies inside some leaf sphere; for the uncovered ones the distance to the nearest leaf
+//! sphere's surface is measured, absolute and in that leaf's radii.
+//!
+//! Instancing is not expanded: each distinct tree is decoded once into a [`SphereTree`] in its
+//! own frame, and each use of it is a transformed reference in a second [`SphereTree`] over
+//! the uses' world bounds. A query maps the point into the frames of the uses that can
+//! matter, so memory follows the stored leaves, not the instanced ones.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use sct_format::traverse::{ReachedKind, Traversal, TraverseOptions};
+use sct_format::{Limits, Node, Similarity, SctReader};
+
+use crate::InspectError;
+
+/// Relative slack on leaf radii: centres and radii are stored as f32 (same slack as the
+/// voxelizer's own coverage check).
+const RADIUS_SLACK: f64 = 1e-6;
+/// Items per k-d tree bucket.
+const BUCKET: usize = 8;
+
+/// Options of a coverage check.
+#[derive(Clone, Debug)]
+pub struct AgainstOptions {
+    /// Surface points to test.
+    pub points: usize,
+    /// Seed of the point generator (same seed, same points).
+    pub seed: u64,
+    /// Coverage fraction below which the check fails.
+    pub min_coverage: f64,
+    /// Limits for every SCT file opened.
+    pub limits: Limits,
+}
+
+/// Default number of surface points.
+pub const DEFAULT_POINTS: usize = 100_000;
+/// Default seed.
+pub const DEFAULT_SEED: u64 = 0x5C7_C0FE;
+/// Default threshold: a tree built from the mesh covers it completely, so anything short of
+/// 99.9 % (at 10^5 points: more than 100 misses) means missing or misplaced geometry.
+pub const DEFAULT_MIN_COVERAGE: f64 = 0.999;
+
+impl Default for AgainstOptions {
+    fn default() -> Self {
+        AgainstOptions { points: DEFAULT_POINTS, seed: DEFAULT_SEED, min_coverage: DEFAULT_MIN_COVERAGE, limits: Limits::default() }
+    }
+}
+
+/// The uncovered point farthest from every leaf sphere.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct Uncovered {
+    /// The point (world space).
+    pub point: [f64; 3],
+    /// Distance from the point to the nearest leaf sphere's surface (world units).
+    pub distance: f64,
+    /// World radius of that leaf.
+    pub leaf_radius: f64,
+    /// `distance / leaf_radius`.
+    pub leaf_radii: f64,
+}
+
+/// The result of a coverage check (the `coverage` member of the JSON report).
+#[derive(Clone, Debug, Serialize)]
+pub struct CoverageReport {
+    /// The mesh as given.
+    pub mesh: String,
+    /// Points tested.
+    pub points: u64,
+    /// Seed of the points.
+    pub seed: u64,
+    /// Points inside some leaf sphere.
+    pub covered: u64,
+    /// `covered / points` (1 when there are no points).
+    pub fraction: f64,
+    /// The threshold.
+    pub min_coverage: f64,
+    /// `fraction >= min_coverage`.
+    pub passed: bool,
+    /// Distinct geometry trees decoded.
+    pub trees: u64,
+    /// Leaves stored in those trees.
+    pub leaves: u64,
+    /// Uses of those trees reached from the root (instances and inlines counted).
+    pub tree_uses: u64,
+    /// Leaves reached counting every use (saturating).
+    pub leaves_expanded: u64,
+    /// The worst uncovered point, null when every point is covered.
+    pub worst_uncovered: Option<Uncovered>,
+    /// Branches the traversal could not follow (missing inline, unreadable tree); their
+    /// leaves are not counted.
+    pub errors: Vec<String>,
+    /// Phase timings; not serialized, so the report's bytes do not depend on the machine.
+    #[serde(skip)]
+    pub seconds: Seconds,
+}
+
+/// Phase timings (not part of the deterministic content; benchmarks read them).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Seconds {
+    /// Mesh load and point generation.
+    pub mesh: f64,
+    /// Traversal, leaf decoding and index building.
+    pub index: f64,
+    /// Point queries.
+    pub query: f64,
+}
+
+/// A k-d tree over spheres; each node keeps the bounding box of its items' centres and their
+/// largest radius, which gives a lower bound of the signed distance to any item below it.
+#[derive(Debug, Default)]
+pub struct SphereTree {
+    /// Items `[x, y, z, r]`, reordered so every node's items are contiguous.
+    items: Vec<[f64; 4]>,
+    /// Original index of each reordered item.
+    ids: Vec<u32>,
+    nodes: Vec<KdNode>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct KdNode {
+    lo: [f64; 3],
+    hi: [f64; 3],
+    rmax: f64,
+    start: u32,
+    end: u32,
+    /// Index of the first child (the second follows it); 0 for a bucket.
+    left: u32,
+}
+
+impl SphereTree {
+    /// Builds the tree over spheres `[x, y, z, r]` (at most `u32::MAX` of them).
+    pub fn build(spheres: Vec<[f64; 4]>) -> SphereTree {
+        let mut t = SphereTree { ids: (0..spheres.len() as u32).collect(), items: spheres, nodes: Vec::new() };
+        if !t.items.is_empty() {
+            t.nodes.push(t.make_node(0, t.items.len()));
+            let mut k = 0;
+            // Breadth-first split; children of node k are appended as a pair.
+            while k < t.nodes.len() {
+                let n = t.nodes[k];
+                let (s, e) = (n.start as usize, n.end as usize);
+                if e - s > BUCKET {
+                    let ext = [n.hi[0] - n.lo[0], n.hi[1] - n.lo[1], n.hi[2] - n.lo[2]];
+                    let ax = if ext[0] >= ext[1] && ext[0] >= ext[2] { 0 } else if ext[1] >= ext[2] { 1 } else { 2 };
+                    let m = (e - s) / 2;
+                    let mut perm: Vec<([f64; 4], u32)> = t.items[s..e].iter().copied().zip(t.ids[s..e].iter().copied()).collect();
+                    perm.select_nth_unstable_by(m, |a, b| a.0[ax].total_cmp(&b.0[ax]).then(a.1.cmp(&b.1)));
+                    for (j, (it, id)) in perm.into_iter().enumerate() {
+                        t.items[s + j] = it;
+                        t.ids[s + j] = id;
+                    }
+                    t.nodes[k].left = t.nodes.len() as u32;
+                    let (a, b) = (t.make_node(s, s + m), t.make_node(s + m, e));
+                    t.nodes.push(a);
+                    t.nodes.push(b);
+                }
+                k += 1;
+            }
+        }
+        t
+    }
+
+    fn make_node(&self, s: usize, e: usize) -> KdNode {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        let mut rmax = 0.0f64;
+        for it in &self.items[s..e] {
+            for k in 0..3 {
+                lo[k] = lo[k].min(it[k]);
+                hi[k] = hi[k].max(it[k]);
+            }
+            rmax = rmax.max(it[3]);
+        }
+        KdNode { lo, hi, rmax, start: s as u32, end: e as u32, left: 0 }
+    }
+
+    /// Number of items.
+    pub fn len(&self) -> usize {
+        self.items.len()
+    }
+
+    /// True when the tree holds no item.
+    pub fn is_empty(&self) -> bool {
+        self.items.is_empty()
+    }
+
+    /// A sphere bounding every item sphere, `None` when empty.
+    pub fn bound(&self) -> Option<[f64; 4]> {
+        let n = self.nodes.first()?;
+        let c = [0.5 * (n.lo[0] + n.hi[0]), 0.5 * (n.lo[1] + n.hi[1]), 0.5 * (n.lo[2] + n.hi[2])];
+        let half = dist(n.lo, c);
+        Some([c[0], c[1], c[2], half + n.rmax])
+    }
+
+    /// Smallest `eval(id, item, best)` over items, searched nearest-box first and pruned by
+    /// the lower bound `|p - box| - rmax`, which `eval` must respect (a true signed distance
+    /// to something inside the item's sphere). Stops as soon as the best is `<= stop`.
+    /// Returns the best and the (reordered) index of its item, `None` when nothing beat
+    /// `best_in`.
+    fn search(&self, p: [f64; 3], best_in: f64, stop: f64, mut eval: impl FnMut(u32, &[f64; 4], f64) -> f64) -> (f64, Option<usize>) {
+        let mut best = best_in;
+        let mut arg = None;
+        if self.nodes.is_empty() {
+            return (best, arg);
+        }
+        let mut stack: Vec<(f64, u32)> = Vec::with_capacity(64);
+        stack.push((lower_bound(&self.nodes[0], p), 0));
+        while let Some((lb, k)) = stack.pop() {
+            if lb >= best {
+                continue;
+            }
+            let n = &self.nodes[k as usize];
+            if n.left == 0 {
+                for i in n.start as usize..n.end as usize {
+                    let d = eval(self.ids[i], &self.items[i], best);
+                    if d < best {
+                        best = d;
+                        arg = Some(i);
+                        if best <= stop {
+                            return (best, arg);
+                        }
+                    }
+                }
+            } else {
+                let (a, b) = (n.left, n.left + 1);
+                let (la, lb2) = (lower_bound(&self.nodes[a as usize], p), lower_bound(&self.nodes[b as usize], p));
+                // Push the farther first so the nearer is explored first.
+                if la <= lb2 {
+                    stack.push((lb2, b));
+                    stack.push((la, a));
+                } else {
+                    stack.push((la, a));
+                    stack.push((lb2, b));
+                }
+            }
+        }
+        (best, arg)
+    }
+
+    /// Signed distance from `p` to the nearest item sphere (negative inside) and that
+    /// item's radius, stopping at the first sphere containing `p`; `None` when no item is
+    /// nearer than `best_in`.
+    pub fn nearest(&self, p: [f64; 3], best_in: f64) -> Option<(f64, f64)> {
+        let (d, i) = self.search(p, best_in, 0.0, |_, it, _| sphere_distance(p, it));
+        i.map(|i| (d, self.items[i][3]))
+    }
+}
+
+fn sphere_distance(p: [f64; 3], it: &[f64; 4]) -> f64 {
+    dist(p, [it[0], it[1], it[2]]) - it[3] * (1.0 + RADIUS_SLACK)
+}
+
+fn lower_bound(n: &KdNode, p: [f64; 3]) -> f64 {
+    let mut s = 0.0;
+    for k in 0..3 {
+        let d = (n.lo[k] - p[k]).max(p[k] - n.hi[k]).max(0.0);
+        s += d * d;
+    }
+    s.sqrt() - n.rmax * (1.0 + RADIUS_SLACK)
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// One use of a decoded tree: world = `transform(local)`.
+struct Use {
+    tree: usize,
+    transform: Similarity,
+}
+
+/// The inverse of a similarity applied to a point: `rotate⁻¹(p - t) / s`.
+fn to_local(t: &Similarity, p: [f64; 3]) -> [f64; 3] {
+    let d = [p[0] - t.translation[0], p[1] - t.translation[1], p[2] - t.translation[2]];
+    let [x, y, z, w] = t.rotation;
+    let inv = Similarity { translation: [0.0; 3], rotation: [-x, -y, -z, w], scale: 1.0 };
+    let r = inv.rotate(d);
+    [r[0] / t.scale, r[1] / t.scale, r[2] / t.scale]
+}
+
+/// Decodes the leaves of tree `t` of `file` level by level, keeping only leaves and the
+/// previous level's internal nodes.
+fn decode_leaves(file: &SctReader, t: usize) -> Result<Vec<[f64; 4]>, sct_format::Error> {
+    let Some(idx) = file.trees().get(t) else { return Ok(Vec::new()) };
+    let sphere = |n: &Node| [n.center[0] as f64, n.center[1] as f64, n.center[2] as f64, n.radius as f64];
+    if idx.header.node_count == 0 {
+        return Ok(Vec::new());
+    }
+    let mut leaves = Vec::with_capacity(idx.header.leaf_count.min(1 << 28) as usize);
+    if idx.header.root_internal == 0 {
+        leaves.push(sphere(&idx.header.root));
+        return Ok(leaves);
+    }
+    let mut parents = vec![idx.header.root];
+    for d in 1..idx.levels.len() {
+        let blocks: Vec<usize> = idx.level_blocks(d).collect();
+        let decoded: Vec<Result<sct_format::read::DecodedBlock, sct_format::Error>> = blocks
+            .par_iter()
+            .map(|&b| {
+                let e = &idx.blocks[b];
+                let lo = (e.first_node / 2) as usize;
+                let ps = parents.get(lo..lo + e.node_count as usize / 2).ok_or_else(|| {
+                    sct_format::Error::malformed(idx.section.offset + e.offset, "block refers to parents that do not exist")
+                })?;
+                file.decode_block(t, b, ps)
+            })
+            .collect();
+        let mut next = Vec::new();
+        for blk in decoded {
+            let blk = blk?;
+            for (n, &f) in blk.nodes.iter().zip(&blk.internal) {
+                if f {
+                    next.push(*n);
+                } else {
+                    leaves.push(sphere(n));
+                }
+            }
+        }
+        parents = next;
+    }
+    Ok(leaves)
+}
+
+/// Loads `mesh` and draws the test points.
+fn mesh_points(mesh: &Path, opts: &AgainstOptions) -> Result<Vec<[f64; 3]>, InspectError> {
+    let load = voxelize::LoadOptions { load_textures: false, ..Default::default() };
+    let scene = voxelize::load(mesh, &load)?;
+    let mut pts = voxelize::mesh::surface_points(&scene, opts.points, opts.seed);
+    if pts.is_empty() {
+        // A point cloud (PLY without faces): its points are the surface.
+        if let Some(pc) = scene.points.as_ref().filter(|pc| !pc.positions.is_empty()) {
+            let mut rng = voxelize::mesh::SplitMix(opts.seed);
+            pts = (0..opts.points).map(|_| pc.positions[(rng.next_u64() % pc.positions.len() as u64) as usize].map(f64::from)).collect();
+        }
+    }
+    if pts.is_empty() && opts.points > 0 {
+        return Err(InspectError::BadMesh(format!("{}: no triangle with positive area and no points", mesh.display())));
+    }
+    Ok(pts)
+}
+
+/// Checks how much of `mesh`'s surface the leaves of the SCT file at `file` cover.
+pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Result<CoverageReport, InspectError> {
+    let t0 = std::time::Instant::now();
+    let points = mesh_points(mesh, opts)?;
+    let t1 = std::time::Instant::now();
+
+    let topts = TraverseOptions { limits: opts.limits.clone(), verify_inline_hashes: false };
+    let mut trees: Vec<SphereTree> = Vec::new();
+    let mut by_key: HashMap<(PathBuf, usize), usize> = HashMap::new();
+    let mut uses: Vec<Use> = Vec::new();
+    let mut errors = Vec::new();
+    for item in Traversal::open(file, topts)? {
+        let reached = match item {
+            Ok(r) => r,
+            Err(e) => {
+                errors.push(e.to_string());
+                continue;
+            }
+        };
+        if reached.kind != ReachedKind::Tree {
+            continue; // group trees bound other nodes; their leaves are not samples
+        }
+        let key = (reached.file_path.clone(), reached.tree);
+        let ti = match by_key.get(&key) {
+            Some(&i) => i,
+            None => match decode_leaves(&reached.file, reached.tree) {
+                Ok(leaves) => {
+                    trees.push(SphereTree::build(leaves));
+                    by_key.insert(key, trees.len() - 1);
+                    trees.len() - 1
+                }
+                Err(e) => {
+                    errors.push(format!("{}: tree {} of {}: {e}", reached.path, reached.tree, reached.file_path.display()));
+                    continue;
+                }
+            },
+        };
+        if !trees[ti].is_empty() {
+            uses.push(Use { tree: ti, transform: reached.state.transform });
+        }
+    }
+    // Top level: each use's world bound.
+    let bounds: Vec<[f64; 4]> = uses
+        .iter()
+        .map(|u| {
+            let b = trees[u.tree].bound().unwrap_or_default();
+            let c = u.transform.apply_point([b[0], b[1], b[2]]);
+            [c[0], c[1], c[2], b[3] * u.transform.scale]
+        })
+        .collect();
+    let top = SphereTree::build(bounds);
+    let t2 = std::time::Instant::now();
+
+    // (signed distance, nearest leaf radius) per point, world units.
+    let results: Vec<(f64, f64)> = points
+        .par_iter()
+        .map(|&p| {
+            let mut radius = 0.0;
+            let (d, _) = top.search(p, f64::INFINITY, 0.0, |id, bound, best| {
+                if sphere_distance(p, bound) >= best {
+                    return f64::INFINITY; // nothing in this use can be nearer
+                }
+                let u = &uses[id as usize];
+                let s = u.transform.scale;
+                match trees[u.tree].nearest(to_local(&u.transform, p), best / s) {
+                    Some((dl, rl)) if dl * s < best => {
+                        radius = rl * s;
+                        dl * s
+                    }
+                    _ => f64::INFINITY,
+                }
+            });
+            (d, radius)
+        })
+        .collect();
+    let t3 = std::time::Instant::now();
+
+    let covered = results.iter().filter(|r| r.0 <= 0.0).count() as u64;
+    // The first point (lowest index) among the farthest: deterministic for any thread count.
+    let worst = results.iter().enumerate().filter(|(_, r)| r.0 > 0.0).fold(None::<(usize, f64, f64)>, |w, (i, r)| match w {
+        Some((_, d, _)) if d >= r.0 => w,
+        _ => Some((i, r.0, r.1)),
+    });
+    let n = points.len() as u64;
+    let fraction = if n == 0 { 1.0 } else { covered as f64 / n as f64 };
+    let leaves_expanded = uses.iter().fold(0u64, |s, u| s.saturating_add(trees[u.tree].len() as u64));
+    Ok(CoverageReport {
+        mesh: mesh.display().to_string(),
+        points: n,
+        seed: opts.seed,
+        covered,
+        fraction,
+        min_coverage: opts.min_coverage,
+        passed: fraction >= opts.min_coverage,
+        trees: trees.len() as u64,
+        leaves: trees.iter().map(|t| t.len() as u64).sum(),
+        tree_uses: uses.len() as u64,
+        leaves_expanded,
+        worst_uncovered: worst.map(|(i, d, r)| Uncovered {
+            point: points[i],
+            distance: d,
+            leaf_radius: r,
+            leaf_radii: if r > 0.0 { d / r } else { f64::INFINITY },
+        }),
+        errors,
+        seconds: Seconds {
+            mesh: (t1 - t0).as_secs_f64(),
+            index: (t2 - t1).as_secs_f64(),
+            query: (t3 - t2).as_secs_f64(),
+        },
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Brute force against the k-d tree on a grid of spheres of varied radii.
+    #[test]
+    fn nearest_matches_brute_force() {
+        let mut rng = voxelize::mesh::SplitMix(7);
+        let spheres: Vec<[f64; 4]> =
+            (0..2000).map(|_| [rng.next_f64() * 10.0, rng.next_f64() * 10.0, rng.next_f64(), 0.01 + rng.next_f64() * 0.2]).collect();
+        let t = SphereTree::build(spheres.clone());
+        for _ in 0..500 {
+            let p = [rng.next_f64() * 12.0 - 1.0, rng.next_f64() * 12.0 - 1.0, rng.next_f64() * 3.0 - 1.0];
+            let (want, wr) = spheres.iter().map(|s| (sphere_distance(p, s), s[3])).fold((f64::INFINITY, 0.0), |a, b| if b.0 < a.0 { b } else { a });
+            let (got, gr) = t.nearest(p, f64::INFINITY).unwrap();
+            if want <= 0.0 {
+                assert!(got <= 0.0, "{p:?}: inside per brute force, k-d says {got}");
+            } else {
+                assert_eq!(got, want, "{p:?}");
+                assert_eq!(gr, wr, "{p:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn to_local_inverts_apply_point() {
+        let t = Similarity { translation: [1.0, -2.0, 0.5], rotation: [0.0, 0.38268343236508984, 0.0, 0.9238795325112867], scale: 2.5 };
+        let p = [0.3, 0.7, -1.1];
+        let q = to_local(&t, t.apply_point(p));
+        for k in 0..3 {
+            assert!((q[k] - p[k]).abs() < 1e-12, "{q:?} vs {p:?}");
+        }
+    }
+}

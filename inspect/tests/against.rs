@@ -1,0 +1,166 @@
+//! `--against MESH`: the embedded fuze model voxelized and built through the libraries, then
+//! checked against its own mesh, a scaled copy, and through an instance transform and an
+//! inline.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use common::*;
+use sct_format::{GraphNode, InstanceAttrs, Limits, Profile, SceneGraph, SctReader, Similarity};
+
+fn fuze_obj() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/fuze/fuze.obj")
+}
+
+/// Voxelizes the fuze and builds it with `profile` into `dir/fuze-<profile>.sct`.
+fn build_fuze(dir: &Path, profile: Profile) -> PathBuf {
+    let samples = dir.join("fuze.samples");
+    if !samples.exists() {
+        let opts = voxelize::Options { inputs: vec![fuze_obj()], output: Some(samples.clone()), load: Default::default(), sample: Default::default() };
+        voxelize::run(&opts, &|_, _| {}).expect("voxelize");
+    }
+    let out = dir.join(format!("fuze-{}.sct", profile.name()));
+    let cfg = build_tree::pipeline::Config {
+        samples,
+        output: out.clone(),
+        scene: None,
+        profile,
+        compression_level: None,
+        build: Default::default(),
+    };
+    build_tree::pipeline::run(&cfg, &mut |_| {}).expect("build");
+    out
+}
+
+/// Writes the fuze OBJ with every vertex mapped by `f` (faces, UVs and the rest unchanged).
+fn write_mapped_obj(path: &Path, f: impl Fn([f64; 3]) -> [f64; 3]) {
+    let text = std::fs::read_to_string(fuze_obj()).unwrap();
+    let mut out = String::new();
+    for l in text.lines() {
+        match l.strip_prefix("v ") {
+            Some(rest) => {
+                let v: Vec<f64> = rest.split_whitespace().map(|x| x.parse().unwrap()).collect();
+                let p = f([v[0], v[1], v[2]]);
+                out.push_str(&format!("v {} {} {}\n", p[0], p[1], p[2]));
+            }
+            None => {
+                out.push_str(l);
+                out.push('\n');
+            }
+        }
+    }
+    std::fs::write(path, out).unwrap();
+}
+
+fn against(sct: &Path, mesh: &Path, extra: &[&str]) -> (Output, serde_json::Value) {
+    let o = Command::new(bin()).arg(sct).arg("--against").arg(mesh).arg("--json").args(extra).output().unwrap();
+    let v = serde_json::from_slice(&o.stdout).unwrap_or(serde_json::Value::Null);
+    (o, v)
+}
+
+#[test]
+fn own_mesh_is_fully_covered_and_scaled_mesh_is_not() {
+    let d = tmp();
+    for profile in [Profile::Default, Profile::Canopy] {
+        let sct = build_fuze(d.path(), profile);
+        let (o, v) = against(&sct, &fuze_obj(), &[]);
+        assert_eq!(o.status.code(), Some(0), "{profile:?}: {}", String::from_utf8_lossy(&o.stderr));
+        let c = &v["coverage"];
+        assert_eq!(c["points"], 100_000);
+        assert_eq!(c["covered"], 100_000, "{profile:?}: {c}");
+        assert_eq!(c["fraction"], 1.0);
+        assert_eq!(c["passed"], true);
+        assert!(c["worst_uncovered"].is_null());
+        assert_eq!(c["tree_uses"], 1);
+    }
+    // The same tree against the mesh grown by 10 %: the shell moves off the leaves.
+    let sct = d.path().join("fuze-default.sct");
+    let big = d.path().join("fuze-big.obj");
+    write_mapped_obj(&big, |p| p.map(|x| x * 1.1));
+    let (o, v) = against(&sct, &big, &["--points", "20000"]);
+    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+    let c = &v["coverage"];
+    let frac = c["fraction"].as_f64().unwrap();
+    assert!(frac < 0.9, "{c}");
+    assert_eq!(c["passed"], false);
+    let w = &c["worst_uncovered"];
+    // The fuze is ~0.33 units tall: 10 % moves its far end by ~0.02, many leaf radii.
+    let (dist, radii) = (w["distance"].as_f64().unwrap(), w["leaf_radii"].as_f64().unwrap());
+    assert!(dist > 0.005 && dist < 0.05, "{w}");
+    assert!(radii > 3.0, "{w}");
+    // The threshold flag decides the exit status; the figures do not change.
+    let (o, v2) = against(&sct, &big, &["--points", "20000", "--min-coverage", "0"]);
+    assert_eq!(o.status.code(), Some(0));
+    assert_eq!(v2["coverage"]["fraction"], c["fraction"]);
+    // Text output names the figures.
+    let o = Command::new(bin()).arg(&sct).args(["--against"]).arg(&big).args(["--points", "20000"]).output().unwrap();
+    let s = String::from_utf8_lossy(&o.stdout);
+    assert!(s.contains("coverage of") && s.contains("FAIL") && s.contains("leaf radii"), "{s}");
+}
+
+#[test]
+fn leaves_are_placed_through_instances_and_inlines() {
+    let d = tmp();
+    let plain = build_fuze(d.path(), Profile::Default);
+    let tree = SctReader::open(&plain, &Limits::default()).unwrap().read_tree(0).unwrap();
+    let t = Similarity { translation: [1.0, -2.0, 0.5], rotation: [0.0, 0.0, 0.7071067811865476, 0.7071067811865476], scale: 2.0 };
+    let inst = d.path().join("inst.sct");
+    let nodes = vec![GraphNode::Tree { tree: 0 }, GraphNode::Instance { child: 0, transform: t, attrs: InstanceAttrs::default() }];
+    write(&inst, SceneGraph { nodes, root: 1 }, vec![tree], Profile::Default);
+    let moved = d.path().join("fuze-moved.obj");
+    write_mapped_obj(&moved, |p| t.apply_point(p));
+    let (o, v) = against(&inst, &moved, &[]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(v["coverage"]["fraction"], 1.0, "{}", v["coverage"]);
+    // The untransformed mesh is nowhere near the placed leaves.
+    let (o, v) = against(&inst, &fuze_obj(), &["--points", "2000"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(v["coverage"]["covered"], 0, "{}", v["coverage"]);
+
+    // An outer file inlining the instance file: same world placement, one more file.
+    let outer = d.path().join("outer.sct");
+    let bound = sct_format::traverse::graph_bound(&SctReader::open(&inst, &Limits::default()).unwrap(), 1).unwrap();
+    let nodes = vec![GraphNode::Inline { path: "inst.sct".into(), hash: [0; 32], bound }];
+    write(&outer, SceneGraph { nodes, root: 0 }, vec![], Profile::Raw);
+    let (o, v) = against(&outer, &moved, &["--points", "5000"]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(v["coverage"]["fraction"], 1.0);
+    assert_eq!(v["coverage"]["tree_uses"], 1);
+}
+
+#[test]
+fn output_is_deterministic_across_thread_counts() {
+    let d = tmp();
+    let sct = build_fuze(d.path(), Profile::Default);
+    let big = d.path().join("fuze-big.obj");
+    write_mapped_obj(&big, |p| [p[0] * 1.05, p[1], p[2] * 1.05]);
+    let run = |threads: &str| {
+        let o = Command::new(bin()).env("RAYON_NUM_THREADS", threads).arg(&sct).arg("--against").arg(&big).args(["--json", "--points", "30000"]).output().unwrap();
+        o.stdout
+    };
+    let one = run("1");
+    assert!(!one.is_empty());
+    assert_eq!(one, run("3"));
+}
+
+#[test]
+fn mesh_errors_have_their_exit_status() {
+    let d = tmp();
+    let sct = build_fuze(d.path(), Profile::Raw);
+    // Missing mesh: I/O, 2.
+    let (o, _) = against(&sct, &d.path().join("none.obj"), &[]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("none.obj"));
+    // Unparsable PLY and unknown format: bad input, 1.
+    let bad = d.path().join("bad.ply");
+    std::fs::write(&bad, b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n").unwrap();
+    let (o, _) = against(&sct, &bad, &[]);
+    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+    let unknown = d.path().join("mesh.xyz");
+    std::fs::write(&unknown, b"1 2 3\n").unwrap();
+    assert_eq!(against(&sct, &unknown, &[]).0.status.code(), Some(1));
+    // Threshold outside [0, 1]: usage, 2.
+    assert_eq!(against(&sct, &fuze_obj(), &["--min-coverage", "99"]).0.status.code(), Some(2));
+}
