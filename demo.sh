@@ -1,13 +1,19 @@
 #!/usr/bin/env bash
 # The main job on the embedded demo model (assets/fuze, MIT):
-#   voxelize -> build-tree -> inspect --validate --deep -> render-preview
-# Outputs land in ${OUT:-out/demo}: fuze.samples, fuze.sct, report.txt, preview.png.
+#   voxelize -> build-tree -> inspect --validate --deep -> render-preview (+ mesh reference)
+# Outputs land in ${OUT:-out/demo}: fuze.samples, fuze.sct, report.txt, preview.png and the
+# accuracy check against the mesh (preview.metrics.json, preview.reference.png, preview.diff.png).
+# SCT_BIN_DIR: use already-built binaries from there instead of building (the tests do).
 set -euo pipefail
 cd "$(dirname "$0")"
 out=${OUT:-out/demo}
 mkdir -p "$out"
-cargo build --release --quiet -p voxelize -p build-tree -p inspect -p render-preview
-bin=target/release
+if [ -n "${SCT_BIN_DIR:-}" ]; then
+  bin=$SCT_BIN_DIR
+else
+  cargo build --release --quiet -p voxelize -p build-tree -p inspect -p render-preview
+  bin=target/release
+fi
 model=assets/fuze/fuze.obj
 
 echo "1/4 voxelize  $model" >&2
@@ -16,7 +22,7 @@ echo "2/4 build     $out/fuze.sct" >&2
 "$bin/sct-build-tree" "$out/fuze.samples" -o "$out/fuze.sct"
 echo "3/4 inspect   $out/report.txt" >&2
 "$bin/sct-inspect" "$out/fuze.sct" --validate --deep > "$out/report.txt"
-echo "4/4 render    $out/preview.png" >&2
-"$bin/sct-render-preview" "$out/fuze.sct" -o "$out/preview.png" --view left
+echo "4/4 render    $out/preview.png (and the mesh reference)" >&2
+"$bin/sct-render-preview" "$out/fuze.sct" -o "$out/preview.png" --reference "$model"
 
-echo "done: SCT file $out/fuze.sct, report $out/report.txt, preview $out/preview.png"
+echo "done: SCT file $out/fuze.sct, report $out/report.txt, preview $out/preview.png, accuracy $out/preview.metrics.json"

@@ -1,0 +1,57 @@
+//! The README's main command, `./demo.sh`, end to end: it must leave a valid SCT file, a
+//! clean inspect report, a non-blank preview and a preview that matches the mesh reference
+//! within the accuracy bar (PSNR ≥ 30 dB, silhouette IoU ≥ 0.97).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use sct_format::validate::{validate_file, ValidateOptions};
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root").to_path_buf()
+}
+
+/// The release binaries `cargo test --workspace --release` built beside this test, if they
+/// are all there (then the demo need not run cargo itself).
+fn built_binaries() -> Option<PathBuf> {
+    let exe = std::env::current_exe().ok()?;
+    let dir = exe.parent()?.parent()?.to_path_buf(); // target/<profile>/deps/x -> target/<profile>
+    let names = ["sct-voxelize", "sct-build-tree", "sct-inspect", "sct-render-preview"];
+    names.iter().all(|n| dir.join(n).is_file()).then_some(dir)
+}
+
+#[test]
+fn readme_demo_command_produces_valid_accurate_outputs() {
+    let out = tempfile::tempdir().expect("tempdir");
+    let mut cmd = Command::new("bash");
+    cmd.arg(repo().join("demo.sh")).env("OUT", out.path());
+    if let Some(bin) = built_binaries() {
+        cmd.env("SCT_BIN_DIR", bin);
+    }
+    let run = cmd.output().expect("run demo.sh");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "demo.sh failed:\n{stdout}\n{stderr}");
+    // It says where its outputs are.
+    assert!(stdout.contains(&out.path().join("fuze.sct").display().to_string()), "{stdout}");
+
+    let sct = out.path().join("fuze.sct");
+    let v = validate_file(&sct, &ValidateOptions { deep: true, ..Default::default() }).expect("validate");
+    assert!(v.issues.is_empty(), "{:?}", v.issues);
+    let report = std::fs::read_to_string(out.path().join("report.txt")).expect("report");
+    assert!(report.contains("valid"), "{report}");
+
+    // The preview is not blank: a good share of pixels differ from the background corner.
+    let img = image::open(out.path().join("preview.png")).expect("preview").to_rgba8();
+    let bg = *img.get_pixel(0, 0);
+    let covered = img.pixels().filter(|p| **p != bg).count() as f64 / (img.width() * img.height()) as f64;
+    assert!(covered > 0.02, "preview almost blank: {covered}");
+
+    // And it matches the mesh reference within the accuracy bar.
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.path().join("preview.metrics.json")).expect("metrics")).expect("json");
+    let psnr = m["metrics"]["psnr_db"].as_f64().expect("psnr");
+    let iou = m["metrics"]["silhouette_iou"].as_f64().expect("iou");
+    assert!(psnr >= 30.0, "PSNR {psnr} dB against the mesh reference");
+    assert!(iou >= 0.97, "silhouette IoU {iou}");
+}
