@@ -259,11 +259,7 @@ fn sphere_distance(p: [f64; 3], it: &[f64; 4]) -> f64 {
 }
 
 fn lower_bound(n: &KdNode, p: [f64; 3]) -> f64 {
-    let mut s = 0.0;
-    for k in 0..3 {
-        let d = (n.lo[k] - p[k]).max(p[k] - n.hi[k]).max(0.0);
-        s += d * d;
-    }
+    let s: f64 = (0..3).map(|k| (n.lo[k] - p[k]).max(p[k] - n.hi[k]).max(0.0).powi(2)).sum();
     s.sqrt() - n.rmax * (1.0 + RADIUS_SLACK)
 }
 

@@ -560,7 +560,7 @@ pub fn dump(file: &Path, path: &str, levels: usize, limits: &Limits, w: &mut dyn
     for item in Traversal::open(file, opts)? {
         let Ok(reached) = item else { continue };
         let Ok(rs) = parse_path(&reached.path) else { continue };
-        if steps.starts_with(&rs) && best.as_ref().map_or(true, |(l, _)| rs.len() >= *l) {
+        if steps.starts_with(&rs) && best.as_ref().is_none_or(|(l, _)| rs.len() >= *l) {
             best = Some((rs.len(), reached));
         }
     }

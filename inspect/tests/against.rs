@@ -105,7 +105,7 @@ fn leaves_are_placed_through_instances_and_inlines() {
     let d = tmp();
     let plain = build_fuze(d.path(), Profile::Default);
     let tree = SctReader::open(&plain, &Limits::default()).unwrap().read_tree(0).unwrap();
-    let t = Similarity { translation: [1.0, -2.0, 0.5], rotation: [0.0, 0.0, 0.7071067811865476, 0.7071067811865476], scale: 2.0 };
+    let t = Similarity { translation: [1.0, -2.0, 0.5], rotation: [0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2, std::f64::consts::FRAC_1_SQRT_2], scale: 2.0 };
     let inst = d.path().join("inst.sct");
     let nodes = vec![GraphNode::Tree { tree: 0 }, GraphNode::Instance { child: 0, transform: t, attrs: InstanceAttrs::default() }];
     write(&inst, SceneGraph { nodes, root: 1 }, vec![tree], Profile::Default);

@@ -81,7 +81,7 @@ fn exit_codes_and_streams() {
     assert!(stdout(&o).contains("file magic:"), "{}", stdout(&o));
     // Bad dump path: 2.
     let g = path_in(&d, "ok.sct");
-    write_single(&g, kd_tree(mesh_leaves(&load_ascii_ply(Path::new(BUNNY)).0[..8].to_vec(), &[])), Profile::Raw);
+    write_single(&g, kd_tree(mesh_leaves(&load_ascii_ply(Path::new(BUNNY)).0[..8], &[])), Profile::Raw);
     assert_eq!(run(&[g.to_str().unwrap(), "--dump", "root/2"]).status.code(), Some(2));
     assert_eq!(run(&[g.to_str().unwrap(), "--dump", "root/0/0/0/0/0/0"]).status.code(), Some(2));
     let o = run(&[g.to_str().unwrap(), "--dump"]);

@@ -110,7 +110,8 @@ fn cone_not_containing_child() {
 #[test]
 fn nan_in_any_attribute() {
     let d = tmp();
-    let edits: [(&str, fn(&mut Node)); 5] = [
+    type Edit = (&'static str, fn(&mut Node));
+    let edits: [Edit; 5] = [
         ("centre", |n| n.center[1] = f32::NAN),
         ("radius", |n| n.radius = f32::NAN),
         ("normal", |n| n.normal[2] = f32::NAN),

@@ -56,8 +56,8 @@ pub fn mesh_leaves(v: &[[f32; 3]], faces: &[[usize; 3]]) -> Vec<Node> {
             let o = v[f[(k + 1) % 3]];
             let d = sub(o, v[i]);
             let e = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            for j in 0..3 {
-                acc[i].0[j] += n[j];
+            for (a, nj) in acc[i].0.iter_mut().zip(n) {
+                *a += nj;
             }
             acc[i].1 += area / 3.0;
             acc[i].2 = acc[i].2.max(e * 0.5);
