@@ -25,8 +25,35 @@ pub enum ViewPreset {
     Iso,
 }
 
+/// Which world axis points up, for the view presets (which are named for a +Y-up world).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UpAxis {
+    /// Decide from the file (see `SceneFiles::auto_up`).
+    #[default]
+    Auto,
+    /// +X up.
+    X,
+    /// +Y up (glTF, most scans).
+    Y,
+    /// +Z up (CAD, many OBJ exports): `front` looks along +Y from −Y.
+    Z,
+}
+
+impl UpAxis {
+    /// Maps a direction of the +Y-up preset frame to this axis' frame by a rotation that
+    /// takes +Y to the up axis (Z up: front looks along +Y, right stays +X).
+    pub fn rotate(self, v: [f64; 3]) -> [f64; 3] {
+        match self {
+            UpAxis::Auto | UpAxis::Y => v,
+            UpAxis::Z => [v[0], -v[2], v[1]],
+            UpAxis::X => [v[1], -v[0], v[2]],
+        }
+    }
+}
+
 impl ViewPreset {
-    /// (direction from target to eye, up).
+    /// (direction from target to eye, up) in a +Y-up world.
     fn dirs(self) -> ([f64; 3], [f64; 3]) {
         let s = 1.0 / 3f64.sqrt();
         match self {
@@ -58,10 +85,12 @@ pub struct Camera {
 }
 
 impl Camera {
-    /// A camera looking at a sphere from `preset`, at the distance where the sphere just
-    /// fits the narrower field of view (with a 5 % margin).
-    pub fn framing(center: [f64; 3], radius: f64, preset: ViewPreset, fov_y_deg: f64, width: u32, height: u32) -> Camera {
-        let (dir, up) = preset.dirs();
+    /// A camera looking at a sphere from `preset` (for a world whose up axis is `up`), at
+    /// the distance where the sphere just fits the narrower field of view (with a 5 %
+    /// margin).
+    pub fn framing(center: [f64; 3], radius: f64, preset: ViewPreset, up: UpAxis, fov_y_deg: f64, width: u32, height: u32) -> Camera {
+        let (dir, vup) = preset.dirs();
+        let (dir, up) = (up.rotate(dir), up.rotate(vup));
         let fy = fov_y_deg.to_radians();
         let aspect = width.max(1) as f64 / height.max(1) as f64;
         let fx = 2.0 * ((fy / 2.0).tan() * aspect).atan();

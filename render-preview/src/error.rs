@@ -21,6 +21,18 @@ pub enum Error {
     /// The camera or render settings cannot produce an image.
     #[error("invalid camera: {0}")]
     Camera(String),
+    /// An inline of `file`'s graph node `graph_node` cannot be followed (target missing or
+    /// unreadable, hash mismatch, cycle, nesting too deep).
+    #[error("{}: inline (graph node {graph_node}): {kind}", file.display())]
+    Inline {
+        /// The file holding the inline.
+        file: PathBuf,
+        /// The inline's graph node.
+        graph_node: u32,
+        /// What went wrong (boxed: it is large and rare).
+        #[source]
+        kind: Box<sct_format::traverse::TraverseErrorKind>,
+    },
     /// Some other invalid setting or input (bad inline path, scene too deep …).
     #[error("invalid input: {0}")]
     Invalid(String),
@@ -44,7 +56,8 @@ impl Error {
         match self {
             Error::Sct { source, .. } => source.is_invalid_input(),
             Error::Mesh(e) => !matches!(e, voxelize::LoadError::Io { .. }),
-            Error::Camera(_) | Error::Invalid(_) => true,
+            // A missing or unreadable inline target is the referring file's fault.
+            Error::Inline { .. } | Error::Camera(_) | Error::Invalid(_) => true,
             Error::Output { .. } => false,
         }
     }

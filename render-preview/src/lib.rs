@@ -31,7 +31,7 @@ pub mod synth;
 use std::path::Path;
 use std::time::Instant;
 
-pub use camera::{Camera, View, ViewPreset};
+pub use camera::{Camera, UpAxis, View, ViewPreset};
 pub use error::{Error, Result};
 pub use lod::LodStats;
 pub use raster::{Frame, Splat};
@@ -72,6 +72,8 @@ pub struct RenderOptions {
     pub target: Option<[f64; 3]>,
     /// Explicit up vector (otherwise the preset's).
     pub up: Option<[f64; 3]>,
+    /// World up axis the view presets are turned to (`Auto`: from the file).
+    pub up_axis: UpAxis,
     /// LOD threshold: a node is drawn once its projected radius (EQ 46) is at most this
     /// many pixels.
     pub pixel_error: f32,
@@ -97,6 +99,7 @@ impl Default for RenderOptions {
             eye: None,
             target: None,
             up: None,
+            up_axis: UpAxis::Auto,
             pixel_error: 1.0,
             shading: Shading::Lambert,
             splat: SplatShape::Ellipse,
@@ -108,10 +111,12 @@ impl Default for RenderOptions {
 }
 
 impl RenderOptions {
-    /// The camera for a scene whose root sphere is `bound` (`None` for an empty scene).
-    pub fn camera(&self, bound: Option<([f64; 3], f64)>) -> Camera {
+    /// The camera for a scene whose root sphere is `bound` (`None` for an empty scene);
+    /// `auto_up` replaces [`UpAxis::Auto`].
+    pub fn camera(&self, bound: Option<([f64; 3], f64)>, auto_up: UpAxis) -> Camera {
         let (center, radius) = bound.unwrap_or(([0.0; 3], 1.0));
-        let framed = Camera::framing(self.target.unwrap_or(center), radius, self.view, self.fov_y_deg, self.width, self.height);
+        let up = if self.up_axis == UpAxis::Auto { auto_up } else { self.up_axis };
+        let framed = Camera::framing(self.target.unwrap_or(center), radius, self.view, up, self.fov_y_deg, self.width, self.height);
         Camera { eye: self.eye.unwrap_or(framed.eye), up: self.up.unwrap_or(framed.up), ..framed }
     }
 }
@@ -173,7 +178,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         return Err(Error::Invalid(format!("pixel error {} must be a positive number", opts.pixel_error)));
     }
     let bound = scene_bound(files);
-    let camera = opts.camera(bound);
+    let camera = opts.camera(bound, files.auto_up());
     // Near distance scaled to the scene so that close-ups keep depth precision.
     let near = bound.map_or(1e-6, |(_, r)| (r * 1e-5).max(1e-12));
     let view = View::new(&camera, near)?;
@@ -190,6 +195,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     let [r, g, b] = opts.background;
     let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
     raster::rasterize(&mut frame, &splats);
+    raster::fill_holes(&mut frame);
     let t2 = Instant::now();
     let stats = RenderStats {
         splats: splats.len() as u64,
@@ -198,12 +204,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         file_size: files.file_len(),
         files: files.file_count(),
         covered_pixels: frame.covered() as u64,
-        seconds: Phases {
-            open: 0.0,
-            traverse: (t1 - t0).as_secs_f64(),
-            raster: (t2 - t1).as_secs_f64(),
-            total: (t2 - t0).as_secs_f64(),
-        },
+        seconds: Phases { open: 0.0, traverse: (t1 - t0).as_secs_f64(), raster: (t2 - t1).as_secs_f64(), total: (t2 - t0).as_secs_f64() },
     };
     Ok(Rendered { frame, camera, stats, near })
 }
@@ -237,7 +238,7 @@ pub fn write_rgb_png(path: &Path, img: &image::RgbImage) -> Result<()> {
 /// The splats a render would rasterize (for benchmarks and tests).
 pub fn collect_splats(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Vec<Splat>> {
     let bound = scene_bound(files);
-    let camera = opts.camera(bound);
+    let camera = opts.camera(bound, files.auto_up());
     let near = bound.map_or(1e-6, |(_, r)| (r * 1e-5).max(1e-12));
     let view = View::new(&camera, near)?;
     let params = lod::LodParams {

@@ -93,9 +93,7 @@ impl TreeCache {
         if d == 0 {
             return Ok(0);
         }
-        let g = reader.trees()[self.tree]
-            .block_of(d, i)
-            .ok_or_else(|| self.malformed(reader, format!("level {d} has no node {i}")))?;
+        let g = reader.trees()[self.tree].block_of(d, i).ok_or_else(|| self.malformed(reader, format!("level {d} has no node {i}")))?;
         Ok(g - self.first_block[d])
     }
 
@@ -163,8 +161,7 @@ impl TreeCache {
             return missing.iter().try_for_each(|&k| self.get(reader, d, k).map(|_| ()));
         }
         // Parents first, sequentially, so that no parent block is decoded twice.
-        let jobs: Vec<(usize, Vec<Node>)> =
-            missing.iter().map(|&k| Ok((k, self.parents_of(reader, d, k)?))).collect::<Result<_>>()?;
+        let jobs: Vec<(usize, Vec<Node>)> = missing.iter().map(|&k| Ok((k, self.parents_of(reader, d, k)?))).collect::<Result<_>>()?;
         jobs.par_iter().try_for_each(|(k, p)| self.decode_with(reader, d, *k, p).map(|_| ()))
     }
 }
@@ -176,7 +173,8 @@ pub(crate) struct Placement {
     pub rot: [[f32; 3]; 3],
     pub t: [f32; 3],
     pub s: f32,
-    pub tint: Option<[u8; 4]>,
+    /// Push-down tint multipliers (as `sct_format::traverse::TraversalState`).
+    pub tint: Option<[f32; 4]>,
 }
 
 #[inline]
@@ -282,7 +280,7 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
     }
     let mut color = n.color;
     if let Some(t) = pl.tint {
-        color = shade::tint(color, t);
+        color = sct_format::traverse::tint_color(color, t);
     }
     let d = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt().max(1e-30);
     let l = [-c[0] / d, -c[1] / d, -c[2] / d];
@@ -301,8 +299,11 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
             let uy = -(nrm[1] * c[2] - c[1] * nrm[2]);
             let len = (ux * ux + uy * uy).sqrt();
             if len > 1e-12 {
-                // Never thinner than about a pixel, or grazing surfaces would crack.
-                let minor = (s * k).max(0.6).min(s);
+                // No lower bound on the minor axis: at a silhouette the surface is seen
+                // edge on and any width is growth beyond the outline (a 0.6 px floor cost
+                // the dragon 2 dB); the few cracks thin splats leave on grazing surfaces
+                // are closed by `raster::fill_holes`.
+                let minor = (s * k).min(s);
                 return Decision::Draw(Splat::ellipse(x, y, c[2], s, minor, ux / len, uy / len, color));
             }
         }
@@ -357,8 +358,7 @@ pub(crate) fn traverse(
         }
         let ks: Vec<usize> = groups.iter().map(|g| g.0).collect();
         cache.ensure(reader, d, &ks)?;
-        let blocks: Vec<Arc<Block>> =
-            ks.iter().map(|&k| cache.get(reader, d, k)).collect::<Result<_>>()?;
+        let blocks: Vec<Arc<Block>> = ks.iter().map(|&k| cache.get(reader, d, k)).collect::<Result<_>>()?;
         let leaves_before = cache.leaves_before[d];
         let work = |gi: usize| -> (TreeOut, Vec<u64>) {
             let (_, a, b) = groups[gi];

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
-use render_preview::{metrics, reference, sweep, synth, RenderOptions, Shading, SplatShape, ViewPreset};
+use render_preview::{metrics, reference, sweep, synth, RenderOptions, Shading, SplatShape, UpAxis, ViewPreset};
 
 const EXAMPLES: &str = "\
 Examples:
@@ -58,9 +58,12 @@ struct RenderArgs {
     /// Target x,y,z (default: centre of the root sphere).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     target: Option<[f64; 3]>,
-    /// Up vector x,y,z.
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-    up: Option<[f64; 3]>,
+    /// World up for the --view presets: auto, x, y or z, or an explicit camera up vector
+    /// x,y,z. auto picks y for glTF sources (the format is +Y up), z when the model is
+    /// at least 1.5x taller along Z than it is wide along X and Y (a standing object
+    /// modelled Z-up), y otherwise; with z up, front looks along +Y.
+    #[arg(long, default_value = "auto", value_parser = parse_up, allow_hyphen_values = true)]
+    up: Up,
     /// Vertical field of view in degrees.
     #[arg(long, default_value_t = 40.0)]
     fov: f64,
@@ -90,7 +93,14 @@ impl RenderArgs {
             fov_y_deg: self.fov,
             eye: self.eye,
             target: self.target,
-            up: self.up,
+            up: match self.up {
+                Up::Vector(v) => Some(v),
+                Up::Axis(_) => None,
+            },
+            up_axis: match self.up {
+                Up::Axis(a) => a,
+                Up::Vector(_) => UpAxis::Auto,
+            },
             pixel_error: self.pixel_error,
             shading: self.shading,
             splat: self.splat,
@@ -146,6 +156,23 @@ fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
     <[f64; 3]>::try_from(v).map_err(|_| format!("expected x,y,z, got {s:?}"))
 }
 
+/// `--up`: a named world axis or an explicit vector.
+#[derive(Clone, Copy, Debug)]
+enum Up {
+    Axis(UpAxis),
+    Vector([f64; 3]),
+}
+
+fn parse_up(s: &str) -> Result<Up, String> {
+    Ok(match s.trim().to_ascii_lowercase().as_str() {
+        "auto" => Up::Axis(UpAxis::Auto),
+        "x" => Up::Axis(UpAxis::X),
+        "y" => Up::Axis(UpAxis::Y),
+        "z" => Up::Axis(UpAxis::Z),
+        _ => Up::Vector(parse_vec3(s).map_err(|e| format!("expected auto, x, y, z or x,y,z: {e}"))?),
+    })
+}
+
 fn parse_hex(s: &str) -> Result<[u8; 3], String> {
     let s = s.trim_start_matches('#');
     if s.len() != 6 {
@@ -188,8 +215,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 })?,
             };
             let wopts = sct_format::WriteOptions { profile, ..Default::default() };
-            let stats = sct_format::write_scene_file(&output, &scene, &wopts)
-                .with_context(|| format!("writing {}", output.display()))?;
+            let stats = sct_format::write_scene_file(&output, &scene, &wopts).with_context(|| format!("writing {}", output.display()))?;
             println!("{}: {n} leaves, {} bytes", output.display(), stats.bytes);
             Ok(())
         }

@@ -5,10 +5,6 @@
 
 use rayon::prelude::*;
 
-/// Splats whose larger half-extent is below this (pixels) always cover the pixel holding
-/// their centre; a disc of radius ≥ √2/2 always contains a pixel centre anyway.
-pub const CENTRE_RULE_BELOW: f32 = 0.71;
-
 /// Tile side in pixels.
 pub const TILE: usize = 32;
 
@@ -55,27 +51,18 @@ impl Splat {
         Splat { x, y, z, ux, uy, inv_a2: 1.0 / (a * a), inv_b2: 1.0 / (b * b), ex, ey, color }
     }
 
-    /// Inclusive pixel bounds `[x0, x1] × [y0, y1]` (unclipped) and the forced centre pixel:
-    /// pixels whose centre lies in the bounding box, plus, for splats smaller than
-    /// [`CENTRE_RULE_BELOW`], the pixel holding the centre (so they never vanish).
+    /// Inclusive pixel bounds `[x0, x1] × [y0, y1]` (unclipped) of the pixels whose centre
+    /// lies in the bounding box. Splats are sampled at pixel centres like the mesh
+    /// reference's triangles: a splat that contains no pixel centre draws nothing (forcing
+    /// its centre pixel grew every silhouette by about half a pixel), and the cracks that
+    /// can leave inside a surface are closed by [`fill_holes`].
     #[inline]
-    fn bounds(&self) -> (i32, i32, i32, i32, i32, i32) {
-        if self.ex.max(self.ey) >= CENTRE_RULE_BELOW {
-            // Large enough to be sampled at pixel centres like a triangle would be: no
-            // forced centre pixel, which would grow silhouettes by half a pixel.
-            let x0 = iceil(self.x - self.ex - 0.5);
-            let x1 = ifloor(self.x + self.ex - 0.5);
-            let y0 = iceil(self.y - self.ey - 0.5);
-            let y1 = ifloor(self.y + self.ey - 0.5);
-            return (x0, x1, y0, y1, i32::MIN, i32::MIN);
-        }
-        let cx = ifloor(self.x);
-        let cy = ifloor(self.y);
-        let x0 = iceil(self.x - self.ex - 0.5).min(cx);
-        let x1 = ifloor(self.x + self.ex - 0.5).max(cx);
-        let y0 = iceil(self.y - self.ey - 0.5).min(cy);
-        let y1 = ifloor(self.y + self.ey - 0.5).max(cy);
-        (x0, x1, y0, y1, cx, cy)
+    fn bounds(&self) -> (i32, i32, i32, i32) {
+        let x0 = iceil(self.x - self.ex - 0.5);
+        let x1 = ifloor(self.x + self.ex - 0.5);
+        let y0 = iceil(self.y - self.ey - 0.5);
+        let y1 = ifloor(self.y + self.ey - 0.5);
+        (x0, x1, y0, y1)
     }
 }
 
@@ -164,7 +151,7 @@ pub fn rasterize(frame: &mut Frame, splats: &[Splat]) {
         .par_iter()
         .with_min_len(4096)
         .map(|s| {
-            let (x0, x1, y0, y1, _, _) = s.bounds();
+            let (x0, x1, y0, y1) = s.bounds();
             if x1 < 0 || y1 < 0 || x0 >= w as i32 || y0 >= h as i32 {
                 return [1, 0, 1, 0]; // empty
             }
@@ -220,29 +207,58 @@ pub fn rasterize(frame: &mut Frame, splats: &[Splat]) {
         .collect();
 
     let band_px = TILE * w;
-    frame.color.par_chunks_mut(band_px).zip(frame.depth.par_chunks_mut(band_px)).enumerate().for_each(
-        |(band, (color, depth))| {
-            let y_base = band * TILE;
-            for tile_x in 0..tx {
-                let x_lo = (tile_x * TILE) as i32;
-                let x_hi = ((tile_x + 1) * TILE).min(w) as i32 - 1;
-                let (y_lo, y_hi) = (y_base as i32, (y_base + color.len() / w) as i32 - 1);
-                let tile = band * tx + tile_x;
-                for b in &bins {
-                    for &i in &b.idx[b.off[tile] as usize..b.off[tile + 1] as usize] {
-                        let bb = bounds[i as usize];
-                        let clip = [
-                            (bb[0] as i32).max(x_lo),
-                            (bb[1] as i32).min(x_hi),
-                            (bb[2] as i32).max(y_lo),
-                            (bb[3] as i32).min(y_hi),
-                        ];
-                        draw(&splats[i as usize], clip, color, depth, w, y_base);
+    frame.color.par_chunks_mut(band_px).zip(frame.depth.par_chunks_mut(band_px)).enumerate().for_each(|(band, (color, depth))| {
+        let y_base = band * TILE;
+        for tile_x in 0..tx {
+            let x_lo = (tile_x * TILE) as i32;
+            let x_hi = ((tile_x + 1) * TILE).min(w) as i32 - 1;
+            let (y_lo, y_hi) = (y_base as i32, (y_base + color.len() / w) as i32 - 1);
+            let tile = band * tx + tile_x;
+            for b in &bins {
+                for &i in &b.idx[b.off[tile] as usize..b.off[tile + 1] as usize] {
+                    let bb = bounds[i as usize];
+                    let clip = [(bb[0] as i32).max(x_lo), (bb[1] as i32).min(x_hi), (bb[2] as i32).max(y_lo), (bb[3] as i32).min(y_hi)];
+                    draw(&splats[i as usize], clip, color, depth, w, y_base);
+                }
+            }
+        }
+    });
+}
+
+/// Fills isolated background pixels (at least three of four neighbours covered) from the
+/// nearest covered neighbour: cracks between thin splats, never silhouette growth.
+pub fn fill_holes(frame: &mut Frame) {
+    let (w, h) = (frame.width, frame.height);
+    if w < 3 || h < 3 {
+        return;
+    }
+    let mut fills = Vec::new();
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            let i = y * w + x;
+            if frame.depth[i].is_finite() {
+                continue;
+            }
+            let nb = [i - 1, i + 1, i - w, i + w];
+            let mut n = 0;
+            let mut best = usize::MAX;
+            for &j in &nb {
+                if frame.depth[j].is_finite() {
+                    n += 1;
+                    if best == usize::MAX || frame.depth[j] < frame.depth[best] {
+                        best = j;
                     }
                 }
             }
-        },
-    );
+            if n >= 3 {
+                fills.push((i, best));
+            }
+        }
+    }
+    for (i, j) in fills {
+        frame.depth[i] = frame.depth[j];
+        frame.color[i] = frame.color[j];
+    }
 }
 
 /// Draws one splat over the inclusive pixel rectangle `clip` (inside the band starting at
@@ -251,17 +267,6 @@ pub fn rasterize(frame: &mut Frame, splats: &[Splat]) {
 fn draw(s: &Splat, clip: [i32; 4], color: &mut [[u8; 4]], depth: &mut [f32], w: usize, y_base: usize) {
     let [xa, xb, ya, yb] = clip;
     let opaque = s.color[3] == 255;
-    // Fast path: a one-pixel splat needs no coverage test (its centre pixel always counts).
-    if xa == xb && ya == yb && s.ex.max(s.ey) < CENTRE_RULE_BELOW {
-        let (px, py) = (xa as usize, ya as usize);
-        let i = (py - y_base) * w + px;
-        if s.z < depth[i] && (opaque || alpha_passes(s.color[3], px, py)) {
-            depth[i] = s.z;
-            color[i] = s.color;
-        }
-        return;
-    }
-    let (cx, cy) = if s.ex.max(s.ey) < CENTRE_RULE_BELOW { (ifloor(s.x), ifloor(s.y)) } else { (i32::MIN, i32::MIN) };
     for py in ya..=yb {
         let dy = py as f32 + 0.5 - s.y;
         let row = (py as usize - y_base) * w;
@@ -270,7 +275,7 @@ fn draw(s: &Splat, clip: [i32; 4], color: &mut [[u8; 4]], depth: &mut [f32], w: 
             let dx = px as f32 + 0.5 - s.x;
             let a = dx * s.ux + ay;
             let b = by - dx * s.uy;
-            let inside = a * a * s.inv_a2 + b * b * s.inv_b2 <= 1.0 || (px == cx && py == cy);
+            let inside = a * a * s.inv_a2 + b * b * s.inv_b2 <= 1.0;
             let i = row + px as usize;
             if inside && s.z < depth[i] && (opaque || alpha_passes(s.color[3], px as usize, py as usize)) {
                 depth[i] = s.z;
@@ -296,11 +301,32 @@ mod tests {
     }
 
     #[test]
-    fn tiny_splat_still_draws_one_pixel() {
+    fn tiny_splats_are_sampled_at_pixel_centres() {
         let mut f = Frame::new(8, 8, [0; 4]);
-        rasterize(&mut f, &[Splat::disc(3.01, 5.99, 1.0, 0.01, [9, 9, 9, 255])]);
+        rasterize(&mut f, &[Splat::disc(3.01, 5.99, 1.0, 0.01, [9, 9, 9, 255]), Splat::disc(1.5, 2.5, 1.0, 0.01, [7, 7, 7, 255])]);
+        // The first misses every pixel centre, the second sits on one.
         assert_eq!(f.covered(), 1);
-        assert_eq!(f.color[5 * 8 + 3], [9, 9, 9, 255]);
+        assert_eq!(f.color[2 * 8 + 1], [7, 7, 7, 255]);
+    }
+
+    #[test]
+    fn fill_holes_closes_cracks_but_not_outlines() {
+        let mut f = Frame::new(8, 8, [0; 4]);
+        // A 4×4 square with its centre-ish pixel (3, 3) missing, and a lone pixel at (6, 6).
+        for y in 2..6 {
+            for x in 2..6 {
+                if (x, y) != (3, 3) {
+                    f.depth[y * 8 + x] = 1.0 + x as f32;
+                    f.color[y * 8 + x] = [x as u8, 0, 0, 255];
+                }
+            }
+        }
+        f.depth[6 * 8 + 6] = 1.0;
+        let before = f.covered();
+        fill_holes(&mut f);
+        assert_eq!(f.covered(), before + 1);
+        // Filled from the nearest neighbour, (2, 3).
+        assert_eq!((f.depth[3 * 8 + 3], f.color[3 * 8 + 3]), (3.0, [2, 0, 0, 255]));
     }
 
     #[test]

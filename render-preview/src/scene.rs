@@ -1,12 +1,22 @@
 //! Opening SCT files and walking their scene graphs (groups, instances with transform and
 //! tint, inlines), refining every tree reached with [`crate::lod`].
+//!
+//! The graph walk is the renderer's own rather than [`sct_format::traverse::Traversal`]:
+//! that iterator reads every group tree whole and names every group leaf by its path, while
+//! the renderer refines group trees lazily with the same LOD test as geometry, so a group
+//! leaf drawn as a splat never expands its child. Everything else follows the traversal's
+//! rules: instance state is [`TraversalState`] (same transform and tint composition), and
+//! inlines get the same checks in the same order (target present, no cycle on the branch,
+//! depth limit, BLAKE3 hash) with the same [`TraverseErrorKind`] errors.
 
 use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
+use std::rc::Rc;
 
-use sct_format::{GraphNode, Limits, Node, Propagation, SctReader, Similarity};
+use sct_format::traverse::{hex, TraversalState, TraverseErrorKind};
+use sct_format::{GraphNode, Limits, Node, SctReader};
 
-use crate::camera::View;
+use crate::camera::{UpAxis, View};
 use crate::error::{Error, Result};
 use crate::lod::{self, Decision, LodParams, LodStats, Placement, TreeCache, TreeOut};
 use crate::raster::Splat;
@@ -16,13 +26,18 @@ pub(crate) struct OpenFile {
     pub path: PathBuf,
     pub reader: SctReader,
     trees: Vec<TreeCache>,
+    /// BLAKE3 of the file, computed the first time an inline needs it.
+    hash: Option<[u8; 32]>,
 }
 
 /// Every file a render touched (the main file first, then inlines as they are reached).
 pub struct SceneFiles {
     files: Vec<OpenFile>,
+    /// Canonical path → index in `files`.
     by_path: HashMap<PathBuf, usize>,
     limits: Limits,
+    /// Check inline targets' BLAKE3 hashes (on by default).
+    verify_inline_hashes: bool,
 }
 
 impl std::fmt::Debug for SceneFiles {
@@ -31,45 +46,95 @@ impl std::fmt::Debug for SceneFiles {
     }
 }
 
-/// A world-space transform plus the tint accumulated from instances above.
-#[derive(Clone, Copy, Debug)]
-struct Ctx {
-    sim: Similarity,
-    tint: Option<[u8; 4]>,
-}
-
-struct Visit {
+/// The files inlined on the way to a graph node (a persistent stack shared by siblings),
+/// for cycle detection.
+struct Chain {
     file: usize,
-    node: u32,
-    ctx: Ctx,
+    parent: Option<Rc<Chain>>,
     depth: u32,
 }
 
-fn compose_tint(a: Option<[u8; 4]>, b: Option<[u8; 4]>) -> Option<[u8; 4]> {
-    match (a, b) {
-        (Some(a), Some(b)) => Some(crate::shade::tint(a, b)),
-        (x, None) | (None, x) => x,
+impl Chain {
+    fn contains(&self, file: usize) -> bool {
+        let mut c = Some(self);
+        while let Some(x) = c {
+            if x.file == file {
+                return true;
+            }
+            c = x.parent.as_deref();
+        }
+        false
     }
+}
+
+struct Visit {
+    chain: Rc<Chain>,
+    node: u32,
+    state: TraversalState,
 }
 
 impl SceneFiles {
     /// Opens `path` (parsing only its index).
     pub fn open(path: &Path, limits: &Limits) -> Result<SceneFiles> {
-        let mut s = SceneFiles { files: Vec::new(), by_path: HashMap::new(), limits: limits.clone() };
-        s.open_file(path)?;
+        let mut s = SceneFiles { files: Vec::new(), by_path: HashMap::new(), limits: limits.clone(), verify_inline_hashes: true };
+        let canon = std::fs::canonicalize(path).map_err(|e| Error::sct(path, sct_format::Error::io(path, e)))?;
+        let reader = SctReader::open(&canon, limits).map_err(|e| Error::sct(path, e))?;
+        s.add_file(canon, reader);
         Ok(s)
     }
 
-    fn open_file(&mut self, path: &Path) -> Result<usize> {
-        let key = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
-        if let Some(&i) = self.by_path.get(&key) {
-            return Ok(i);
-        }
-        let reader = SctReader::open(path, &self.limits).map_err(|e| Error::sct(path, e))?;
+    /// Turns the BLAKE3 check of inline targets off (it reads each target file whole once).
+    pub fn set_verify_inline_hashes(&mut self, on: bool) {
+        self.verify_inline_hashes = on;
+    }
+
+    fn add_file(&mut self, canon: PathBuf, reader: SctReader) -> usize {
         let trees = (0..reader.trees().len()).map(|t| TreeCache::new(&reader, t)).collect();
-        self.files.push(OpenFile { path: path.to_path_buf(), reader, trees });
-        self.by_path.insert(key, self.files.len() - 1);
-        Ok(self.files.len() - 1)
+        self.files.push(OpenFile { path: canon.clone(), reader, trees, hash: None });
+        self.by_path.insert(canon, self.files.len() - 1);
+        self.files.len() - 1
+    }
+
+    /// Resolves inline `rel` (with recorded `hash`) of the file at the head of `chain`, with
+    /// the checks of `sct_format::traverse` in the same order: target present, not already
+    /// on the branch, depth limit, hash.
+    fn follow_inline(&mut self, chain: &Chain, rel: &str, hash: &[u8; 32]) -> std::result::Result<usize, TraverseErrorKind> {
+        let dir = self.files[chain.file].path.parent().unwrap_or(Path::new("."));
+        let target = dir.join(rel);
+        let canon = std::fs::canonicalize(&target).map_err(|source| TraverseErrorKind::InlineMissing { target: target.clone(), source })?;
+        let known = self.by_path.get(&canon).copied();
+        if known.is_some_and(|k| chain.contains(k)) {
+            let mut files = Vec::new();
+            let mut c = Some(chain);
+            while let Some(x) = c {
+                files.push(self.files[x.file].path.clone());
+                c = x.parent.as_deref();
+            }
+            files.reverse();
+            files.push(canon);
+            return Err(TraverseErrorKind::InlineCycle { chain: files });
+        }
+        if chain.depth + 1 > self.limits.max_inline_depth {
+            return Err(TraverseErrorKind::InlineDepth { limit: self.limits.max_inline_depth });
+        }
+        let k = match known {
+            Some(k) => k,
+            None => {
+                let reader = SctReader::open(&canon, &self.limits).map_err(|e| match e {
+                    sct_format::Error::Io { source, .. } => TraverseErrorKind::InlineMissing { target: canon.clone(), source },
+                    e => TraverseErrorKind::Read(e),
+                })?;
+                self.add_file(canon.clone(), reader)
+            }
+        };
+        if self.verify_inline_hashes {
+            let f = &mut self.files[k];
+            let found = *f.hash.get_or_insert_with(|| *blake3::hash(f.reader.bytes()).as_bytes());
+            if &found != hash {
+                return Err(TraverseErrorKind::InlineHash { target: canon, expected: hex(hash), found: hex(&found) });
+            }
+        }
+        Ok(k)
     }
 
     /// Bytes read so far over all files.
@@ -94,6 +159,35 @@ impl SceneFiles {
         self.bound(0, f.reader.graph().root, 0)
     }
 
+    /// The world up axis for [`UpAxis::Auto`] (see [`auto_up`]), from the main file's
+    /// provenance and the world box of the tree its root reaches (through instances).
+    pub fn auto_up(&self) -> UpAxis {
+        let Some(f) = self.files.first() else {
+            return UpAxis::Y;
+        };
+        let g = f.reader.graph();
+        let mut state = TraversalState::IDENTITY;
+        let mut at = g.root;
+        let mut world_box = None;
+        // Instance chains point backwards, so this ends within `nodes` steps.
+        for _ in 0..=g.nodes.len() {
+            match g.nodes.get(at as usize) {
+                Some(GraphNode::Instance { child, transform, attrs }) => {
+                    state = state.push_instance(transform, attrs);
+                    at = *child;
+                }
+                Some(GraphNode::Tree { tree } | GraphNode::Group { tree, .. }) => {
+                    // Map the cut's spheres (not the box corners) so rotations stay tight.
+                    world_box =
+                        cut_nodes(&f.reader, *tree as usize).map(|c| sphere_box(&c.iter().map(|n| state.apply(n)).collect::<Vec<_>>()));
+                    break;
+                }
+                _ => break,
+            }
+        }
+        auto_up(&f.reader, world_box)
+    }
+
     fn bound(&self, file: usize, node: u32, depth: u32) -> Option<Node> {
         let f = &self.files[file];
         match f.reader.graph().nodes.get(node as usize)? {
@@ -102,7 +196,11 @@ impl SceneFiles {
                 // Merged spheres grow level by level, so the root sphere is loose (often
                 // 2-3× the object): bound the spheres a few levels down instead, which
                 // costs only the first few (small) blocks.
-                Some(tighter_bound(&f.reader, *tree as usize).filter(|t| t.radius < root.radius).map_or(root, |t| Node { center: t.center, radius: t.radius, ..root }))
+                Some(tighter_bound(&f.reader, *tree as usize).filter(|t| t.radius < root.radius).map_or(root, |t| Node {
+                    center: t.center,
+                    radius: t.radius,
+                    ..root
+                }))
             }
             GraphNode::Instance { child, transform, .. } => {
                 (depth < 1024).then(|| self.bound(file, *child, depth + 1))?.map(|n| transform.apply_node(&n))
@@ -120,58 +218,60 @@ impl SceneFiles {
             return Ok((splats, stats));
         }
         let root = self.files[0].reader.graph().root;
-        queue.push_back(Visit { file: 0, node: root, ctx: Ctx { sim: Similarity::IDENTITY, tint: None }, depth: 0 });
+        let chain = Rc::new(Chain { file: 0, parent: None, depth: 0 });
+        queue.push_back(Visit { chain, node: root, state: TraversalState::IDENTITY });
         while let Some(v) = queue.pop_front() {
-            let f = &self.files[v.file];
-            let gnode = f.reader.graph().nodes.get(v.node as usize).cloned().ok_or_else(|| {
-                Error::Invalid(format!("{}: graph node {} does not exist", f.path.display(), v.node))
-            })?;
+            let fi = v.chain.file;
+            let f = &self.files[fi];
+            let gnode = f
+                .reader
+                .graph()
+                .nodes
+                .get(v.node as usize)
+                .cloned()
+                .ok_or_else(|| Error::Invalid(format!("{}: graph node {} does not exist", f.path.display(), v.node)))?;
             match gnode {
                 GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => {
                     let group = matches!(gnode, GraphNode::Group { .. });
-                    let cache = f.trees.get(tree as usize).ok_or_else(|| {
-                        Error::Invalid(format!("{}: graph refers to missing tree {tree}", f.path.display()))
-                    })?;
-                    let pl = placement(view, &v.ctx);
+                    let cache = f
+                        .trees
+                        .get(tree as usize)
+                        .ok_or_else(|| Error::Invalid(format!("{}: graph refers to missing tree {tree}", f.path.display())))?;
+                    let pl = placement(view, &v.state);
                     let mut out = TreeOut::default();
                     lod::traverse(&f.reader, cache, &pl, view, p, group, &mut out)?;
                     splats.append(&mut out.splats);
                     stats.add(&out.stats);
                     if let GraphNode::Group { children, .. } = &gnode {
                         for j in out.group_leaves {
-                            let child = children.get(j as usize).copied().ok_or_else(|| {
-                                Error::Invalid(format!("{}: group leaf {j} has no child", f.path.display()))
-                            })?;
-                            queue.push_back(Visit { file: v.file, node: child, ctx: v.ctx, depth: v.depth });
+                            let child = children
+                                .get(j as usize)
+                                .copied()
+                                .ok_or_else(|| Error::Invalid(format!("{}: group leaf {j} has no child", f.path.display())))?;
+                            queue.push_back(Visit { chain: v.chain.clone(), node: child, state: v.state });
                         }
                     }
                 }
                 GraphNode::Instance { child, transform, attrs } => {
-                    // As in sct_format::traverse (§5.11.2): a tint only applies to a
-                    // push-down-colour instance; a pull-up instance keeps child colours.
-                    let tint = if attrs.color == Propagation::PushDown { attrs.tint } else { None };
-                    let ctx = Ctx { sim: v.ctx.sim.compose(&transform), tint: compose_tint(v.ctx.tint, tint) };
-                    queue.push_back(Visit { file: v.file, node: child, ctx, depth: v.depth });
+                    let state = v.state.push_instance(&transform, &attrs);
+                    queue.push_back(Visit { chain: v.chain, node: child, state });
                 }
-                GraphNode::Inline { path, bound, .. } => {
+                GraphNode::Inline { path, bound, hash } => {
                     // The stored bound lets us cull or draw the inline without opening it.
-                    let pl = placement(view, &v.ctx);
+                    let pl = placement(view, &v.state);
                     let mut st = LodStats::default();
                     match lod::decide(&bound, true, true, &pl, view, p, &mut st) {
                         Decision::Cull | Decision::Refine => {}
                         Decision::Draw(s) => splats.push(s),
                         Decision::Descend => {
-                            if v.depth >= self.limits.max_inline_depth {
-                                return Err(Error::Invalid(format!(
-                                    "{}: inlines nested deeper than {} (a cycle?)",
-                                    f.path.display(),
-                                    self.limits.max_inline_depth
-                                )));
-                            }
-                            let target = f.path.parent().unwrap_or(Path::new(".")).join(&path);
-                            let k = self.open_file(&target)?;
+                            let k = self.follow_inline(&v.chain, &path, &hash).map_err(|kind| Error::Inline {
+                                file: self.files[fi].path.clone(),
+                                graph_node: v.node,
+                                kind: Box::new(kind),
+                            })?;
                             let root = self.files[k].reader.graph().root;
-                            queue.push_back(Visit { file: k, node: root, ctx: v.ctx, depth: v.depth + 1 });
+                            let chain = Rc::new(Chain { file: k, depth: v.chain.depth + 1, parent: Some(v.chain) });
+                            queue.push_back(Visit { chain, node: root, state: v.state });
                             continue;
                         }
                     }
@@ -183,38 +283,72 @@ impl SceneFiles {
     }
 }
 
-/// A sphere around the cut at level 9 (and the leaves above it), centred on the cut's
-/// bounding box, or `None` when that cannot be read.
-fn tighter_bound(reader: &SctReader, tree: usize) -> Option<Node> {
+/// The cut at level 9 of a tree (the leaves above it included): its nodes, for bounds
+/// that are much tighter than the root sphere.
+fn cut_nodes(reader: &SctReader, tree: usize) -> Option<Vec<Node>> {
     const LEVELS: usize = 10;
     let t = reader.read_tree_levels(tree, LEVELS).ok()?;
     let last = t.level_count().checked_sub(1)?;
+    let start = t.level(last).start;
+    Some(t.nodes().iter().enumerate().filter(|&(i, _)| !(t.is_internal(i) && i < start)).map(|(_, n)| *n).collect())
+}
+
+/// Axis-aligned box around spheres.
+fn sphere_box(nodes: &[Node]) -> ([f32; 3], [f32; 3]) {
     let mut lo = [f32::INFINITY; 3];
     let mut hi = [f32::NEG_INFINITY; 3];
-    for (i, n) in t.nodes().iter().enumerate() {
-        if t.is_internal(i) && i < t.level(last).start {
-            continue;
-        }
+    for n in nodes {
         for k in 0..3 {
             lo[k] = lo[k].min(n.center[k] - n.radius);
             hi[k] = hi[k].max(n.center[k] + n.radius);
         }
     }
+    (lo, hi)
+}
+
+/// A sphere around the cut at level 9 (and the leaves above it), centred on the cut's
+/// bounding box, or `None` when that cannot be read.
+fn tighter_bound(reader: &SctReader, tree: usize) -> Option<Node> {
+    let cut = cut_nodes(reader, tree)?;
+    let (lo, hi) = sphere_box(&cut);
     let center: [f32; 3] = std::array::from_fn(|k| (lo[k] + hi[k]) / 2.0);
     let mut radius = 0f32;
-    for (i, n) in t.nodes().iter().enumerate() {
-        if t.is_internal(i) && i < t.level(last).start {
-            continue;
-        }
+    for n in &cut {
         let d = (0..3).map(|k| (n.center[k] - center[k]).powi(2)).sum::<f32>().sqrt();
         radius = radius.max(d + n.radius);
     }
     (radius.is_finite() && radius > 0.0).then_some(Node { center, radius, ..Node::default() })
 }
 
-/// Camera-space placement of a world-space similarity.
-fn placement(view: &View, ctx: &Ctx) -> Placement {
-    let sim = &ctx.sim;
+/// The up axis `--up auto` picks: +Y for glTF sources (the format fixes +Y up), +Z for a
+/// scene whose world box is at least `TALL` times taller in Z than it is wide in X and Y
+/// (a standing object modelled Z-up, like the demo's bottle), +Y otherwise (the common
+/// convention of scans and most OBJ/PLY files). A heuristic: `--up z` overrides it.
+pub(crate) fn auto_up(reader: &SctReader, world_box: Option<([f32; 3], [f32; 3])>) -> UpAxis {
+    const TALL: f32 = 1.5;
+    let gltf = reader.generator().sources.iter().any(|s| {
+        let p = s.path.to_ascii_lowercase();
+        p.ends_with(".gltf") || p.ends_with(".glb")
+    });
+    if gltf {
+        return UpAxis::Y;
+    }
+    match world_box {
+        Some((lo, hi)) => {
+            let e: [f32; 3] = std::array::from_fn(|k| hi[k] - lo[k]);
+            if e.iter().all(|v| v.is_finite()) && e[2] >= TALL * e[0].max(e[1]) && e[2] > 0.0 {
+                UpAxis::Z
+            } else {
+                UpAxis::Y
+            }
+        }
+        None => UpAxis::Y,
+    }
+}
+
+/// Camera-space placement of a world-space transform and tint.
+fn placement(view: &View, state: &TraversalState) -> Placement {
+    let sim = &state.transform;
     let cols = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]].map(|e| view.dir_to_camera(sim.rotate(e)));
     let mut rot = [[0f32; 3]; 3];
     let mut m = [[0f32; 3]; 3];
@@ -224,5 +358,5 @@ fn placement(view: &View, ctx: &Ctx) -> Placement {
             m[i][j] = (col[i] * sim.scale) as f32;
         }
     }
-    Placement { m, rot, t: view.to_camera(sim.translation), s: sim.scale as f32, tint: ctx.tint }
+    Placement { m, rot, t: view.to_camera(sim.translation), s: sim.scale as f32, tint: state.is_tinted().then_some(state.tint) }
 }

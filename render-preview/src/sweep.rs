@@ -55,7 +55,7 @@ pub fn run(models: &[(PathBuf, PathBuf)], pixel_errors: &[f32], repeat: u32, bas
             let mut best = None::<crate::Rendered>;
             for _ in 0..repeat.max(1) {
                 let r = render_file(model, &opts)?;
-                if best.as_ref().map_or(true, |b| r.stats.seconds.total < b.stats.seconds.total) {
+                if best.as_ref().is_none_or(|b| r.stats.seconds.total < b.stats.seconds.total) {
                     best = Some(r);
                 }
             }

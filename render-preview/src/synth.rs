@@ -46,12 +46,7 @@ pub fn sample_mesh(mesh: &WorldMesh, spacing: f32) -> Vec<Node> {
                 normal: WorldMesh::normal_at(t, bc),
                 cone: 0.0,
                 area: sub_area,
-                color: [
-                    linear_to_srgb8(c[0]),
-                    linear_to_srgb8(c[1]),
-                    linear_to_srgb8(c[2]),
-                    (c[3] * 255.0 + 0.5).clamp(1.0, 255.0) as u8,
-                ],
+                color: [linear_to_srgb8(c[0]), linear_to_srgb8(c[1]), linear_to_srgb8(c[2]), (c[3] * 255.0 + 0.5).clamp(1.0, 255.0) as u8],
             });
         };
         for i in 0..n {
@@ -167,9 +162,10 @@ pub fn instance_grid(tree: SceneTree, nx: usize, nz: usize, step: f64, tints: im
     Ok(Scene { generator: generator("instance grid"), graph: SceneGraph { nodes, root: root_idx }, trees: vec![tree, gtree] })
 }
 
-/// A tree over `bounds` and, for each of its leaves in breadth-first order, the index of
-/// the bound it holds.
-fn build_indexed_group(bounds: &[Node]) -> Result<(SceneTree, Vec<usize>)> {
+/// A group tree over `bounds` (the world bounds of a group's children) and, for each of
+/// its leaves in breadth-first order, the index of the bound it holds: leaf `j` bounds
+/// child `order[j]`.
+pub fn build_indexed_group(bounds: &[Node]) -> Result<(SceneTree, Vec<usize>)> {
     // Encode the index in a side table keyed by position in the arena: build with the same
     // median-split scheme, tracking indices alongside.
     let mut items: Vec<(Node, usize)> = bounds.iter().copied().zip(0..).collect();
