@@ -42,16 +42,17 @@ impl Scene {
 }
 
 /// zstd level used for the default profile's blocks unless the caller picks one. Measured on
-/// the 1.4 M-leaf bunny (BENCHMARKS.md): level 9 gives 6.5 B/leaf in 4.7 s end to end, level 19
-/// 5.9 B/leaf in 19 s; level 9 keeps writing off the critical path.
-pub const DEFAULT_ZSTD_LEVEL: i32 = 9;
+/// the voxelized bunny (2.34 M leaves, BENCHMARKS.md "Node codecs"), with one zstd block per
+/// stream: levels 1 and 3 give 5.61 B/leaf, 9 gives 5.43 at +1.2 s, 19 gives 5.29 at +9 s.
+/// Level 1 keeps compression off the critical path; `--compression-level 19` buys ~6 %.
+pub const DEFAULT_ZSTD_LEVEL: i32 = 1;
 
 /// How to encode.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WriteOptions {
     /// Node profile for every tree.
     pub profile: Profile,
-    /// zstd level for tree blocks; `None` uses the profile's default (zstd 9 for the default
+    /// zstd level for tree blocks; `None` uses the profile's default (zstd 1 for the default
     /// profile, no compression for raw and canopy); `Some(0)` disables compression.
     pub compression_level: Option<i32>,
     /// Most nodes per block (rounded down to even, at least 2).
@@ -237,19 +238,110 @@ fn encode_graph(g: &SceneGraph) -> Vec<u8> {
     out
 }
 
+/// Lengths of the homogeneous byte streams of a block payload (mask first), in order.
+fn stream_lens(profile: Profile, params: CodecParams, mask_len: usize, m: usize) -> Vec<usize> {
+    let mut v = vec![mask_len];
+    v.extend(crate::codec::stream_lens(profile, params, m));
+    v
+}
+
+/// One zstd frame of `payload`, ending a zstd block at every stream boundary of `lens`, so
+/// that each block's entropy tables (Huffman literals, FSE) fit one stream instead of a mix.
+/// Any zstd decoder reads it as before (a frame of several blocks); only the bytes shrink.
+fn compress_streams(payload: &[u8], lens: &[usize], level: i32) -> Result<Vec<u8>> {
+    use zstd::stream::raw::{Encoder, InBuffer, Operation, OutBuffer};
+    let mut enc = Encoder::new(level)?;
+    enc.set_pledged_src_size(Some(payload.len() as u64))?;
+    let mut out: Vec<u8> = Vec::with_capacity(payload.len() / 2 + 1024);
+    let mut buf = vec![0u8; zstd::zstd_safe::CCtx::out_size().max(1 << 17)];
+    let mut at = 0usize;
+    let drain = |out: &mut Vec<u8>, ob: &OutBuffer<'_, [u8]>| out.extend_from_slice(ob.as_slice());
+    for &len in lens.iter().chain(std::iter::once(&usize::MAX)) {
+        let end = if len == usize::MAX { payload.len() } else { (at + len).min(payload.len()) };
+        let mut inb = InBuffer::around(&payload[at..end]);
+        while inb.pos() < inb.src.len() {
+            let mut ob = OutBuffer::around(&mut buf[..]);
+            enc.run(&mut inb, &mut ob)?;
+            drain(&mut out, &ob);
+        }
+        at = end;
+        if len == usize::MAX {
+            loop {
+                let mut ob = OutBuffer::around(&mut buf[..]);
+                let left = enc.finish(&mut ob, true)?;
+                drain(&mut out, &ob);
+                if left == 0 {
+                    break;
+                }
+            }
+        } else if end > 0 {
+            loop {
+                let mut ob = OutBuffer::around(&mut buf[..]);
+                let left = enc.flush(&mut ob)?;
+                drain(&mut out, &ob);
+                if left == 0 {
+                    break;
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// One encoded block, as a worker returns it.
+struct EncodedBlock {
+    stored: Vec<u8>,
+    flags: u32,
+    mask_len: u64,
+    payload_len: u64,
+    /// The block's nodes with children, as decoded: the next level's parents.
+    next_parents: Vec<Node>,
+}
+
+fn encode_block(
+    opts: &WriteOptions,
+    params: CodecParams,
+    parents: &[Node],
+    nodes: &[Node],
+    flags: &[bool],
+) -> Result<EncodedBlock> {
+    let profile = opts.profile;
+    let m = nodes.len();
+    let mask_len = m.div_ceil(8);
+    let mut payload = vec![0u8; mask_len];
+    for (i, &f) in flags.iter().enumerate() {
+        payload[i / 8] |= (f as u8) << (i % 8);
+    }
+    let decoded = encode_children(profile, params, parents, nodes, &mut payload)?;
+    let raw_len = payload.len();
+    let (stored, bflags) = match opts.zstd_level() {
+        Some(l) => (compress_streams(&payload, &stream_lens(profile, params, mask_len, m), l)?, 1u32),
+        None => (payload, 0u32),
+    };
+    // Only nodes with children are needed later; dropping leaves here keeps the writer's
+    // memory at one level's parents instead of a whole decoded level.
+    let next_parents = decoded.into_iter().zip(flags).filter(|(_, &f)| f).map(|(n, _)| n).collect();
+    Ok(EncodedBlock { stored, flags: bflags, mask_len: mask_len as u64, payload_len: (raw_len - mask_len) as u64, next_parents })
+}
+
 /// Encodes one tree as a `TREE` section body.
+///
+/// Blocks of a level are encoded in parallel (each needs only its decoded parents), levels in
+/// order; stored blocks are appended to the section as each level completes, and the index in
+/// front of them is filled in last (its size is known from the level sizes).
 pub fn encode_tree(tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, TreeStats)> {
     let profile = opts.profile;
     let params = CodecParams { alpha: tree.nodes().iter().any(|n| n.color[3] != 255) };
     let block_nodes = (opts.block_nodes.max(2) & !1) as usize;
-    let level = opts.zstd_level();
     let levels = tree.level_count();
     let mut level_table = vec![LevelEntry::default(); levels];
-    let mut blocks: Vec<BlockEntry> = Vec::new();
-    let mut data: Vec<Vec<u8>> = Vec::new();
     let mut stats = TreeStats { nodes: tree.len() as u64, leaves: tree.leaf_count() as u64, levels: levels as u32, ..Default::default() };
     let nodes = tree.nodes();
     let flags = tree.internal_flags();
+    let block_count: usize = (1..levels).map(|d| tree.level(d).len().div_ceil(block_nodes)).sum();
+    let index_len = TREE_HEADER_LEN + levels * LEVEL_ENTRY_LEN + block_count * BLOCK_ENTRY_LEN;
+    let mut out = vec![0u8; index_len];
+    let mut blocks: Vec<BlockEntry> = Vec::with_capacity(block_count);
     // Decoded internal nodes of the previous level: the parents of the current one.
     let mut parents: Vec<Node> = Vec::new();
     if levels > 0 {
@@ -264,61 +356,35 @@ pub fn encode_tree(tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, Tr
         let level_flags = &flags[range];
         let chunks: Vec<(usize, usize)> =
             (0..level_nodes.len()).step_by(block_nodes).map(|s| (s, (s + block_nodes).min(level_nodes.len()))).collect();
-        let encoded: Vec<Result<(Vec<u8>, u32, u64, u64, Vec<Node>)>> = chunks
+        let encoded: Vec<Result<EncodedBlock>> = chunks
             .par_iter()
-            .map(|&(s, e)| {
-                let mut payload = Vec::new();
-                let mut mask = vec![0u8; (e - s).div_ceil(8)];
-                for (i, &f) in level_flags[s..e].iter().enumerate() {
-                    mask[i / 8] |= (f as u8) << (i % 8);
-                }
-                payload.extend_from_slice(&mask);
-                let decoded = encode_children(profile, params, &parents[s / 2..e / 2], &level_nodes[s..e], &mut payload)?;
-                let raw_len = payload.len();
-                let (stored, bflags) = match level {
-                    Some(l) => (zstd::bulk::compress(&payload, l)?, 1u32),
-                    None => (payload, 0u32),
-                };
-                Ok((stored, bflags, mask.len() as u64, (raw_len - mask.len()) as u64, decoded))
-            })
+            .map(|&(s, e)| encode_block(opts, params, &parents[s / 2..e / 2], &level_nodes[s..e], &level_flags[s..e]))
             .collect();
         entry.node_count = level_nodes.len() as u64;
         entry.first_block = blocks.len() as u32;
         entry.block_count = chunks.len() as u32;
         let mut next_parents = Vec::with_capacity(level_flags.iter().filter(|&&f| f).count());
-        let mut internal_before = 0u64;
         for (&(s, e), r) in chunks.iter().zip(encoded) {
-            let (stored, bflags, mask_len, payload_len, decoded) = r?;
-            stats.flag_bytes += mask_len;
-            stats.payload_bytes += payload_len;
+            let b = r?;
+            stats.flag_bytes += b.mask_len;
+            stats.payload_bytes += b.payload_len;
             blocks.push(BlockEntry {
                 level: d as u32,
                 node_count: (e - s) as u32,
                 first_node: s as u64,
-                internal_before,
-                offset: 0,
-                stored_len: stored.len() as u32,
-                raw_len: (mask_len + payload_len) as u32,
-                crc: crc32fast::hash(&stored),
-                flags: bflags,
+                internal_before: next_parents.len() as u64,
+                offset: out.len() as u64,
+                stored_len: b.stored.len() as u32,
+                raw_len: (b.mask_len + b.payload_len) as u32,
+                crc: crc32fast::hash(&b.stored),
+                flags: b.flags,
             });
-            for (n, &f) in decoded.iter().zip(&level_flags[s..e]) {
-                if f {
-                    next_parents.push(*n);
-                    internal_before += 1;
-                }
-            }
-            data.push(stored);
+            out.extend_from_slice(&b.stored);
+            next_parents.extend_from_slice(&b.next_parents);
         }
         parents = next_parents;
     }
-    let index_len = TREE_HEADER_LEN + levels * LEVEL_ENTRY_LEN + blocks.len() * BLOCK_ENTRY_LEN;
-    let mut offset = index_len as u64;
-    for (b, d) in blocks.iter_mut().zip(&data) {
-        b.offset = offset;
-        offset += d.len() as u64;
-    }
-    let mut out = Vec::with_capacity(offset as usize);
+    let mut index = Vec::with_capacity(index_len);
     TreeHeader {
         profile: profile.id(),
         flags: params.alpha as u8,
@@ -329,10 +395,13 @@ pub fn encode_tree(tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, Tr
         block_count: blocks.len() as u32,
         root: nodes.first().copied().unwrap_or_default(),
     }
-    .write(&mut out);
-    level_table.iter().for_each(|l| l.write(&mut out));
-    blocks.iter().for_each(|b| b.write(&mut out));
-    data.iter().for_each(|d| out.extend_from_slice(d));
+    .write(&mut index);
+    level_table.iter().for_each(|l| l.write(&mut index));
+    blocks.iter().for_each(|b| b.write(&mut index));
+    if index.len() != index_len {
+        return Err(Error::Misuse(format!("tree index is {} bytes, {index_len} were reserved (bug)", index.len())));
+    }
+    out[..index_len].copy_from_slice(&index);
     stats.blocks = blocks.len() as u32;
     stats.index_bytes = index_len as u64;
     stats.section_bytes = out.len() as u64;

@@ -117,22 +117,45 @@ pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mu
         return Err(Error::Misuse(format!("{} children for {} parents", children.len(), parents.len())));
     }
     let start = out.len();
-    let r = encode_into(params, parents, children, out);
-    if r.is_err() {
-        out.truncate(start);
-        return r.map(|_| Vec::new());
-    }
     let mut dec = Vec::with_capacity(children.len());
-    // Decoding what we wrote is the simplest way to return exactly what a reader gets.
-    if let Err(e) = decode(params, parents, &out[start..], 0, &mut dec) {
+    if let Err(e) = encode_into(params, parents, children, out, &mut dec) {
         out.truncate(start);
-        return Err(Error::Misuse(format!("canopy encoder produced an undecodable block (bug): {e}")));
+        return Err(e);
     }
     Ok(dec)
 }
 
-fn encode_into(params: CodecParams, parents: &[Node], children: &[Node], out: &mut Vec<u8>) -> Result<()> {
+/// The quantized codes of one child (what the streams or records hold, predictions undone).
+#[derive(Clone, Copy)]
+pub(super) struct Codes {
+    /// Position/radius state.
+    pub state: u16,
+    /// Octahedral normal code.
+    pub normal: u16,
+    /// Cone code.
+    pub cone: u8,
+    /// Colour codes (5/6/5/4 bits).
+    pub color: [u8; 4],
+}
+
+/// The decoded node of one record's codes: shared by encoder and decoder, so the encoder
+/// returns exactly what a reader gets without decoding its output again.
+#[inline]
+fn record_node(t: &posrad::Tables, p: &Node, c: Codes, alpha: bool, area: f32) -> Option<Node> {
+    let Codes { state: s, normal: n, cone, color: q } = c;
+    let (center, radius) = posrad::decode_state(t, s as usize, p.center, p.radius)?;
+    let color = [
+        color::dequant(q[0], 5),
+        color::dequant(q[1], 6),
+        color::dequant(q[2], 5),
+        if alpha { color::dequant(q[3], 4) } else { 255 },
+    ];
+    Some(Node { center, radius, normal: normal::oct_decode(n), cone: normal::cone_decode(cone), area, color })
+}
+
+fn encode_into(params: CodecParams, parents: &[Node], children: &[Node], out: &mut Vec<u8>, dec: &mut Vec<Node>) -> Result<()> {
     out.reserve(children.len() * node_bytes(params));
+    let t = posrad::tables();
     for (k, pair) in children.chunks_exact(2).enumerate() {
         let p = &parents[k];
         check_parent(p, k)?;
@@ -151,6 +174,10 @@ fn encode_into(params: CodecParams, parents: &[Node], children: &[Node], out: &m
                 out.push(q[3]);
             }
             out.extend_from_slice(&c.area.to_le_bytes());
+            dec.push(
+                record_node(t, p, Codes { state: s, normal: n, cone, color: q }, params.alpha, c.area)
+                    .ok_or_else(|| Error::Misuse(format!("canopy encoder: state {s} of child {i} is not decodable (bug)")))?,
+            );
         }
     }
     Ok(())
@@ -177,32 +204,20 @@ pub fn decode(params: CodecParams, parents: &[Node], bytes: &[u8], offset: u64, 
         if s >> 14 != 0 {
             return Err(Error::malformed(at, "canopy node: padding bits 14-15 of the state word are set"));
         }
-        let (center, radius) = posrad::decode_state(t, s as usize, p.center, p.radius).ok_or_else(|| {
-            Error::malformed(at, format!("canopy node: position/radius state {s} ≥ {}", posrad::STATE_COUNT))
-        })?;
-        let normal = normal::oct_decode(u16_at(2));
-        let cone = normal::cone_decode(rec[4]);
         let rgb = u16_at(5);
-        let alpha = if params.alpha {
-            if rec[7] >> 4 != 0 {
-                return Err(Error::malformed(at + 7, "canopy node: padding bits 4-7 of the alpha byte are set"));
-            }
-            color::dequant(rec[7], 4)
-        } else {
-            255
-        };
+        if params.alpha && rec[7] >> 4 != 0 {
+            return Err(Error::malformed(at + 7, "canopy node: padding bits 4-7 of the alpha byte are set"));
+        }
         let a = nb - 4;
         let area = f32::from_le_bytes([rec[a], rec[a + 1], rec[a + 2], rec[a + 3]]);
         if !(area.is_finite() && area >= 0.0) {
             return Err(Error::malformed(at + a as u64, format!("canopy node: area {area} is not a finite non-negative number")));
         }
-        let color = [
-            color::dequant((rgb >> 11) as u8, 5),
-            color::dequant((rgb >> 5 & 0x3f) as u8, 6),
-            color::dequant((rgb & 0x1f) as u8, 5),
-            alpha,
-        ];
-        out.push(Node { center, radius, normal, cone, area, color });
+        let q = [(rgb >> 11) as u8, (rgb >> 5 & 0x3f) as u8, (rgb & 0x1f) as u8, if params.alpha { rec[7] } else { 0 }];
+        let node = record_node(t, p, Codes { state: s, normal: u16_at(2), cone: rec[4], color: q }, params.alpha, area).ok_or_else(|| {
+            Error::malformed(at, format!("canopy node: position/radius state {s} ≥ {}", posrad::STATE_COUNT))
+        })?;
+        out.push(node);
     }
     Ok(())
 }

@@ -14,7 +14,7 @@ pub const MAX_ERR_4: u8 = 8;
 
 /// Decodes a `bits`-bit code (bits ∈ {4, 5, 6}).
 #[inline]
-pub fn dequant(code: u8, bits: u32) -> u8 {
+pub const fn dequant(code: u8, bits: u32) -> u8 {
     let c = code as u32 & ((1 << bits) - 1);
     let v = match bits {
         4 => c * 17,
@@ -23,22 +23,54 @@ pub fn dequant(code: u8, bits: u32) -> u8 {
     v as u8
 }
 
-/// Nearest `bits`-bit code of an 8-bit value.
-#[inline]
-pub fn quant(v: u8, bits: u32) -> u8 {
+/// Nearest `bits`-bit code of an 8-bit value (the definition; [`quant`] looks it up).
+const fn quant_exact(v: u8, bits: u32) -> u8 {
     let top = (1u32 << bits) - 1;
-    let lo = ((v as u32 * top) / 255).min(top);
+    let lo = {
+        let e = (v as u32 * top) / 255;
+        if e < top {
+            e
+        } else {
+            top
+        }
+    };
     let mut best = lo;
     let mut err = (dequant(lo as u8, bits) as i32 - v as i32).abs();
     // The nearest code is within one of the linear estimate.
-    for c in [lo.saturating_sub(1), (lo + 1).min(top)] {
+    let cands = [lo.saturating_sub(1), if lo + 1 < top { lo + 1 } else { top }];
+    let mut i = 0;
+    while i < 2 {
+        let c = cands[i];
         let e = (dequant(c as u8, bits) as i32 - v as i32).abs();
         if e < err || (e == err && c < best) {
             best = c;
             err = e;
         }
+        i += 1;
     }
     best as u8
+}
+
+const fn quant_table(bits: u32) -> [u8; 256] {
+    let mut t = [0u8; 256];
+    let mut v = 0;
+    while v < 256 {
+        t[v] = quant_exact(v as u8, bits);
+        v += 1;
+    }
+    t
+}
+
+/// Quantization tables for 4, 5 and 6 bits (every node's colour goes through one per channel).
+static QUANT: [[u8; 256]; 3] = [quant_table(4), quant_table(5), quant_table(6)];
+
+/// Nearest `bits`-bit code of an 8-bit value (bits ∈ {4, 5, 6}).
+#[inline]
+pub fn quant(v: u8, bits: u32) -> u8 {
+    match bits {
+        4..=6 => QUANT[bits as usize - 4][v as usize],
+        _ => quant_exact(v, bits),
+    }
 }
 
 /// Bits per channel: RGB 5:6:5, alpha 4.

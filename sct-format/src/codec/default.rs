@@ -49,7 +49,7 @@
 //! rounding) to their decoded parent. Errors accumulate with depth (measured in
 //! `examples/rate_distortion.rs`).
 
-use super::canopy::{check_child, check_parent, color_codes, sphere_state};
+use super::canopy::{check_child, check_parent, color_codes, sphere_state, Codes};
 use super::{color, normal, posrad, CodecParams};
 use crate::error::{Error, Result};
 use crate::node::Node;
@@ -101,13 +101,15 @@ fn pred_normal_b(p: &Node, a: [f32; 3]) -> u16 {
     }
 }
 
-fn pred_color_b(p: &Node, area_a: f32, area_b: f32, ca: [u8; 4]) -> [u8; 4] {
-    if !(area_b > 0.0) {
+/// Only the first `ch` channels are predicted (the others are not stored).
+fn pred_color_b(p: &Node, area_a: f32, area_b: f32, ca: [u8; 4], ch: usize) -> [u8; 4] {
+    // Also catches NaN.
+    if area_b.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return p.color;
     }
     let (ap, aa, ab) = (p.area as f64, area_a as f64, area_b as f64);
     let mut out = [0u8; 4];
-    for i in 0..4 {
+    for i in 0..ch {
         let v = (ap * p.color[i] as f64 - aa * ca[i] as f64) / ab;
         // NaN (hostile parent area) clamps to 0 via `as`; no panic.
         out[i] = v.round().clamp(0.0, 255.0) as u8;
@@ -138,6 +140,26 @@ fn payload_len(params: CodecParams, n: usize) -> Option<usize> {
     m.checked_mul(5 + channels(params))?.checked_add(n.checked_mul(2)?)
 }
 
+/// The decoded child with codes `c` (`ch` colour channels) and decoded area `area`: the one definition the
+/// encoder (to return what a reader gets) and the decoder share, so they agree bit for bit.
+#[inline]
+fn child_node(t: &posrad::Tables, p: &Node, c: Codes, ch: usize, area: f32) -> Option<Node> {
+    let Codes { state: s, normal: nc, cone, color: q } = c;
+    let (center, radius) = posrad::decode_state(t, s as usize, p.center, p.radius)?;
+    let mut color = [255u8; 4];
+    for j in 0..ch {
+        color[j] = color::dequant(q[j], color::BITS[j]);
+    }
+    Some(Node { center, radius, normal: normal::oct_decode(nc), cone: normal::cone_decode(cone), area, color })
+}
+
+/// Lengths of the payload's streams for `m` children, in order (see the table above).
+pub fn stream_lens(params: CodecParams, m: usize) -> Vec<usize> {
+    let mut v = vec![m; 5 + channels(params)];
+    v.extend([m / 2, m / 2]);
+    v
+}
+
 /// Encodes sibling pairs relative to their decoded parents; returns them as decoded.
 /// On error `out` is left as it was.
 pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mut Vec<u8>) -> Result<Vec<Node>> {
@@ -148,50 +170,58 @@ pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mu
     let m = 2 * n;
     let ch = channels(params);
     let len = payload_len(params, n).ok_or_else(|| Error::Misuse("block too large".into()))?;
-    let mut buf = vec![0u8; len];
+    let t = posrad::tables();
+    let start = out.len();
+    out.resize(start + len, 0);
+    let buf = &mut out[start..];
     let (states, rest) = buf.split_at_mut(2 * m);
     let (norms, rest) = rest.split_at_mut(2 * m);
     let (cones, rest) = rest.split_at_mut(m);
     let (cols, area_bytes) = rest.split_at_mut(ch * m);
-    for (k, pair) in children.chunks_exact(2).enumerate() {
-        let p = &parents[k];
-        check_parent(p, k)?;
-        let (a, b) = (&pair[0], &pair[1]);
-        check_child(a, 2 * k, params)?;
-        check_child(b, 2 * k + 1, params)?;
-        let sum = a.area as f64 + b.area as f64;
-        let code = if sum > 0.0 { (a.area as f64 / sum * AREA_ONE as f64).round().clamp(0.0, AREA_ONE as f64) as u16 } else { AREA_ONE / 2 };
-        area_bytes[k] = code as u8;
-        area_bytes[n + k] = (code >> 8) as u8;
-        let (area_a, area_b) = areas(p, code);
-        let mut dec_a_normal = [0f32; 3];
-        let mut dec_a_color = [0u8; 4];
-        for (h, c) in pair.iter().enumerate() {
-            let i = 2 * k + h;
-            let s = sphere_state(p, c, i)?;
-            states[i] = s as u8;
-            states[m + i] = (s >> 8) as u8;
-            let (nc, cone) = normal::encode_cone(c.normal, c.cone);
-            let pred = if h == 0 { pred_normal_a(p) } else { pred_normal_b(p, dec_a_normal) };
-            norms[i] = zz(nc as u8, pred as u8, 8);
-            norms[m + i] = zz((nc >> 8) as u8, (pred >> 8) as u8, 8);
-            cones[i] = cone;
-            let q = quant4(c.color);
-            let pc = if h == 0 { quant4(p.color) } else { quant4(pred_color_b(p, area_a, area_b, dec_a_color)) };
-            for j in 0..ch {
-                cols[j * m + i] = zz(q[j], pc[j], color::BITS[j]);
-            }
-            if h == 0 {
-                dec_a_normal = normal::oct_decode(nc);
-                dec_a_color = [0, 1, 2, 3].map(|j| if j < 3 || params.alpha { color::dequant(q[j], color::BITS[j]) } else { 255 });
+    let mut dec = Vec::with_capacity(m);
+    let r = (|| -> Result<()> {
+        for (k, pair) in children.chunks_exact(2).enumerate() {
+            let p = &parents[k];
+            check_parent(p, k)?;
+            let (a, b) = (&pair[0], &pair[1]);
+            check_child(a, 2 * k, params)?;
+            check_child(b, 2 * k + 1, params)?;
+            let sum = a.area as f64 + b.area as f64;
+            let code =
+                if sum > 0.0 { (a.area as f64 / sum * AREA_ONE as f64).round().clamp(0.0, AREA_ONE as f64) as u16 } else { AREA_ONE / 2 };
+            area_bytes[k] = code as u8;
+            area_bytes[n + k] = (code >> 8) as u8;
+            let (area_a, area_b) = areas(p, code);
+            let mut dec_a: Option<Node> = None;
+            for (h, c) in pair.iter().enumerate() {
+                let i = 2 * k + h;
+                let s = sphere_state(p, c, i)?;
+                states[i] = s as u8;
+                states[m + i] = (s >> 8) as u8;
+                let (nc, cone) = normal::encode_cone(c.normal, c.cone);
+                let (pred, pc) = match &dec_a {
+                    None => (pred_normal_a(p), quant4(p.color)),
+                    Some(da) => (pred_normal_b(p, da.normal), quant4(pred_color_b(p, area_a, area_b, da.color, ch))),
+                };
+                norms[i] = zz(nc as u8, pred as u8, 8);
+                norms[m + i] = zz((nc >> 8) as u8, (pred >> 8) as u8, 8);
+                cones[i] = cone;
+                let q = quant4(c.color);
+                for j in 0..ch {
+                    cols[j * m + i] = zz(q[j], pc[j], color::BITS[j]);
+                }
+                let node = child_node(t, p, Codes { state: s, normal: nc, cone, color: q }, ch, if h == 0 { area_a } else { area_b })
+                    .ok_or_else(|| Error::Misuse(format!("default encoder: state {s} of child {i} is not decodable (bug)")))?;
+                dec.push(node);
+                dec_a = Some(node);
             }
         }
+        Ok(())
+    })();
+    if let Err(e) = r {
+        out.truncate(start);
+        return Err(e);
     }
-    let mut dec = Vec::with_capacity(m);
-    // Decoding what we wrote is the simplest way to return exactly what a reader gets.
-    decode(params, parents, &buf, 0, &mut dec)
-        .map_err(|e| Error::Misuse(format!("default encoder produced an undecodable block (bug): {e}")))?;
-    out.extend_from_slice(&buf);
     Ok(dec)
 }
 
@@ -226,39 +256,24 @@ pub fn decode(params: CodecParams, parents: &[Node], bytes: &[u8], offset: u64, 
         for h in 0..2 {
             let i = 2 * k + h;
             let s = states[i] as u16 | (states[m + i] as u16) << 8;
-            let (center, radius) = posrad::decode_state(t, s as usize, p.center, p.radius).ok_or_else(|| {
-                Error::malformed(offset + i as u64, format!("default block: position/radius state {s} ≥ {}", posrad::STATE_COUNT))
-            })?;
-            let pred = match &dec_a {
-                None => pred_normal_a(p),
-                Some(a) => pred_normal_b(p, a.normal),
+            let (pred, pc) = match &dec_a {
+                None => (pred_normal_a(p), quant4(p.color)),
+                Some(a) => (pred_normal_b(p, a.normal), quant4(pred_color_b(p, area_a, area_b, a.color, ch))),
             };
             let u = unzz(norms[i], pred as u8, 8).unwrap_or(0);
             let v = unzz(norms[m + i], (pred >> 8) as u8, 8).unwrap_or(0);
-            let nrm = normal::oct_decode(u as u16 | (v as u16) << 8);
-            let pc = match &dec_a {
-                None => quant4(p.color),
-                Some(a) => quant4(pred_color_b(p, area_a, area_b, a.color)),
-            };
-            let mut color = [255u8; 4];
+            let mut q = [0u8; 4];
             for j in 0..ch {
-                let q = unzz(cols[j * m + i], pc[j], color::BITS[j]).ok_or_else(|| {
+                q[j] = unzz(cols[j * m + i], pc[j], color::BITS[j]).ok_or_else(|| {
                     Error::malformed(col_off + (j * m + i) as u64, format!("default block: colour residual {} out of range", cols[j * m + i]))
                 })?;
-                color[j] = color::dequant(q, color::BITS[j]);
             }
-            let node = Node {
-                center,
-                radius,
-                normal: nrm,
-                cone: normal::cone_decode(cones[i]),
-                area: if h == 0 { area_a } else { area_b },
-                color,
-            };
+            let node = child_node(t, p, Codes { state: s, normal: u as u16 | (v as u16) << 8, cone: cones[i], color: q }, ch, if h == 0 { area_a } else { area_b })
+                .ok_or_else(|| {
+                    Error::malformed(offset + i as u64, format!("default block: position/radius state {s} ≥ {}", posrad::STATE_COUNT))
+                })?;
             out.push(node);
-            if h == 0 {
-                dec_a = Some(node);
-            }
+            dec_a = Some(node);
         }
     }
     Ok(())

@@ -115,6 +115,17 @@ pub fn encode_children(
     }
 }
 
+/// Lengths of the consecutive homogeneous streams of a payload of `m` children (one entry
+/// covering all of it for record-oriented profiles). A writer may use them as compression
+/// boundaries; they change nothing in the payload.
+pub fn stream_lens(profile: Profile, params: CodecParams, m: usize) -> Vec<usize> {
+    match profile {
+        Profile::Raw => vec![m * raw::NODE_BYTES],
+        Profile::Canopy => vec![m * canopy::node_bytes(params)],
+        Profile::Default => default::stream_lens(params, m),
+    }
+}
+
 /// Decodes the children of `parents` from `bytes` (one block's codec payload), appending
 /// `2 * parents.len()` nodes to `out`. `offset` is the payload's position, for errors.
 pub fn decode_children(

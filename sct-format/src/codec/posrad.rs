@@ -211,7 +211,7 @@ pub fn encode_sphere(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Option<u16
     for g in &t.inside {
         let g = [g[0] as i32, g[1] as i32, g[2] as i32];
         if let Some(c) = fit(t, g, pc, pr, cc, cr) {
-            if best.map_or(true, |b| (c.1, c.2) < (b.1, b.2)) {
+            if best.is_none_or(|b| (c.1, c.2) < (b.1, b.2)) {
                 best = Some(c);
             }
         }
@@ -228,7 +228,7 @@ mod tests {
         let t = tables();
         assert_eq!(t.state.len(), STATE_COUNT);
         assert_eq!(t.inside.len(), 925);
-        assert!(STATE_COUNT < 1 << 14);
+        const { assert!(STATE_COUNT < 1 << 14) };
         let mut maxq = 0;
         for (s, &(g, q)) in t.state.iter().enumerate() {
             let g = [g[0] as i32, g[1] as i32, g[2] as i32];
