@@ -310,7 +310,9 @@ pub fn run_batch(opts: &BatchOptions, done: &(dyn Fn(&JobResult, usize) + Sync))
             scope.spawn(|| loop {
                 let i = next.fetch_add(1, Ordering::Relaxed);
                 let Some((rel, out_rel)) = mine.get(i) else { break };
-                let r = run_one(opts, &key, rel, out_rel);
+                // A bug that panics on one input must not take the rest of the batch down.
+                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run_one(opts, &key, rel, out_rel)))
+                    .unwrap_or_else(|_| (failed(rel, out_rel, "internal error: the conversion panicked (a bug; please report it)".into(), 2, 0.0), 0));
                 let n = finished.fetch_add(1, Ordering::Relaxed) + 1;
                 done(&r.0, n);
                 if let Ok(mut slot) = results[i].lock() {
@@ -328,8 +330,8 @@ pub fn run_batch(opts: &BatchOptions, done: &(dyn Fn(&JobResult, usize) + Sync))
                 stale += removed;
                 jobs.push(job);
             }
-            // A worker panicked on this input: report it rather than lose it.
-            None => jobs.push(failed(&mine[i].0, &mine[i].1, "internal error: the conversion panicked".into(), 2, 0.0)),
+            // Unreachable unless a slot's lock was poisoned; still reported, never lost.
+            None => jobs.push(failed(&mine[i].0, &mine[i].1, "internal error: no result recorded".into(), 2, 0.0)),
         }
     }
     for (dir, e) in unreadable {

@@ -187,3 +187,23 @@ fn inputs_are_checked() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("ant-half.ply"));
     assert!(!o.exists(), "no output for a failed conversion");
 }
+
+/// Regression: a glTF mesh with no triangles (POINTS/LINES only) or whose samples are all
+/// transparent used to abort the whole conversion ("no samples to build a tree from").
+#[test]
+fn meshes_without_samples_are_left_out_with_a_warning() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (i, model) in ["nasty/gltf-primitive-modes/glTF/MeshPrimitiveModes.gltf", "gltf/AlphaBlendModeTest/glTF-Binary/AlphaBlendModeTest.glb"]
+        .iter()
+        .enumerate()
+    {
+        let out = dir.path().join(format!("{i}.sct"));
+        let run = bin(&[models().join(model).as_os_str(), "-o".as_ref(), out.as_os_str(), "--json".as_ref()]);
+        assert!(run.status.success(), "{model}: {}", String::from_utf8_lossy(&run.stderr));
+        let rep = json(&run);
+        let warnings = rep["sampling"]["warnings"].as_array().expect("warnings");
+        assert!(warnings.iter().any(|w| w.as_str().is_some_and(|w| w.contains("produced no samples"))), "{model}: {warnings:?}");
+        let v = validate_file(&out, &ValidateOptions::default()).expect("validate");
+        assert!(v.issues.is_empty(), "{model}: {:?}", v.issues);
+    }
+}

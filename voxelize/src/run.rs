@@ -153,7 +153,9 @@ pub fn to_samples_file(sampled: &Sampled, points: Vec<sct_format::Node>, generat
     let mut instances = Vec::new();
     let mut affine_instances = Vec::new();
     let mut samples = Vec::new();
-    for m in &sampled.meshes {
+    // A mesh without samples (only points/lines, or fully transparent) has nothing to build
+    // a tree from; it is left out (and reported by `sample_in_memory`).
+    for m in sampled.meshes.iter().filter(|m| !m.samples.is_empty()) {
         let idx = meshes.len() as u32;
         meshes.push(MeshEntry { name: m.name.clone(), first: samples.len() as u64, count: m.samples.len() as u64 });
         samples.extend_from_slice(&m.samples);
@@ -259,6 +261,9 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
     let st = &sampled.stats;
     let rel = if st.mesh_area > 0.0 { (st.sample_area - st.mesh_area) / st.mesh_area } else { 0.0 };
     let mut warnings = scene.warnings.clone();
+    for m in sampled.meshes.iter().filter(|m| m.samples.is_empty()) {
+        warnings.push(format!("mesh {:?} produced no samples (no triangles, or every sample transparent) and is left out", m.name));
+    }
     if st.baked_non_similar > 0 {
         warnings.push(format!("{} placement(s) of reused meshes had a projective or singular transform and were baked into world space", st.baked_non_similar));
     }
