@@ -373,12 +373,31 @@ pub fn srgb_to_linear(c: f32) -> f32 {
 
 /// Encodes a linear channel in [0, 1] as 8-bit sRGB.
 pub fn linear_to_srgb8(c: f32) -> u8 {
-    // Binary search over the linear values of the midpoints between 8-bit codes: the same
-    // rounding as encoding with powf, without a powf per sample (a hot path).
-    static MID: std::sync::OnceLock<[f32; 255]> = std::sync::OnceLock::new();
-    let mid = MID.get_or_init(|| std::array::from_fn(|i| srgb_to_linear((i as f32 + 0.5) / 255.0)));
-    let c = if c.is_finite() { c } else { 0.0 };
-    mid.partition_point(|&t| t < c) as u8
+    // The code is the number of midpoints between 8-bit codes (in linear) below `c`: the same
+    // rounding as encoding with powf. A 4096-entry table gives that count at the start of
+    // c's 1/4096 cell, and at most a step or two of the midpoint list finishes it exactly
+    // (a hot path: once per sample channel).
+    struct Tables {
+        mid: [f32; 255],
+        start: Vec<u8>,
+    }
+    static T: std::sync::OnceLock<Tables> = std::sync::OnceLock::new();
+    let t = T.get_or_init(|| {
+        let mid: [f32; 255] = std::array::from_fn(|i| srgb_to_linear((i as f32 + 0.5) / 255.0));
+        let start = (0..=4096).map(|j| mid.partition_point(|&m| m < j as f32 / 4096.0) as u8).collect();
+        Tables { mid, start }
+    });
+    if !(c > 0.0) || !c.is_finite() {
+        return 0; // also NaN and infinities, as the exact encoder did
+    }
+    if c >= 1.0 {
+        return 255;
+    }
+    let mut code = t.start[(c * 4096.0) as usize] as usize;
+    while code < 255 && t.mid[code] < c {
+        code += 1;
+    }
+    code as u8
 }
 
 /// Lookup table: 8-bit sRGB → linear.
@@ -579,5 +598,31 @@ impl SplitMix {
     /// Uniform in [0, 1).
     pub fn next_f64(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The table-driven encoder equals a binary search over the midpoints everywhere.
+    #[test]
+    fn srgb_encode_matches_binary_search() {
+        let mid: [f32; 255] = std::array::from_fn(|i| srgb_to_linear((i as f32 + 0.5) / 255.0));
+        let mut x = 0.0f32;
+        let mut checked = 0;
+        while x <= 1.01 {
+            assert_eq!(linear_to_srgb8(x), mid.partition_point(|&t| t < x) as u8, "at {x}");
+            x = if x < 1e-4 { x + 1e-9 } else { x + 1.3e-7 };
+            checked += 1;
+        }
+        // Every midpoint and its neighbours (the rounding boundaries).
+        for &m in &mid {
+            for v in [m.next_down(), m, m.next_up()] {
+                assert_eq!(linear_to_srgb8(v), mid.partition_point(|&t| t < v) as u8, "at {v}");
+            }
+        }
+        assert!(checked > 1_000_000);
+        assert_eq!((linear_to_srgb8(f32::NAN), linear_to_srgb8(-1.0), linear_to_srgb8(2.0)), (0, 0, 255));
     }
 }

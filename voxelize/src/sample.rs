@@ -333,83 +333,134 @@ struct Mat<'a> {
     alpha: AlphaMode,
 }
 
+/// One sample before merging: a packed voxel key ([`KeyPack`]) and attributes.
 #[derive(Clone, Copy)]
 struct Rec {
-    key: [i32; 3],
+    key: u64,
     area: f32,
     normal: [f32; 3],
     color: [f32; 4],
 }
 
-const MAXV: usize = 12;
+/// Packs voxel coordinates of one unit into a `u64` (x major, then y, then z — the
+/// lexicographic order of the coordinates), so merging sorts plain integers.
+#[derive(Clone, Copy, Debug)]
+struct KeyPack {
+    lo: [i64; 3],
+    hi: [i64; 3],
+    bits: [u32; 3],
+}
+
+impl KeyPack {
+    /// Covers the grid cells of `lo..=hi` (grid units) with one cell of margin.
+    fn new(lo: [f64; 3], hi: [f64; 3]) -> Result<KeyPack, String> {
+        let l = lo.map(|v| v.floor() as i64 - 1);
+        let h = hi.map(|v| v.floor() as i64 + 1);
+        let bits: [u32; 3] = std::array::from_fn(|k| 64 - ((h[k] - l[k]).max(1) as u64).leading_zeros());
+        if bits.iter().sum::<u32>() > 64 {
+            return Err(format!(
+                "the voxel grid ({} × {} × {} voxels) is too large to index with 64-bit voxel keys; use a larger voxel size",
+                h[0] - l[0],
+                h[1] - l[1],
+                h[2] - l[2]
+            ));
+        }
+        Ok(KeyPack { lo: l, hi: h, bits })
+    }
+    fn total_bits(&self) -> u32 {
+        self.bits.iter().sum()
+    }
+    #[inline]
+    fn pack(&self, k: [i64; 3]) -> u64 {
+        // Clamped so a rounding stray can never spill into a neighbouring field.
+        let v: [u64; 3] = std::array::from_fn(|i| (k[i].clamp(self.lo[i], self.hi[i]) - self.lo[i]) as u64);
+        (v[0] << (self.bits[1] + self.bits[2])) | (v[1] << self.bits[2]) | v[2]
+    }
+    #[inline]
+    fn unpack(&self, key: u64) -> [i64; 3] {
+        let mask = |b: u32| if b == 0 { 0 } else { u64::MAX >> (64 - b) };
+        let z = key & mask(self.bits[2]);
+        let y = (key >> self.bits[2]) & mask(self.bits[1]);
+        let x = key.checked_shr(self.bits[1] + self.bits[2]).unwrap_or(0) & mask(self.bits[0]);
+        [x as i64 + self.lo[0], y as i64 + self.lo[1], z as i64 + self.lo[2]]
+    }
+}
+
+const MAXV: usize = 10;
+
+/// A convex polygon in the projection plane (coordinates along axes a, b).
 #[derive(Clone, Copy)]
-struct Poly {
-    v: [[f64; 3]; MAXV],
+struct Poly2 {
+    v: [[f64; 2]; MAXV],
     n: usize,
 }
 
-impl Poly {
-    fn clip(&self, axis: usize, lo: f64, hi: f64) -> Poly {
-        let a = self.clip_half(axis, lo, true);
-        a.clip_half(axis, hi, false)
+impl Poly2 {
+    fn square(x: f64, y: f64) -> Poly2 {
+        let mut v = [[0.0; 2]; MAXV];
+        v[..4].copy_from_slice(&[[x, y], [x + 1.0, y], [x + 1.0, y + 1.0], [x, y + 1.0]]);
+        Poly2 { v, n: 4 }
     }
-    /// Keeps the side `x[axis] >= c` (keep_above) or `<= c`.
-    fn clip_half(&self, axis: usize, c: f64, keep_above: bool) -> Poly {
-        let mut out = Poly { v: [[0.0; 3]; MAXV], n: 0 };
+    /// Keeps `x[axis] ∈ [lo, hi]`.
+    fn clip_axis(&self, axis: usize, lo: f64, hi: f64) -> Poly2 {
+        self.clip_half(|p| p[axis] - lo, Some((axis, lo))).clip_half(|p| hi - p[axis], Some((axis, hi)))
+    }
+    /// Keeps the side `f(p) >= 0` of a line (`f` affine). `exact` = (axis, value) for
+    /// axis-aligned lines: intersections get that coordinate exactly, so neighbouring clips
+    /// agree bit for bit.
+    #[inline]
+    fn clip_half(&self, f: impl Fn(&[f64; 2]) -> f64, exact: Option<(usize, f64)>) -> Poly2 {
+        let mut out = Poly2 { v: [[0.0; 2]; MAXV], n: 0 };
         if self.n == 0 {
             return out;
         }
-        let inside = |p: &[f64; 3]| if keep_above { p[axis] >= c } else { p[axis] <= c };
+        let mut prev = self.v[self.n - 1];
+        let mut fp = f(&prev);
         for i in 0..self.n {
             let cur = self.v[i];
-            let prev = self.v[(i + self.n - 1) % self.n];
-            let (ci, pi) = (inside(&cur), inside(&prev));
-            if ci != pi {
-                let t = (c - prev[axis]) / (cur[axis] - prev[axis]);
-                let mut x = [prev[0] + t * (cur[0] - prev[0]), prev[1] + t * (cur[1] - prev[1]), prev[2] + t * (cur[2] - prev[2])];
-                x[axis] = c; // exact on the plane, so neighbouring clips agree
-                if out.n < MAXV {
-                    out.v[out.n] = x;
-                    out.n += 1;
+            let fc = f(&cur);
+            if (fc >= 0.0) != (fp >= 0.0) && out.n < MAXV {
+                let t = fp / (fp - fc);
+                let mut x = [prev[0] + t * (cur[0] - prev[0]), prev[1] + t * (cur[1] - prev[1])];
+                if let Some((axis, c)) = exact {
+                    x[axis] = c;
                 }
+                out.v[out.n] = x;
+                out.n += 1;
             }
-            if ci && out.n < MAXV {
+            if fc >= 0.0 && out.n < MAXV {
                 out.v[out.n] = cur;
                 out.n += 1;
             }
+            prev = cur;
+            fp = fc;
         }
         out
     }
-    /// (area, centroid) of the planar polygon.
-    fn area_centroid(&self) -> (f64, [f64; 3]) {
-        if self.n < 3 {
-            return (0.0, self.v[0]);
-        }
+    /// (area, centroid) of the polygon (shoelace, relative to the first vertex for precision).
+    fn area_centroid(&self) -> (f64, [f64; 2]) {
         let o = self.v[0];
-        let mut total = [0.0; 3];
-        let mut w = 0.0;
-        let mut c = [0.0; 3];
-        for i in 1..self.n - 1 {
-            let cr = cross(sub(self.v[i], o), sub(self.v[i + 1], o));
-            total = [total[0] + cr[0], total[1] + cr[1], total[2] + cr[2]];
-            let a = norm(cr);
-            w += a;
-            for k in 0..3 {
-                c[k] += a * (o[k] + self.v[i][k] + self.v[i + 1][k]) / 3.0;
-            }
+        let (mut a2, mut cx, mut cy) = (0.0, 0.0, 0.0);
+        for i in 1..self.n.saturating_sub(1) {
+            let (p, q) = ([self.v[i][0] - o[0], self.v[i][1] - o[1]], [self.v[i + 1][0] - o[0], self.v[i + 1][1] - o[1]]);
+            let cr = p[0] * q[1] - q[0] * p[1];
+            a2 += cr;
+            cx += cr * (p[0] + q[0]);
+            cy += cr * (p[1] + q[1]);
         }
-        let area = 0.5 * norm(total);
-        if w > 0.0 {
-            (area, c.map(|x| x / w))
+        if a2 != 0.0 {
+            (0.5 * a2.abs(), [o[0] + cx / (3.0 * a2), o[1] + cy / (3.0 * a2)])
         } else {
-            let mut m = [0.0; 3];
-            for p in &self.v[..self.n] {
-                for k in 0..3 {
-                    m[k] += p[k] / self.n as f64;
-                }
-            }
+            let n = self.n.max(1) as f64;
+            let m = self.v[..self.n].iter().fold([0.0; 2], |m, p| [m[0] + p[0] / n, m[1] + p[1] / n]);
             (0.0, m)
         }
+    }
+    fn range(&self, f: impl Fn(&[f64; 2]) -> f64) -> (f64, f64) {
+        self.v[..self.n].iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+            let x = f(p);
+            (lo.min(x), hi.max(x))
+        })
     }
 }
 
@@ -454,47 +505,43 @@ pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn F
     let mut out = Vec::new();
     for u in &units {
         let mesh = &scene.meshes[u.mesh];
-        let mut recs: Vec<Rec> = Vec::new();
-        let mut vnodes: Vec<Node> = Vec::new();
-        let mut dropped = 0u64;
-        for prim in &mesh.primitives {
-            let material = scene.material(prim);
-            fn tex_of<'a>(images: &'a [Image], t: &'a Option<TextureRef>) -> Option<(&'a Image, &'a TextureRef)> {
-                t.as_ref().and_then(|t| images.get(t.image).map(|i| (i, t)))
+        let kp = unit_keys(mesh, u)?;
+        let prepared: Vec<Prepared> = mesh
+            .primitives
+            .iter()
+            .map(|prim| {
+                let material = scene.material(prim);
+                fn tex_of<'a>(images: &'a [Image], t: &Option<TextureRef>) -> Option<(&'a Image, TextureRef)> {
+                    t.as_ref().and_then(|t| images.get(t.image).map(|i| (i, t.clone())))
+                }
+                let mat = MatOwned {
+                    base: material.base_color,
+                    tex: tex_of(&scene.images, &material.texture),
+                    alpha_tex: tex_of(&scene.images, &material.alpha_texture),
+                    alpha: material.alpha_mode,
+                };
+                Prepared::new(prim, u, mat, opts.crease_deg)
+            })
+            .collect();
+        let (nodes, before, dropped) = if opts.method == Method::Vertex {
+            let (mut nodes, mut dropped) = (Vec::new(), 0);
+            for pp in &prepared {
+                let (v, d) = vertex_patches(pp.prim, &pp.pos, &pp.nrm, pp.computed.as_deref(), &pp.mat.view(), u.h);
+                nodes.extend(v);
+                dropped += d;
             }
-            let mat = Mat {
-                base: material.base_color,
-                tex: tex_of(&scene.images, &material.texture),
-                alpha_tex: tex_of(&scene.images, &material.alpha_texture),
-                alpha: material.alpha_mode,
-            };
-            let (r, v, d) = sample_primitive(prim, u, &mat, opts, &done, total_tris, progress);
-            recs.extend(r);
-            vnodes.extend(v);
-            dropped += d;
-        }
+            let n = mesh.triangle_count() as u64;
+            progress(done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n, total_tris);
+            let before = nodes.len() as u64;
+            (nodes, before, dropped)
+        } else {
+            sample_slabs(&prepared, &kp, u.h, opts, &|n| {
+                progress((done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n).min(total_tris), total_tris)
+            })
+        };
         stats.triangles += mesh.triangle_count() as u64;
         stats.dropped_alpha += dropped;
-        stats.samples_before_merge += (recs.len() + vnodes.len()) as u64;
-        let nodes = if opts.method == Method::Vertex {
-            vnodes
-        } else {
-            // Sort (voxel key, record index) pairs: unique keys make the unstable parallel
-            // sort deterministic, and equal voxels keep triangle order, so merging does not
-            // depend on the thread count. Cheaper than moving 44-byte records around.
-            let mut order: Vec<u128> = recs
-                .par_iter()
-                .enumerate()
-                .map(|(i, r)| {
-                    let k = r.key.map(|v| u128::from((v as i64 + (1i64 << 31)) as u32));
-                    (k[0] << 96) | (k[1] << 64) | (k[2] << 32) | i as u128
-                })
-                .collect();
-            order.par_sort_unstable();
-            let sorted: Vec<Rec> = order.par_iter().map(|&o| recs[(o & 0xFFFF_FFFF) as usize]).collect();
-            drop(order);
-            to_nodes(&sorted, u.h, opts.merge)
-        };
+        stats.samples_before_merge += before;
         stats.samples += nodes.len() as u64;
         let area: f64 = nodes.iter().map(|n| f64::from(n.area)).sum();
         stats.sample_area += u.instances.iter().map(|s| area * s.scale * s.scale).sum::<f64>();
@@ -509,109 +556,330 @@ pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn F
     Ok(Sampled { meshes: out, voxel, stats })
 }
 
-fn sample_primitive(
-    prim: &Primitive,
-    u: &Unit,
-    mat: &Mat,
-    opts: &SampleOptions,
-    done: &std::sync::atomic::AtomicU64,
-    total: u64,
-    progress: &(dyn Fn(u64, u64) + Sync),
-) -> (Vec<Rec>, Vec<Node>, u64) {
-    let inv_h = 1.0 / u.h;
-    // Vertex positions and normals in the unit's frame, positions in grid units.
-    let pos: Vec<[f64; 3]> = prim
-        .positions
-        .iter()
-        .map(|&p| {
+/// The voxel-key packing of a unit: its vertices' bounds in grid units.
+fn unit_keys(mesh: &Mesh, u: &Unit) -> Result<KeyPack, String> {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for p in &mesh.primitives {
+        for &v in &p.positions {
             let w = match &u.bake {
-                Some(m) => transform_point(m, p),
-                None => p.map(f64::from),
+                Some(m) => transform_point(m, v),
+                None => v.map(f64::from),
             };
-            w.map(|x| x * inv_h)
-        })
-        .collect();
-    let flip = u.bake.as_ref().is_some_and(|m| determinant(m) < 0.0);
-    let nrm: Option<Vec<[f32; 3]>> = prim.normals.as_ref().map(|ns| {
-        ns.iter()
-            .map(|&n| {
-                let w = match &u.bake {
-                    Some(m) => transform_normal(m, n),
-                    None => n.map(f64::from),
-                };
-                let l = norm(w);
-                if l > 0.0 && l.is_finite() {
-                    w.map(|x| (x / l) as f32)
-                } else {
-                    [0.0; 3]
-                }
-            })
-            .collect()
-    });
-    let computed = if nrm.is_none() { Some(corner_normals(prim, opts.crease_deg)) } else { None };
-    let tc = mat.tex.map_or(0, |t| t.1.tex_coord as usize);
-    let tc2 = mat.alpha_tex.map_or(0, |t| t.1.tex_coord as usize);
-    let uvset = prim.uvs.get(tc);
-    let uvset2 = prim.uvs.get(tc2);
-    if opts.method == Method::Vertex {
-        let (nodes, d) = vertex_patches(prim, &pos, &nrm, computed.as_deref(), mat, u.h);
-        let n = prim.triangles.len() as u64;
-        progress(done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n, total);
-        return (Vec::new(), nodes, d);
-    }
-    let chunk = 4096;
-    let parts: Vec<(Vec<Rec>, u64)> = prim
-        .triangles
-        .par_chunks(chunk)
-        .enumerate()
-        .map(|(ci, tris)| {
-            let mut out = Vec::new();
-            let mut dropped = 0u64;
-            for (k, t) in tris.iter().enumerate() {
-                let ti = ci * chunk + k;
-                // A mirroring bake flips the winding; swap to keep the front side.
-                let idx = if flip { [t[0], t[2], t[1]] } else { *t };
-                let vi = idx.map(|i| i as usize);
-                let n = match (&nrm, &computed) {
-                    (Some(n), _) => vi.map(|i| n[i]),
-                    (None, Some(c)) => {
-                        let c = c[ti];
-                        let cn = if flip { [c[0], c[2], c[1]] } else { c };
-                        match &u.bake {
-                            Some(m) => cn.map(|n| {
-                                let w = transform_normal(m, n);
-                                let l = norm(w);
-                                if l > 0.0 { w.map(|x| (x / l) as f32) } else { [0.0; 3] }
-                            }),
-                            None => cn,
-                        }
-                    }
-                    _ => [[0.0; 3]; 3],
-                };
-                let tri = Tri {
-                    p: vi.map(|i| pos[i]),
-                    n,
-                    c: vi.map(|i| prim.colors.as_ref().map_or([1.0; 4], |c| c[i])),
-                    uv: vi.map(|i| uvset.map_or([0.0; 2], |s| s[i])),
-                    uv2: vi.map(|i| uvset2.map_or([0.0; 2], |s| s[i])),
-                };
-                dropped += match opts.method {
-                    Method::Voxel => voxel_triangle(&tri, mat, opts.area, &mut out),
-                    Method::Scanline => scanline_triangle(&tri, mat, &mut out),
-                    Method::Vertex => 0,
-                };
+            for k in 0..3 {
+                lo[k] = lo[k].min(w[k] / u.h);
+                hi[k] = hi[k].max(w[k] / u.h);
             }
-            let d = done.fetch_add(tris.len() as u64, std::sync::atomic::Ordering::Relaxed) + tris.len() as u64;
-            progress(d, total);
-            (out, dropped)
-        })
-        .collect();
-    let dropped: u64 = parts.iter().map(|p| p.1).sum();
-    let mut recs = Vec::with_capacity(parts.iter().map(|p| p.0.len()).sum());
-    for (p, _) in parts {
-        recs.extend(p);
+        }
     }
-    (recs, Vec::new(), dropped)
+    if lo.iter().chain(hi.iter()).any(|v| !v.is_finite()) {
+        (lo, hi) = ([0.0; 3], [0.0; 3]);
+    }
+    KeyPack::new(lo, hi)
+}
+
+/// Samples a unit's triangles slab by slab and merges same-voxel samples.
+///
+/// The grid is cut into slabs along x holding about equal numbers of expected samples;
+/// each slab voxelizes the triangles overlapping it, keeping only its own voxels, then
+/// radix-sorts and merges them in buffers reused by its thread. Voxel keys are x-major, so
+/// concatenating slabs in order gives the globally sorted result, and equal voxels (always in
+/// one slab) merge in triangle order whatever the thread count: deterministic output, no
+/// global sort, and memory per slab rather than per scene. Returns (nodes, samples before
+/// merging, alpha-dropped samples).
+fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, progress: &(dyn Fn(u64) + Sync)) -> (Vec<Node>, u64, u64) {
+    // Every triangle: (primitive, index), x-cell range, expected samples.
+    let mut tris: Vec<(u32, u32)> = Vec::new();
+    let mut xr: Vec<(i64, i64)> = Vec::new();
+    let mut est: Vec<f64> = Vec::new();
+    for (pi, p) in pp.iter().enumerate() {
+        for (ti, t) in p.prim.triangles.iter().enumerate() {
+            let [a, b, c] = t.map(|v| p.pos[v as usize]);
+            let lo = a[0].min(b[0]).min(c[0]).floor() as i64;
+            let hi = a[0].max(b[0]).max(c[0]).floor() as i64;
+            tris.push((pi as u32, ti as u32));
+            xr.push((lo.clamp(kp.lo[0], kp.hi[0]), hi.clamp(kp.lo[0], kp.hi[0])));
+            est.push(0.5 * norm(cross(sub(b, a), sub(c, a))) + 0.5 * (norm(sub(b, a)) + norm(sub(c, b)) + norm(sub(a, c))) + 1.0);
+        }
+    }
+    if tris.is_empty() {
+        return (Vec::new(), 0, 0);
+    }
+    // Expected samples per x cell (difference array), cells of `cell` voxels (coarser only
+    // for enormous grids), then slab boundaries at equal quantiles.
+    let width = (kp.hi[0] - kp.lo[0] + 1) as u64;
+    let cell = width.div_ceil(1 << 20).max(1) as i64;
+    let ncells = ((kp.hi[0] - kp.lo[0]) / cell + 1) as usize;
+    let cell_of = |x: i64| ((x - kp.lo[0]) / cell) as usize;
+    let mut diff = vec![0.0f64; ncells + 1];
+    for (r, e) in xr.iter().zip(&est) {
+        let (c0, c1) = (cell_of(r.0), cell_of(r.1));
+        let per = e / (c1 - c0 + 1) as f64;
+        diff[c0] += per;
+        diff[c1 + 1] -= per;
+    }
+    let total: f64 = est.iter().sum();
+    let slabs = ((total / 131_072.0).ceil() as usize).clamp(8, 16_384).min(ncells);
+    let mut slab_of_cell = vec![0u32; ncells];
+    let mut slab_x: Vec<(i64, i64)> = Vec::with_capacity(slabs);
+    let (mut acc, mut run, mut start) = (0.0, 0.0, 0usize);
+    for c in 0..ncells {
+        run += diff[c];
+        acc += run;
+        slab_of_cell[c] = slab_x.len() as u32;
+        let last = c + 1 == ncells;
+        if last || acc >= (slab_x.len() + 1) as f64 * total / slabs as f64 {
+            let x0 = kp.lo[0] + start as i64 * cell;
+            let x1 = if last { kp.hi[0] } else { kp.lo[0] + (c as i64 + 1) * cell - 1 };
+            slab_x.push((x0, x1));
+            start = c + 1;
+        }
+    }
+    let mut lists: Vec<Vec<u32>> = vec![Vec::new(); slab_x.len()];
+    for (gi, r) in xr.iter().enumerate() {
+        for l in &mut lists[slab_of_cell[cell_of(r.0)] as usize..=slab_of_cell[cell_of(r.1)] as usize] {
+            l.push(gi as u32);
+        }
+    }
+    let radius = (0.5 * 3f64.sqrt() * h) as f32;
+    let h2 = h * h;
+    let xshift = kp.bits[1] + kp.bits[2];
+    struct Bufs {
+        recs: Vec<Rec>,
+        scratch: Vec<Rec>,
+        items: Vec<(u64, u64)>,
+        tmp: Vec<(u64, u64)>,
+    }
+    let parts: Vec<(Vec<Node>, u64, u64)> = lists
+        .par_iter()
+        .zip(slab_x.par_iter())
+        .map_init(
+            || Bufs { recs: Vec::new(), scratch: Vec::new(), items: Vec::new(), tmp: Vec::new() },
+            |bufs, (list, &(x0, x1))| {
+                bufs.recs.clear();
+                let mut dropped = 0u64;
+                for &gi in list {
+                    let (pi, ti) = tris[gi as usize];
+                    let p = &pp[pi as usize];
+                    let t = p.tri(ti as usize);
+                    let mat = p.mat.view();
+                    if opts.method == Method::Voxel && opts.area == AreaMode::Exact {
+                        dropped += voxel_triangle(&t, &mat, AreaMode::Exact, kp, (x0, x1), &mut bufs.recs);
+                        continue;
+                    }
+                    // Per-triangle areas (EQ 17, scan-line) need the whole triangle: sample
+                    // it whole and keep this slab's voxels; its drops count in its first slab.
+                    bufs.scratch.clear();
+                    let d = match opts.method {
+                        Method::Scanline => scanline_triangle(&t, &mat, kp, &mut bufs.scratch),
+                        _ => voxel_triangle(&t, &mat, opts.area, kp, (i64::MIN, i64::MAX), &mut bufs.scratch),
+                    };
+                    if xr[gi as usize].0 < x0 {
+                        // Not this triangle's first slab.
+                    } else {
+                        dropped += d;
+                    }
+                    let (px0, px1) = ((x0 - kp.lo[0]) as u64, (x1 - kp.lo[0]) as u64);
+                    bufs.recs.extend(bufs.scratch.iter().filter(|r| (px0..=px1).contains(&r.key.checked_shr(xshift).unwrap_or(0))));
+                }
+                progress(list.len() as u64);
+                let before = bufs.recs.len() as u64;
+                bufs.items.clear();
+                bufs.items.extend(bufs.recs.iter().enumerate().map(|(i, r)| (r.key, i as u64)));
+                radix_sort_low(&mut bufs.items, &mut bufs.tmp, kp.total_bits());
+                (merge_sorted(&bufs.items, &bufs.recs, kp, radius, h, h2, opts.merge), before, dropped)
+            },
+        )
+        .collect();
+    let before = parts.iter().map(|p| p.1).sum();
+    let dropped = parts.iter().map(|p| p.2).sum();
+    let mut nodes = Vec::with_capacity(parts.iter().map(|p| p.0.len()).sum());
+    for (p, _, _) in parts {
+        nodes.extend(p);
+    }
+    (nodes, before, dropped)
+}
+
+/// Turns sorted (key, record) pairs into nodes, merging records of one voxel (areas add;
+/// normal and colour are area-weighted means).
+fn merge_sorted(items: &[(u64, u64)], recs: &[Rec], kp: &KeyPack, r: f32, h: f64, h2: f64, merge: bool) -> Vec<Node> {
+    let center = |key: u64| kp.unpack(key).map(|v| ((v as f64 + 0.5) * h) as f32);
+    let mut out = Vec::with_capacity(if merge { items.len() * 4 / 5 } else { items.len() });
+    let mut i = 0;
+    while i < items.len() {
+        let key = items[i].0;
+        let first = &recs[items[i].1 as usize];
+        let j = i + 1;
+        if !merge || j == items.len() || items[j].0 != key {
+            // The common case: nothing to merge.
+            out.push(Node { center: center(key), radius: r, normal: first.normal, cone: 0.0, area: (f64::from(first.area) * h2) as f32, color: srgb8(first.color) });
+            i = j;
+            continue;
+        }
+        let (mut a, mut wsum, mut nn, mut c) = (0.0f64, 0.0f64, [0.0f64; 3], [0.0f64; 4]);
+        let mut j = i;
+        while j < items.len() && items[j].0 == key {
+            let x = &recs[items[j].1 as usize];
+            // Zero-area pieces (edge slivers) still count a little so colour is defined.
+            let w = f64::from(x.area).max(1e-12);
+            a += f64::from(x.area);
+            wsum += w;
+            for k in 0..3 {
+                nn[k] += w * f64::from(x.normal[k]);
+            }
+            for k in 0..4 {
+                c[k] += w * f64::from(x.color[k]);
+            }
+            j += 1;
+        }
+        let l = norm(nn);
+        let normal = if l > 1e-9 * wsum { nn.map(|x| (x / l) as f32) } else { first.normal };
+        out.push(Node { center: center(key), radius: r, normal, cone: 0.0, area: (a * h2) as f32, color: srgb8(c.map(|x| (x / wsum) as f32)) });
+        i = j;
+    }
+    out
+}
+
+/// Stable LSD radix sort of `items` by the low `bits` bits of their key (the bucket fixed the
+/// rest), 11 bits per pass; passes where every key has the same digit are skipped.
+fn radix_sort_low(items: &mut [(u64, u64)], tmp: &mut Vec<(u64, u64)>, bits: u32) {
+    if items.len() <= 64 {
+        items.sort_by_key(|x| x.0); // stable
+        return;
+    }
+    const D: u32 = 11;
+    tmp.clear();
+    tmp.resize(items.len(), (0, 0));
+    let mut in_items = true; // where the current data lives
+    let mut sh = 0;
+    while sh < bits {
+        let mask = (1u64 << D.min(bits - sh)) - 1;
+        let (src, dst): (&[(u64, u64)], &mut [(u64, u64)]) = if in_items { (items, tmp) } else { (tmp, items) };
+        let mut count = vec![0usize; 1 << D];
+        for x in src {
+            count[((x.0 >> sh) & mask) as usize] += 1;
+        }
+        sh += D;
+        if count.iter().any(|&c| c == src.len()) {
+            continue;
+        }
+        let mut pos = 0;
+        for c in count.iter_mut() {
+            let n = *c;
+            *c = pos;
+            pos += n;
+        }
+        for x in src {
+            let d = ((x.0 >> (sh - D)) & mask) as usize;
+            dst[count[d]] = *x;
+            count[d] += 1;
+        }
+        in_items = !in_items;
+    }
+    if !in_items {
+        items.copy_from_slice(tmp);
+    }
+}
+
+/// A material with owned texture references (a `Prepared` outlives the scene borrow only
+/// through the images).
+struct MatOwned<'a> {
+    base: [f32; 4],
+    tex: Option<(&'a Image, TextureRef)>,
+    alpha_tex: Option<(&'a Image, TextureRef)>,
+    alpha: AlphaMode,
+}
+
+impl MatOwned<'_> {
+    fn view(&self) -> Mat<'_> {
+        Mat {
+            base: self.base,
+            tex: self.tex.as_ref().map(|(i, t)| (*i, t)),
+            alpha_tex: self.alpha_tex.as_ref().map(|(i, t)| (*i, t)),
+            alpha: self.alpha,
+        }
+    }
+}
+
+/// A primitive ready for sampling: vertex positions in grid units of the unit's frame,
+/// normals transformed and normalised (or computed per corner).
+struct Prepared<'a> {
+    prim: &'a Primitive,
+    mat: MatOwned<'a>,
+    pos: Vec<[f64; 3]>,
+    nrm: Option<Vec<[f32; 3]>>,
+    computed: Option<Vec<[[f32; 3]; 3]>>,
+    bake: Option<Mat4>,
+    flip: bool,
+}
+
+impl<'a> Prepared<'a> {
+    fn new(prim: &'a Primitive, u: &Unit, mat: MatOwned<'a>, crease_deg: f32) -> Self {
+        let inv_h = 1.0 / u.h;
+        let pos: Vec<[f64; 3]> = prim
+            .positions
+            .iter()
+            .map(|&p| {
+                let w = match &u.bake {
+                    Some(m) => transform_point(m, p),
+                    None => p.map(f64::from),
+                };
+                w.map(|x| x * inv_h)
+            })
+            .collect();
+        let flip = u.bake.as_ref().is_some_and(|m| determinant(m) < 0.0);
+        let nrm: Option<Vec<[f32; 3]>> = prim.normals.as_ref().map(|ns| {
+            ns.iter()
+                .map(|&n| {
+                    let w = match &u.bake {
+                        Some(m) => transform_normal(m, n),
+                        None => n.map(f64::from),
+                    };
+                    let l = norm(w);
+                    if l > 0.0 && l.is_finite() {
+                        w.map(|x| (x / l) as f32)
+                    } else {
+                        [0.0; 3]
+                    }
+                })
+                .collect()
+        });
+        let computed = if nrm.is_none() { Some(corner_normals(prim, crease_deg)) } else { None };
+        Prepared { prim, mat, pos, nrm, computed, bake: u.bake, flip }
+    }
+
+    /// Triangle `ti` with its attributes.
+    fn tri(&self, ti: usize) -> Tri {
+        let prim = self.prim;
+        let t = prim.triangles[ti];
+        // A mirroring bake flips the winding; swap to keep the front side.
+        let idx = if self.flip { [t[0], t[2], t[1]] } else { t };
+        let vi = idx.map(|i| i as usize);
+        let n = match (&self.nrm, &self.computed) {
+            (Some(n), _) => vi.map(|i| n[i]),
+            (None, Some(c)) => {
+                let c = c[ti];
+                let cn = if self.flip { [c[0], c[2], c[1]] } else { c };
+                match &self.bake {
+                    Some(m) => cn.map(|n| {
+                        let w = transform_normal(m, n);
+                        let l = norm(w);
+                        if l > 0.0 { w.map(|x| (x / l) as f32) } else { [0.0; 3] }
+                    }),
+                    None => cn,
+                }
+            }
+            _ => [[0.0; 3]; 3],
+        };
+        let uvset = self.mat.tex.as_ref().and_then(|t| prim.uvs.get(t.1.tex_coord as usize));
+        let uvset2 = self.mat.alpha_tex.as_ref().and_then(|t| prim.uvs.get(t.1.tex_coord as usize));
+        Tri {
+            p: vi.map(|i| self.pos[i]),
+            n,
+            c: vi.map(|i| prim.colors.as_ref().map_or([1.0; 4], |c| c[i])),
+            uv: vi.map(|i| uvset.map_or([0.0; 2], |s| s[i])),
+            uv2: vi.map(|i| uvset2.map_or([0.0; 2], |s| s[i])),
+        }
+    }
 }
 
 /// Shades a point of a triangle given barycentric weights; `None` = dropped by alpha.
@@ -648,21 +916,6 @@ fn shade(t: &Tri, w: [f64; 3], mat: &Mat) -> (Option<[f32; 4]>, [f32; 3]) {
     (keep.then_some(c), n)
 }
 
-/// Barycentric coordinates of `p` (projected on axes a, b).
-fn bary(t: &Tri, a: usize, b: usize, p: [f64; 3]) -> [f64; 3] {
-    let [p0, p1, p2] = t.p;
-    let d = (p1[a] - p0[a]) * (p2[b] - p0[b]) - (p2[a] - p0[a]) * (p1[b] - p0[b]);
-    if d == 0.0 {
-        return [1.0 / 3.0; 3];
-    }
-    let w1 = ((p[a] - p0[a]) * (p2[b] - p0[b]) - (p2[a] - p0[a]) * (p[b] - p0[b])) / d;
-    let w2 = ((p1[a] - p0[a]) * (p[b] - p0[b]) - (p[a] - p0[a]) * (p1[b] - p0[b])) / d;
-    // Clamp: centroids lie inside, rounding may put them a hair outside.
-    let w = [(1.0 - w1 - w2).clamp(0.0, 1.0), w1.clamp(0.0, 1.0), w2.clamp(0.0, 1.0)];
-    let s = w[0] + w[1] + w[2];
-    w.map(|x| x / s)
-}
-
 fn face_axes(t: &Tri) -> ([f64; 3], usize, usize, usize) {
     let fnrm = cross(sub(t.p[1], t.p[0]), sub(t.p[2], t.p[0]));
     let ax = fnrm.map(f64::abs);
@@ -670,7 +923,8 @@ fn face_axes(t: &Tri) -> ([f64; 3], usize, usize, usize) {
     (fnrm, d, (d + 1) % 3, (d + 2) % 3)
 }
 
-fn push_rec(out: &mut Vec<Rec>, key: [i64; 3], area: f64, col: [f32; 4], n: [f32; 3], fnrm: [f64; 3]) {
+#[inline]
+fn push_rec(out: &mut Vec<Rec>, key: u64, area: f64, col: [f32; 4], n: [f32; 3], fnrm: [f64; 3]) {
     let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
     let normal = if l > 1e-12 {
         n.map(|x| x / l)
@@ -678,55 +932,134 @@ fn push_rec(out: &mut Vec<Rec>, key: [i64; 3], area: f64, col: [f32; 4], n: [f32
         let fl = norm(fnrm);
         fnrm.map(|x| (x / fl) as f32)
     };
-    out.push(Rec { key: key.map(|k| k.clamp(i32::MIN as i64, i32::MAX as i64) as i32), area: area as f32, normal, color: col });
+    out.push(Rec { key, area: area as f32, normal, color: col });
 }
 
 /// Conservative voxelization of one triangle; returns the number of alpha-dropped samples.
-fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, out: &mut Vec<Rec>) -> u64 {
+///
+/// Works in the projection plane (axes a, b; depth d is a linear function of them): the
+/// triangle is clipped to each grid strip, then to each column of the strip, and the depth
+/// range of the piece gives the voxels it crosses. Columns entirely inside the triangle —
+/// most of them for triangles larger than a voxel — skip clipping: their piece is the unit
+/// square. Only pieces crossing a depth boundary are split by depth lines.
+///
+/// Only voxels whose x index lies in `xr` (inclusive) are emitted (the caller's slab).
+fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i64, i64), out: &mut Vec<Rec>) -> u64 {
     let (fnrm, d, a, b) = face_axes(t);
     let tri_area_grid = 0.5 * norm(fnrm);
+    // Projected area → surface area; depth = d0 + ga·x + gb·y.
+    let ascale = norm(fnrm) / fnrm[d].abs();
+    let (ga, gb) = (-fnrm[a] / fnrm[d], -fnrm[b] / fnrm[d]);
+    let d0 = t.p[0][d] - ga * t.p[0][a] - gb * t.p[0][b];
+    let depth = |p: &[f64; 2]| d0 + ga * p[0] + gb * p[1];
+    let q = t.p.map(|p| [p[a], p[b]]);
+    // Edge functions e(x, y) = A x + B y + C ≥ 0 inside (orientation fixed by the sign).
+    let orient = if (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]) >= 0.0 { 1.0 } else { -1.0 };
+    let edges: [[f64; 3]; 3] = std::array::from_fn(|i| {
+        let (p0, p1) = (q[i], q[(i + 1) % 3]);
+        let (ea, eb) = (-(p1[1] - p0[1]) * orient, (p1[0] - p0[0]) * orient);
+        [ea, eb, -(ea * p0[0] + eb * p0[1])]
+    });
+    let inv_det = {
+        let det = (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]);
+        if det != 0.0 { 1.0 / det } else { 0.0 }
+    };
+    let bary2 = |p: [f64; 2]| -> [f64; 3] {
+        if inv_det == 0.0 {
+            return [1.0 / 3.0; 3];
+        }
+        let w1 = ((p[0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (p[1] - q[0][1])) * inv_det;
+        let w2 = ((q[1][0] - q[0][0]) * (p[1] - q[0][1]) - (p[0] - q[0][0]) * (q[1][1] - q[0][1])) * inv_det;
+        // Clamp: centroids lie inside, rounding may put them a hair outside.
+        let w = [(1.0 - w1 - w2).clamp(0.0, 1.0), w1.clamp(0.0, 1.0), w2.clamp(0.0, 1.0)];
+        let s = w[0] + w[1] + w[2];
+        w.map(|x| x / s)
+    };
     let start = out.len();
     let mut dropped = 0;
-    let tri = Poly { v: { let mut v = [[0.0; 3]; MAXV]; v[..3].copy_from_slice(&t.p); v }, n: 3 };
-    let lo = |ax: usize| t.p.iter().map(|p| p[ax]).fold(f64::INFINITY, f64::min).floor() as i64;
-    let hi = |ax: usize| t.p.iter().map(|p| p[ax]).fold(f64::NEG_INFINITY, f64::max).floor() as i64;
-    for ia in lo(a)..=hi(a) {
-        let strip = tri.clip(a, ia as f64, ia as f64 + 1.0);
+    let mut emit = |out: &mut Vec<Rec>, ia: i64, ib: i64, k: i64, area2: f64, cen: [f64; 2]| {
+        let (c, n) = shade(t, bary2(cen), mat);
+        let mut key = [0i64; 3];
+        key[a] = ia;
+        key[b] = ib;
+        key[d] = k;
+        match c {
+            Some(c) => push_rec(out, kp.pack(key), area2 * ascale, c, n, fnrm),
+            None => dropped += 1,
+        }
+    };
+    let mut tri = Poly2 { v: [[0.0; 2]; MAXV], n: 3 };
+    tri.v[..3].copy_from_slice(&q);
+    let mut lo_a = q.iter().map(|p| p[0]).fold(f64::INFINITY, f64::min).floor() as i64;
+    let mut hi_a = q.iter().map(|p| p[0]).fold(f64::NEG_INFINITY, f64::max).floor() as i64;
+    if a == 0 {
+        (lo_a, hi_a) = (lo_a.max(xr.0), hi_a.min(xr.1));
+    }
+    let half = 0.5 * (ga.abs() + gb.abs());
+    const EPS: f64 = 1e-9;
+    for ia in lo_a..=hi_a {
+        let (x0, x1) = (ia as f64, ia as f64 + 1.0);
+        let strip = tri.clip_axis(0, x0, x1);
         if strip.n < 3 {
             continue;
         }
-        let blo = strip.v[..strip.n].iter().map(|p| p[b]).fold(f64::INFINITY, f64::min).floor() as i64;
-        let bhi = strip.v[..strip.n].iter().map(|p| p[b]).fold(f64::NEG_INFINITY, f64::max).floor() as i64;
-        for ib in blo..=bhi {
-            let col = strip.clip(b, ib as f64, ib as f64 + 1.0);
-            if col.n < 3 {
-                continue;
+        let (bmin, bmax) = strip.range(|p| p[1]);
+        // Columns [ib, ib+1] of this strip lying inside every edge's half-plane.
+        let (mut in_lo, mut in_hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        for e in &edges {
+            let amin = (e[0] * x0).min(e[0] * x1) + e[2];
+            if e[1] > 0.0 {
+                in_lo = in_lo.max(-amin / e[1]);
+            } else if e[1] < 0.0 {
+                in_hi = in_hi.min(-amin / e[1]);
+            } else if amin < 0.0 {
+                in_hi = f64::NEG_INFINITY;
             }
-            let dmin = col.v[..col.n].iter().map(|p| p[d]).fold(f64::INFINITY, f64::min);
-            let dmax = col.v[..col.n].iter().map(|p| p[d]).fold(f64::NEG_INFINITY, f64::max);
+        }
+        let first_in = (in_lo + EPS).ceil();
+        let last_in = (in_hi - EPS).floor() - 1.0; // last ib with ib + 1 ≤ in_hi
+        let (mut blo, mut bhi) = (bmin.floor() as i64, bmax.floor() as i64);
+        if b == 0 {
+            (blo, bhi) = (blo.max(xr.0), bhi.min(xr.1));
+        }
+        for ib in blo..=bhi {
+            let y = ib as f64;
+            let interior = y >= first_in && y <= last_in;
+            let (piece, area2, cen, dmin, dmax) = if interior {
+                let cen = [x0 + 0.5, y + 0.5];
+                let dc = depth(&cen);
+                (None, 1.0, cen, dc - half, dc + half)
+            } else {
+                let col = strip.clip_axis(1, y, y + 1.0);
+                if col.n < 3 {
+                    continue;
+                }
+                let (ar, cen) = col.area_centroid();
+                let (dmin, dmax) = col.range(depth);
+                (Some(col), ar, cen, dmin, dmax)
+            };
             let kmin = dmin.floor() as i64;
             let mut kmax = dmax.floor() as i64;
             if kmax > kmin && dmax == kmax as f64 {
                 kmax -= 1; // touches the next voxel's face only
             }
+            if kmin == kmax {
+                if d != 0 || (xr.0..=xr.1).contains(&kmin) {
+                    emit(out, ia, ib, kmin, area2, cen);
+                }
+                continue;
+            }
+            let (kmin, kmax) = if d == 0 { (kmin.max(xr.0), kmax.min(xr.1)) } else { (kmin, kmax) };
+            let poly = piece.unwrap_or_else(|| Poly2::square(x0, y));
             for k in kmin..=kmax {
-                let piece = if kmin == kmax { col } else { col.clip(d, k as f64, k as f64 + 1.0) };
-                if piece.n < 3 {
+                let kf = k as f64;
+                let sub = poly.clip_half(|p| depth(p) - kf, None).clip_half(|p| kf + 1.0 - depth(p), None);
+                if sub.n < 3 {
                     continue;
                 }
-                let (area, cen) = piece.area_centroid();
-                if area <= 0.0 && kmin != kmax {
-                    continue;
-                }
-                let w = bary(t, a, b, cen);
-                let (c, n) = shade(t, w, mat);
-                let mut key = [0i64; 3];
-                key[a] = ia;
-                key[b] = ib;
-                key[d] = k;
-                match c {
-                    Some(c) => push_rec(out, key, area, c, n, fnrm),
-                    None => dropped += 1,
+                let (ar, cen) = sub.area_centroid();
+                if ar > 0.0 {
+                    emit(out, ia, ib, k, ar, cen);
                 }
             }
         }
@@ -742,7 +1075,7 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, out: &mut Vec<Rec>) -
 }
 
 /// The thesis' scan-line: one sample per column centre inside the projected triangle.
-fn scanline_triangle(t: &Tri, mat: &Mat, out: &mut Vec<Rec>) -> u64 {
+fn scanline_triangle(t: &Tri, mat: &Mat, kp: &KeyPack, out: &mut Vec<Rec>) -> u64 {
     let (fnrm, d, a, b) = face_axes(t);
     let start = out.len();
     let mut dropped = 0;
@@ -759,7 +1092,7 @@ fn scanline_triangle(t: &Tri, mat: &Mat, out: &mut Vec<Rec>) -> u64 {
         key[b] = ib;
         key[d] = depth(w).floor() as i64;
         match c {
-            Some(c) => push_rec(out, key, 0.0, c, n, fnrm),
+            Some(c) => push_rec(out, kp.pack(key), 0.0, c, n, fnrm),
             None => *dropped += 1,
         }
     };
@@ -859,51 +1192,6 @@ fn vertex_patches(
         });
     }
     (out, dropped)
-}
-
-fn to_nodes(recs: &[Rec], h: f64, merge: bool) -> Vec<Node> {
-    let r = (0.5 * 3f64.sqrt() * h) as f32;
-    let center = |k: [i32; 3]| k.map(|v| ((f64::from(v) + 0.5) * h) as f32);
-    let h2 = (h * h) as f32;
-    if !merge {
-        return recs
-            .iter()
-            .map(|x| Node { center: center(x.key), radius: r, normal: x.normal, cone: 0.0, area: x.area * h2, color: srgb8(x.color) })
-            .collect();
-    }
-    let mut out = Vec::new();
-    let mut i = 0;
-    while i < recs.len() {
-        let key = recs[i].key;
-        let mut j = i;
-        let (mut a, mut n, mut c) = (0.0f64, [0.0f64; 3], [0.0f64; 4]);
-        while j < recs.len() && recs[j].key == key {
-            let x = &recs[j];
-            // Zero-area pieces (edge slivers) still count a little so colour is defined.
-            let w = f64::from(x.area).max(1e-12);
-            a += f64::from(x.area);
-            for k in 0..3 {
-                n[k] += w * f64::from(x.normal[k]);
-            }
-            for k in 0..4 {
-                c[k] += w * f64::from(x.color[k]);
-            }
-            j += 1;
-        }
-        let wsum: f64 = recs[i..j].iter().map(|x| f64::from(x.area).max(1e-12)).sum();
-        let l = norm(n);
-        let normal = if l > 1e-9 * wsum { n.map(|x| (x / l) as f32) } else { recs[i].normal };
-        out.push(Node {
-            center: center(key),
-            radius: r,
-            normal,
-            cone: 0.0,
-            area: (a * h * h) as f32,
-            color: srgb8(c.map(|x| (x / wsum) as f32)),
-        });
-        i = j;
-    }
-    out
 }
 
 fn srgb8(c: [f32; 4]) -> [u8; 4] {
@@ -1061,4 +1349,39 @@ pub fn coverage(spheres: &[([f64; 3], f64)], points: &[[f64; 3]]) -> (f64, Vec<u
         })
         .collect();
     (1.0 - missed.len() as f64 / points.len() as f64, missed)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn key_pack_round_trips_and_orders_x_major() {
+        let kp = KeyPack::new([-5.5, 0.0, 1000.2], [300.0, 2.0, 1001.0]).unwrap();
+        let pts = [[-6, 0, 999], [-6, 3, 1002], [0, 1, 1000], [301, -1, 1002], [17, 2, 1001]];
+        for p in pts {
+            assert_eq!(kp.unpack(kp.pack(p)), p);
+        }
+        let mut by_key = pts.to_vec();
+        by_key.sort_by_key(|p| kp.pack(*p));
+        let mut lex = pts.to_vec();
+        lex.sort();
+        assert_eq!(by_key, lex);
+        // Out-of-range coordinates clamp instead of spilling into another field.
+        assert_eq!(kp.unpack(kp.pack([i64::MAX, 0, 1000])), [301, 0, 1000]);
+        assert!(KeyPack::new([0.0; 3], [3e6; 3]).is_err(), "3 × 22 bits do not fit");
+    }
+
+    #[test]
+    fn radix_sort_is_a_stable_sort() {
+        let mut rng = SplitMix(3);
+        let mut tmp = Vec::new();
+        for (n, bits) in [(10, 5), (1000, 3), (5000, 40), (70_000, 23)] {
+            let mut v: Vec<(u64, u64)> = (0..n as u64).map(|i| (rng.next_u64() >> (64 - bits), i)).collect();
+            let mut want = v.clone();
+            want.sort_by_key(|x| x.0);
+            radix_sort_low(&mut v, &mut tmp, bits);
+            assert_eq!(v, want, "n {n}, bits {bits}");
+        }
+    }
 }
