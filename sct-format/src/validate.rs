@@ -858,66 +858,44 @@ impl<'o> Validator<'o> {
         }
     }
 
-    /// Deep check of one tree, level by level.
+    /// Deep check of one tree: every block decoded once, every child checked against its
+    /// decoded parent. Blocks are decoded as a wavefront over all levels (see [`Wavefront`]),
+    /// so besides one bit per node (to name failing paths) memory stays bounded by a few
+    /// blocks per level, whatever the tree's width.
     fn check_tree(&mut self, data: &[u8], idx: &TreeIndex, prefix: &str, label: &str) {
         if idx.header.node_count == 0 {
             return;
         }
-        let limits = self.opts.limits.clone();
         let root = idx.header.root;
-        let mut levels: Vec<LevelBits> = Vec::with_capacity(idx.levels.len());
-        let mut l0 = LevelBits::default();
-        l0.push(idx.header.root_internal == 1);
-        l0.finish();
-        levels.push(l0);
-        let mut pending: Vec<(usize, u64, CheckId, String)> = Vec::new();
+        let mut w = Wavefront::new(idx, &self.opts.limits);
+        w.bits[0].push(idx.header.root_internal == 1);
         let mut root_issues = Vec::new();
         check_node(&root, 0, &mut root_issues);
-        pending.extend(root_issues.into_iter().map(|(i, k, m)| (0, i, k, m)));
-        let mut parents: Vec<Node> = if idx.header.root_internal == 1 { vec![root] } else { Vec::new() };
-        self.report.nodes += 1;
-        for d in 1..idx.levels.len() {
-            let blocks = idx.level_blocks(d);
-            let results: Vec<Result<BlockOut, Problem>> = blocks
-                .clone()
-                .into_par_iter()
-                .map(|b| {
-                    let e = &idx.blocks[b];
-                    let lo = (e.first_node / 2) as usize;
-                    let ps = parents
-                        .get(lo..lo + e.node_count as usize / 2)
-                        .ok_or((CheckId::BlockDecode, format!("block {b} refers to parents that do not exist")))?;
-                    check_block(data, idx, b, ps, &limits)
-                })
-                .collect();
-            self.report.blocks += blocks.len() as u64;
-            let mut next = Vec::new();
-            let mut bits = LevelBits::default();
-            let mut failed = None;
-            for r in results {
-                match r {
-                    Ok(out) => {
-                        self.report.nodes += out.flags.len() as u64;
-                        out.flags.iter().for_each(|&f| bits.push(f));
-                        next.extend(out.internal_nodes);
-                        pending.extend(out.issues.into_iter().map(|(i, k, m)| (d, i, k, m)));
-                    }
-                    Err(p) => {
-                        failed = Some(p);
-                        break;
-                    }
+        w.pending.extend(root_issues.into_iter().map(|(i, k, m)| (0, i, k, m)));
+        if idx.header.root_internal == 1 {
+            w.fronts[0].queue.push_back(root);
+        }
+        w.nodes += 1;
+        // Deepest level first: it pulls its ancestors' blocks as it needs their nodes; what
+        // is left above afterwards are blocks of leaves only.
+        let mut failed = None;
+        'levels: for d in (1..idx.levels.len()).rev() {
+            while w.fronts[d].next_block < w.fronts[d].end_block {
+                if let Err(f) = w.advance(data, d) {
+                    failed = Some(f);
+                    break 'levels;
                 }
             }
-            if let Some((k, m)) = failed {
-                // Deeper levels need the failed block's nodes as parents: stop this tree.
-                self.issue(prefix, k, label, format!("level {d}: {m}; levels below are not checked"));
-                break;
-            }
-            bits.finish();
-            levels.push(bits);
-            parents = next;
         }
-        for (d, i, k, m) in pending {
+        self.report.nodes += w.nodes;
+        self.report.blocks += w.blocks;
+        if let Some((d, (k, m))) = failed {
+            // Deeper nodes need the failed block's nodes as parents: stop this tree.
+            self.issue(prefix, k, label, format!("level {d}: {m}; the rest of the tree is not checked"));
+        }
+        let mut levels = w.bits;
+        levels.iter_mut().for_each(LevelBits::finish);
+        for (d, i, k, m) in w.pending {
             let path = if i & PARENT_BIT != 0 {
                 let child = i & !PARENT_BIT;
                 match d.checked_sub(1).and_then(|pd| levels.get(pd).and_then(|l| l.select(child / 2)).map(|pi| (pd, pi))) {
@@ -929,6 +907,100 @@ impl<'o> Validator<'o> {
             };
             self.issue(path, k, label, m);
         }
+    }
+}
+
+/// The decoded internal nodes of one level that the next level has not consumed yet.
+#[derive(Default)]
+struct Front {
+    queue: std::collections::VecDeque<Node>,
+    /// Rank among the level's internal nodes of `queue[0]`.
+    first_rank: u64,
+    /// Next block of the level to decode, and the end of its blocks.
+    next_block: usize,
+    end_block: usize,
+}
+
+impl Front {
+    fn produced(&self) -> u64 {
+        self.first_rank + self.queue.len() as u64
+    }
+}
+
+/// Streaming deep check of one tree. Level `d`'s blocks are decoded in order, a batch at a
+/// time (in parallel), when level `d + 1` needs their internal nodes as parents; parents are
+/// dropped once consumed. Each level then holds at most about two batches of internal
+/// nodes, instead of whole levels (the old level-by-level pass held ~18 bytes per node of a
+/// 10 M-node tree).
+struct Wavefront<'a> {
+    idx: &'a TreeIndex,
+    limits: &'a Limits,
+    batch: usize,
+    fronts: Vec<Front>,
+    bits: Vec<LevelBits>,
+    pending: Vec<(usize, u64, CheckId, String)>,
+    nodes: u64,
+    blocks: u64,
+}
+
+impl<'a> Wavefront<'a> {
+    fn new(idx: &'a TreeIndex, limits: &'a Limits) -> Self {
+        let fronts = (0..idx.levels.len())
+            .map(|d| {
+                let r = idx.level_blocks(d);
+                Front { next_block: r.start, end_block: r.end, ..Default::default() }
+            })
+            .collect();
+        let bits = (0..idx.levels.len()).map(|_| LevelBits::default()).collect();
+        // Enough blocks per batch to keep every thread busy; the result does not depend on it.
+        let batch = (2 * rayon::current_num_threads()).clamp(2, 32);
+        Wavefront { idx, limits, batch, fronts, bits, pending: Vec::new(), nodes: 0, blocks: 0 }
+    }
+
+    /// Decodes and checks the next batch of level `d`'s blocks, first pulling the parents
+    /// they need from level `d - 1`.
+    fn advance(&mut self, data: &[u8], d: usize) -> Result<(), (usize, Problem)> {
+        let idx = self.idx;
+        let (b0, b1) = (self.fronts[d].next_block, (self.fronts[d].next_block + self.batch).min(self.fronts[d].end_block));
+        let Some(last) = idx.blocks[b0..b1].last() else {
+            return Err((d, (CheckId::BlockDecode, "the next level needs more parents than this level has".into())));
+        };
+        let need = (last.first_node + last.node_count as u64) / 2;
+        while self.fronts[d - 1].produced() < need {
+            if self.fronts[d - 1].next_block >= self.fronts[d - 1].end_block {
+                return Err((d, (CheckId::BlockDecode, format!("block {} refers to parents that do not exist", b1 - 1))));
+            }
+            self.advance(data, d - 1)?;
+        }
+        let parents = &mut self.fronts[d - 1];
+        let base = parents.first_rank;
+        let ps = parents.queue.make_contiguous();
+        let limits = self.limits;
+        let results: Vec<Result<BlockOut, Problem>> = (b0..b1)
+            .into_par_iter()
+            .map(|b| {
+                let e = &idx.blocks[b];
+                let lo = (e.first_node / 2).checked_sub(base).map(|x| x as usize);
+                let ps = lo
+                    .and_then(|lo| ps.get(lo..lo + e.node_count as usize / 2))
+                    .ok_or((CheckId::BlockDecode, format!("block {b} refers to parents that do not exist")))?;
+                check_block(data, idx, b, ps, limits)
+            })
+            .collect();
+        // Parents below `need` have been consumed by this level's blocks so far.
+        let consumed = (need - base).min(parents.queue.len() as u64) as usize;
+        parents.queue.drain(..consumed);
+        parents.first_rank += consumed as u64;
+        for r in results {
+            let out = r.map_err(|p| (d, p))?;
+            self.blocks += 1;
+            self.nodes += out.flags.len() as u64;
+            out.flags.iter().for_each(|&f| self.bits[d].push(f));
+            self.fronts[d].queue.extend(out.internal_nodes);
+            self.pending.extend(out.issues.into_iter().map(|(i, k, m)| (d, i, k, m)));
+        }
+        self.fronts[d].next_block = b1;
+        Ok(())
     }
 }
 
@@ -1002,6 +1074,22 @@ mod tests {
         assert!(got.contains(&("root/0".into(), "area-sum")), "{got:?}");
         assert!(got.contains(&("root/0/1".into(), "area-sum")), "{got:?}");
         assert_eq!(r.check_ids(), vec![CheckId::AreaSum]);
+    }
+
+    /// A deep leaf broken in an unbalanced tree of many 4-node blocks: the wavefront must
+    /// decode every block once and name the leaf's real path.
+    #[test]
+    fn wavefront_names_deep_paths_across_blocks() {
+        let mut t = build(300);
+        let leaves: Vec<usize> = t.leaves().collect();
+        let paths = leaf_paths(&t, "root");
+        let j = 217;
+        t.nodes_mut()[leaves[j]].center[0] += 100.0;
+        let r = validate_bytes(&bytes_of(t, Profile::Raw), &deep());
+        assert_eq!(r.nodes, 599);
+        let got: Vec<(String, &str)> = r.issues.iter().map(|i| (i.path.clone(), i.check.as_str())).collect();
+        assert_eq!(got, vec![(paths[j].clone(), "child-outside-parent")]);
+        assert!(paths[j].matches('/').count() >= 8, "{}", paths[j]);
     }
 
     #[test]
