@@ -15,6 +15,7 @@ use crate::camera::View;
 use crate::error::{Error, Result};
 use crate::raster::Splat;
 use crate::shade::{self, Shading};
+use crate::LodSize;
 
 /// One decoded block plus what refinement needs to find children.
 #[derive(Debug)]
@@ -197,6 +198,8 @@ pub(crate) struct LodParams {
     pub max_radius: f32,
     /// Internal splats are drawn with at most this multiple of their equal-area radius.
     pub area_cover: f32,
+    /// What the threshold is compared with.
+    pub lod_size: LodSize,
 }
 
 /// Counters of one render.
@@ -251,7 +254,21 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
         return Decision::Cull;
     }
     let mut s = view.projected_radius(c, r);
-    if s > p.pixel_error {
+    // Merged spheres are loose: an internal node's surface patch is usually much smaller
+    // than its sphere, and drawing the whole conservative circle thickens silhouettes. Its
+    // splat shrinks towards the disc of equal area, kept large enough (×AREA_COVER) that
+    // neighbouring discs still overlap. Leaves keep their covering radius.
+    let shrink = if !leaf && n.radius > 0.0 {
+        ((n.area / std::f32::consts::PI).sqrt() * p.area_cover / n.radius).min(1.0)
+    } else {
+        1.0
+    };
+    // With `LodSize::Patch` the threshold applies to that drawn splat rather than to the
+    // sphere (EQ 46): the cut stops a level or two higher, where the sphere is 2-4x the
+    // patch, for about a quarter of the nodes and blocks. Group leaves keep the sphere test:
+    // their "patch" is a whole child scene.
+    let size = if p.lod_size == LodSize::Patch && !group { s * shrink } else { s };
+    if size > p.pixel_error {
         if !leaf {
             return Decision::Refine;
         }
@@ -269,15 +286,7 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
     } else {
         st.internal_splats += 1;
     }
-    s = s.min(p.max_radius);
-    if !leaf && n.radius > 0.0 {
-        // Merged spheres are loose: an internal node's surface patch is usually much
-        // smaller than its sphere, and drawing the whole conservative circle thickens
-        // silhouettes. Shrink towards the disc of equal area, kept large enough (×AREA_COVER)
-        // that neighbouring discs still overlap. Leaves keep their covering radius.
-        let r_area = (n.area / std::f32::consts::PI).sqrt() * p.area_cover;
-        s *= (r_area / n.radius).min(1.0);
-    }
+    s = s.min(p.max_radius) * shrink;
     let mut color = n.color;
     if let Some(t) = pl.tint {
         color = sct_format::traverse::tint_color(color, t);

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
-use render_preview::{metrics, reference, sweep, synth, RenderOptions, Shading, SplatShape, UpAxis, ViewPreset};
+use render_preview::{metrics, reference, sweep, synth, LodSize, RenderOptions, Shading, SplatShape, UpAxis, ViewPreset};
 
 const EXAMPLES: &str = "\
 Examples:
@@ -67,7 +67,7 @@ struct RenderArgs {
     /// Vertical field of view in degrees.
     #[arg(long, default_value_t = 40.0)]
     fov: f64,
-    /// LOD threshold: largest projected splat radius in pixels (EQ 46).
+    /// LOD threshold: largest projected splat radius in pixels (see --lod-size).
     #[arg(long, default_value_t = 1.0)]
     pixel_error: f32,
     /// Lambert + ambient headlight, or the stored colour only.
@@ -76,6 +76,10 @@ struct RenderArgs {
     /// Splat shape.
     #[arg(long, value_enum, default_value_t = SplatShape::Ellipse)]
     splat: SplatShape,
+    /// What --pixel-error bounds: the drawn splat (patch: the node's equal-area disc) or
+    /// the node's bounding sphere (sphere: EQ 46, refines about 4x more nodes).
+    #[arg(long, value_enum, default_value_t = LodSize::Patch)]
+    lod_size: LodSize,
     /// Keep nodes whose normal cone faces away from the eye.
     #[arg(long)]
     no_backface_culling: bool,
@@ -104,6 +108,7 @@ impl RenderArgs {
             pixel_error: self.pixel_error,
             shading: self.shading,
             splat: self.splat,
+            lod_size: self.lod_size,
             backface_culling: !self.no_backface_culling,
             background: self.background,
             ..RenderOptions::default()
