@@ -130,19 +130,18 @@ pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mu
 pub(super) struct Codes {
     /// Position/radius state.
     pub state: u16,
-    /// Octahedral normal code.
-    pub normal: u16,
     /// Cone code.
     pub cone: u8,
     /// Colour codes (5/6/5/4 bits).
     pub color: [u8; 4],
 }
 
-/// The decoded node of one record's codes: shared by encoder and decoder, so the encoder
-/// returns exactly what a reader gets without decoding its output again.
+/// The decoded node of one record's codes (`axis` = `oct_decode(c.normal)`, which the encoder
+/// has at hand): shared by encoder and decoder, so the encoder returns exactly what a reader
+/// gets without decoding its output again.
 #[inline]
-fn record_node(t: &posrad::Tables, p: &Node, c: Codes, alpha: bool, area: f32) -> Option<Node> {
-    let Codes { state: s, normal: n, cone, color: q } = c;
+fn record_node(t: &posrad::Tables, p: &Node, c: Codes, axis: [f32; 3], alpha: bool, area: f32) -> Option<Node> {
+    let Codes { state: s, cone, color: q } = c;
     let (center, radius) = posrad::decode_state(t, s as usize, p.center, p.radius)?;
     let color = [
         color::dequant(q[0], 5),
@@ -150,7 +149,7 @@ fn record_node(t: &posrad::Tables, p: &Node, c: Codes, alpha: bool, area: f32) -
         color::dequant(q[2], 5),
         if alpha { color::dequant(q[3], 4) } else { 255 },
     ];
-    Some(Node { center, radius, normal: normal::oct_decode(n), cone: normal::cone_decode(cone), area, color })
+    Some(Node { center, radius, normal: axis, cone: normal::cone_decode(cone), area, color })
 }
 
 fn encode_into(params: CodecParams, parents: &[Node], children: &[Node], out: &mut Vec<u8>, dec: &mut Vec<Node>) -> Result<()> {
@@ -163,7 +162,7 @@ fn encode_into(params: CodecParams, parents: &[Node], children: &[Node], out: &m
             let i = 2 * k + h;
             check_child(c, i, params)?;
             let s = sphere_state(p, c, i)?;
-            let (n, cone) = normal::encode_cone(c.normal, c.cone);
+            let (n, axis, cone) = normal::encode_cone_decoded(c.normal, c.cone);
             let q = color_codes(c.color);
             out.extend_from_slice(&s.to_le_bytes());
             out.extend_from_slice(&n.to_le_bytes());
@@ -175,7 +174,7 @@ fn encode_into(params: CodecParams, parents: &[Node], children: &[Node], out: &m
             }
             out.extend_from_slice(&c.area.to_le_bytes());
             dec.push(
-                record_node(t, p, Codes { state: s, normal: n, cone, color: q }, params.alpha, c.area)
+                record_node(t, p, Codes { state: s, cone, color: q }, axis, params.alpha, c.area)
                     .ok_or_else(|| Error::Misuse(format!("canopy encoder: state {s} of child {i} is not decodable (bug)")))?,
             );
         }
@@ -214,7 +213,7 @@ pub fn decode(params: CodecParams, parents: &[Node], bytes: &[u8], offset: u64, 
             return Err(Error::malformed(at + a as u64, format!("canopy node: area {area} is not a finite non-negative number")));
         }
         let q = [(rgb >> 11) as u8, (rgb >> 5 & 0x3f) as u8, (rgb & 0x1f) as u8, if params.alpha { rec[7] } else { 0 }];
-        let node = record_node(t, p, Codes { state: s, normal: u16_at(2), cone: rec[4], color: q }, params.alpha, area).ok_or_else(|| {
+        let node = record_node(t, p, Codes { state: s, cone: rec[4], color: q }, normal::oct_decode(u16_at(2)), params.alpha, area).ok_or_else(|| {
             Error::malformed(at, format!("canopy node: position/radius state {s} ≥ {}", posrad::STATE_COUNT))
         })?;
         out.push(node);

@@ -112,7 +112,7 @@ fn pred_color_b(p: &Node, area_a: f32, area_b: f32, ca: [u8; 4], ch: usize) -> [
     for i in 0..ch {
         let v = (ap * p.color[i] as f64 - aa * ca[i] as f64) / ab;
         // NaN (hostile parent area) clamps to 0 via `as`; no panic.
-        out[i] = v.round().clamp(0.0, 255.0) as u8;
+        out[i] = super::rounding::round_byte_f64(v);
     }
     out
 }
@@ -140,17 +140,18 @@ fn payload_len(params: CodecParams, n: usize) -> Option<usize> {
     m.checked_mul(5 + channels(params))?.checked_add(n.checked_mul(2)?)
 }
 
-/// The decoded child with codes `c` (`ch` colour channels) and decoded area `area`: the one definition the
+/// The decoded child with codes `c` (`ch` colour channels), `axis = oct_decode(c.normal)` and
+/// decoded area `area`: the one definition the
 /// encoder (to return what a reader gets) and the decoder share, so they agree bit for bit.
 #[inline]
-fn child_node(t: &posrad::Tables, p: &Node, c: Codes, ch: usize, area: f32) -> Option<Node> {
-    let Codes { state: s, normal: nc, cone, color: q } = c;
+fn child_node(t: &posrad::Tables, p: &Node, c: Codes, axis: [f32; 3], ch: usize, area: f32) -> Option<Node> {
+    let Codes { state: s, cone, color: q } = c;
     let (center, radius) = posrad::decode_state(t, s as usize, p.center, p.radius)?;
     let mut color = [255u8; 4];
     for j in 0..ch {
         color[j] = color::dequant(q[j], color::BITS[j]);
     }
-    Some(Node { center, radius, normal: normal::oct_decode(nc), cone: normal::cone_decode(cone), area, color })
+    Some(Node { center, radius, normal: axis, cone: normal::cone_decode(cone), area, color })
 }
 
 /// Lengths of the payload's streams for `m` children, in order (see the table above).
@@ -188,7 +189,7 @@ pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mu
             check_child(b, 2 * k + 1, params)?;
             let sum = a.area as f64 + b.area as f64;
             let code =
-                if sum > 0.0 { (a.area as f64 / sum * AREA_ONE as f64).round().clamp(0.0, AREA_ONE as f64) as u16 } else { AREA_ONE / 2 };
+                if sum > 0.0 { super::rounding::round_f64(a.area as f64 / sum * AREA_ONE as f64).clamp(0.0, AREA_ONE as f64) as u16 } else { AREA_ONE / 2 };
             area_bytes[k] = code as u8;
             area_bytes[n + k] = (code >> 8) as u8;
             let (area_a, area_b) = areas(p, code);
@@ -198,7 +199,7 @@ pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mu
                 let s = sphere_state(p, c, i)?;
                 states[i] = s as u8;
                 states[m + i] = (s >> 8) as u8;
-                let (nc, cone) = normal::encode_cone(c.normal, c.cone);
+                let (nc, axis, cone) = normal::encode_cone_decoded(c.normal, c.cone);
                 let (pred, pc) = match &dec_a {
                     None => (pred_normal_a(p), quant4(p.color)),
                     Some(da) => (pred_normal_b(p, da.normal), quant4(pred_color_b(p, area_a, area_b, da.color, ch))),
@@ -210,7 +211,7 @@ pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mu
                 for j in 0..ch {
                     cols[j * m + i] = zz(q[j], pc[j], color::BITS[j]);
                 }
-                let node = child_node(t, p, Codes { state: s, normal: nc, cone, color: q }, ch, if h == 0 { area_a } else { area_b })
+                let node = child_node(t, p, Codes { state: s, cone, color: q }, axis, ch, if h == 0 { area_a } else { area_b })
                     .ok_or_else(|| Error::Misuse(format!("default encoder: state {s} of child {i} is not decodable (bug)")))?;
                 dec.push(node);
                 dec_a = Some(node);
@@ -268,7 +269,8 @@ pub fn decode(params: CodecParams, parents: &[Node], bytes: &[u8], offset: u64, 
                     Error::malformed(col_off + (j * m + i) as u64, format!("default block: colour residual {} out of range", cols[j * m + i]))
                 })?;
             }
-            let node = child_node(t, p, Codes { state: s, normal: u as u16 | (v as u16) << 8, cone: cones[i], color: q }, ch, if h == 0 { area_a } else { area_b })
+            let nc = u as u16 | (v as u16) << 8;
+            let node = child_node(t, p, Codes { state: s, cone: cones[i], color: q }, normal::oct_decode(nc), ch, if h == 0 { area_a } else { area_b })
                 .ok_or_else(|| {
                     Error::malformed(offset + i as u64, format!("default block: position/radius state {s} ≥ {}", posrad::STATE_COUNT))
                 })?;

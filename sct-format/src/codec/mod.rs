@@ -11,6 +11,7 @@ pub mod default;
 mod normal;
 mod posrad;
 pub mod raw;
+mod rounding;
 
 use crate::error::{Error, Result};
 use crate::node::Node;

@@ -62,7 +62,7 @@ fn oct_project(n: [f32; 3]) -> [f32; 2] {
 #[inline]
 pub fn oct_encode_fast(n: [f32; 3]) -> u16 {
     let p = oct_project(n);
-    let c = |v: f32| v.round().clamp(0.0, 255.0) as u16;
+    let c = |v: f32| super::rounding::round_byte_f32(v) as u16;
     c(p[0]) | c(p[1]) << 8
 }
 
@@ -82,16 +82,21 @@ pub fn usable(n: [f32; 3]) -> bool {
 
 /// Precise octahedral code of `n` (finite, non-zero): of the four codes around the projection,
 /// the one whose decoded vector is closest in angle.
-///
-/// Compared by the cosine (f64 dot product with the normalised input) rather than the atan2
-/// angle: the same order up to ties within ~1e-16, at a fraction of the cost (this runs once
-/// per encoded node).
 pub fn oct_encode(n: [f32; 3]) -> u16 {
+    oct_encode_decoded(n).0
+}
+
+/// [`oct_encode`] and the code's decoded vector (`oct_decode` of it, computed anyway).
+///
+/// Candidates are ranked by the cosine (f64 dot product with the normalised input) rather
+/// than the atan2 angle: the same order up to ties within ~1e-16, at a fraction of the cost
+/// (this runs once per encoded node).
+pub fn oct_encode_decoded(n: [f32; 3]) -> (u16, [f32; 3]) {
     let p = oct_project(n);
     let l = ((n[0] as f64).powi(2) + (n[1] as f64).powi(2) + (n[2] as f64).powi(2)).sqrt();
     let m = [n[0] as f64 / l, n[1] as f64 / l, n[2] as f64 / l];
-    let (fu, fv) = (p[0].floor(), p[1].floor());
-    let mut best = (f64::NEG_INFINITY, 0u16);
+    let (fu, fv) = (super::rounding::floor_f32(p[0]), super::rounding::floor_f32(p[1]));
+    let mut best = (f64::NEG_INFINITY, 0u16, [0f32; 3]);
     for du in 0..2 {
         for dv in 0..2 {
             let u = (fu + du as f32).clamp(0.0, 255.0) as u16;
@@ -100,11 +105,11 @@ pub fn oct_encode(n: [f32; 3]) -> u16 {
             let d = oct_decode(code);
             let c = m[0] * d[0] as f64 + m[1] * d[1] as f64 + m[2] * d[2] as f64;
             if c > best.0 {
-                best = (c, code);
+                best = (c, code, d);
             }
         }
     }
-    best.1
+    (best.1, best.2)
 }
 
 /// Decoded cone semi-angle of `code`.
@@ -134,23 +139,25 @@ pub fn cone_encode_up(need: f64) -> u8 {
     if need.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return 0;
     }
-    let mut c = ((need / CONE_STEP).ceil().clamp(0.0, 255.0) as usize).saturating_sub(1);
+    let mut c = (super::rounding::ceil_f64(need / CONE_STEP).clamp(0.0, 255.0) as usize).saturating_sub(1);
     while c < 255 && (t[c] as f64) < need {
         c += 1;
     }
     c as u8
 }
 
-/// Encodes a normal cone `(axis, semi-angle)`: returns the octahedral code and the cone code
-/// such that the decoded cone contains the original one (`angle(axis, decoded axis) + cone ≤
-/// decoded cone`, in f64). A zero or non-finite axis is stored as +z with cone π.
-pub fn encode_cone(axis: [f32; 3], cone: f32) -> (u16, u8) {
+/// Encodes a normal cone `(axis, semi-angle)`: returns the octahedral code, its decoded axis
+/// and the cone code such that the decoded cone contains the original one (`angle(axis,
+/// decoded axis) + cone ≤ decoded cone`, in f64). A zero or non-finite axis is stored as +z
+/// with cone π.
+pub fn encode_cone_decoded(axis: [f32; 3], cone: f32) -> (u16, [f32; 3], u8) {
     if !usable(axis) {
-        return (oct_encode([0.0, 0.0, 1.0]), 255);
+        let code = oct_encode([0.0, 0.0, 1.0]);
+        return (code, oct_decode(code), 255);
     }
-    let code = oct_encode(axis);
-    let err = angle(axis, oct_decode(code));
-    (code, cone_encode_up(cone.max(0.0) as f64 + err))
+    let (code, dec) = oct_encode_decoded(axis);
+    let err = angle(axis, dec);
+    (code, dec, cone_encode_up(cone.max(0.0) as f64 + err))
 }
 
 #[cfg(test)]

@@ -172,7 +172,7 @@ fn fit(t: &Tables, g: [i32; 3], pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) ->
     let dist = dist64(dc, cc);
     let need = dist + cr as f64;
     // First guess from the exact ratio; then walk up until the f32 radius really covers it.
-    let guess = (need / pr as f64 * QR as f64).ceil();
+    let guess = super::rounding::ceil_f64(need / pr as f64 * QR as f64);
     if !guess.is_finite() || guess > (Q_MAX + 1) as f64 {
         return None;
     }
@@ -198,7 +198,7 @@ fn fit(t: &Tables, g: [i32; 3], pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) ->
 pub fn encode_sphere(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Option<u16> {
     let t = tables();
     let v = |i: usize| (cc[i] as f64 - pc[i] as f64) / pr as f64 * QP as f64;
-    let g0 = [v(0).round(), v(1).round(), v(2).round()];
+    let g0 = [v(0), v(1), v(2)].map(super::rounding::round_f64);
     // Fast path: the nearest grid point overall minimises the error, hence the radius.
     if g0.iter().all(|a| a.abs() <= QP as f64) {
         let g = [g0[0] as i32, g0[1] as i32, g0[2] as i32];
