@@ -118,10 +118,9 @@ pub struct Seconds {
 /// largest radius, which gives a lower bound of the signed distance to any item below it.
 #[derive(Debug, Default)]
 pub struct SphereTree {
-    /// Items `[x, y, z, r]`, reordered so every node's items are contiguous.
-    items: Vec<[f64; 4]>,
-    /// Original index of each reordered item.
-    ids: Vec<u32>,
+    /// Items `[x, y, z, r]` with their original index, reordered so every node's items are
+    /// contiguous.
+    items: Vec<([f64; 4], u32)>,
     nodes: Vec<KdNode>,
 }
 
@@ -136,50 +135,83 @@ struct KdNode {
     left: u32,
 }
 
+/// Orders `items` so that each half (first `len / 2`, rest) is split again recursively
+/// along the longest extent of its centres: the implicit layout [`SphereTree::build`] indexes.
+/// The halves are disjoint, so large ones are ordered in parallel; ties break on the
+/// original index, so the order does not depend on the thread count.
+fn partition(items: &mut [([f64; 4], u32)]) {
+    if items.len() <= BUCKET {
+        return;
+    }
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for (it, _) in items.iter() {
+        for k in 0..3 {
+            lo[k] = lo[k].min(it[k]);
+            hi[k] = hi[k].max(it[k]);
+        }
+    }
+    let ext = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
+    let ax = if ext[0] >= ext[1] && ext[0] >= ext[2] { 0 } else if ext[1] >= ext[2] { 1 } else { 2 };
+    let m = items.len() / 2;
+    items.select_nth_unstable_by(m, |a, b| a.0[ax].total_cmp(&b.0[ax]).then(a.1.cmp(&b.1)));
+    let (a, b) = items.split_at_mut(m);
+    if a.len() > 16_384 {
+        rayon::join(|| partition(a), || partition(b));
+    } else {
+        partition(a);
+        partition(b);
+    }
+}
+
 impl SphereTree {
     /// Builds the tree over spheres `[x, y, z, r]` (at most `u32::MAX` of them).
     pub fn build(spheres: Vec<[f64; 4]>) -> SphereTree {
-        let mut t = SphereTree { ids: (0..spheres.len() as u32).collect(), items: spheres, nodes: Vec::new() };
-        if !t.items.is_empty() {
-            t.nodes.push(t.make_node(0, t.items.len()));
+        let mut items: Vec<([f64; 4], u32)> = spheres.into_iter().zip(0u32..).collect();
+        partition(&mut items);
+        let mut nodes = Vec::new();
+        if !items.is_empty() {
+            let empty = KdNode { lo: [0.0; 3], hi: [0.0; 3], rmax: 0.0, start: 0, end: items.len() as u32, left: 0 };
+            nodes.push(empty);
+            // Ranges breadth first (the split rule of `partition`), so children follow parents.
             let mut k = 0;
-            // Breadth-first split; children of node k are appended as a pair.
-            while k < t.nodes.len() {
-                let n = t.nodes[k];
-                let (s, e) = (n.start as usize, n.end as usize);
-                if e - s > BUCKET {
-                    let ext = [n.hi[0] - n.lo[0], n.hi[1] - n.lo[1], n.hi[2] - n.lo[2]];
-                    let ax = if ext[0] >= ext[1] && ext[0] >= ext[2] { 0 } else if ext[1] >= ext[2] { 1 } else { 2 };
-                    let m = (e - s) / 2;
-                    let mut perm: Vec<([f64; 4], u32)> = t.items[s..e].iter().copied().zip(t.ids[s..e].iter().copied()).collect();
-                    perm.select_nth_unstable_by(m, |a, b| a.0[ax].total_cmp(&b.0[ax]).then(a.1.cmp(&b.1)));
-                    for (j, (it, id)) in perm.into_iter().enumerate() {
-                        t.items[s + j] = it;
-                        t.ids[s + j] = id;
-                    }
-                    t.nodes[k].left = t.nodes.len() as u32;
-                    let (a, b) = (t.make_node(s, s + m), t.make_node(s + m, e));
-                    t.nodes.push(a);
-                    t.nodes.push(b);
+            while k < nodes.len() {
+                let (s, e) = (nodes[k].start, nodes[k].end);
+                if (e - s) as usize > BUCKET {
+                    let m = s + (e - s) / 2;
+                    nodes[k].left = nodes.len() as u32;
+                    nodes.push(KdNode { start: s, end: m, ..empty });
+                    nodes.push(KdNode { start: m, end: e, ..empty });
                 }
                 k += 1;
             }
-        }
-        t
-    }
-
-    fn make_node(&self, s: usize, e: usize) -> KdNode {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        let mut rmax = 0.0f64;
-        for it in &self.items[s..e] {
-            for k in 0..3 {
-                lo[k] = lo[k].min(it[k]);
-                hi[k] = hi[k].max(it[k]);
+            // Boxes bottom-up: buckets from their items, inner nodes from their children.
+            for k in (0..nodes.len()).rev() {
+                let n = nodes[k];
+                let (mut lo, mut hi, mut rmax) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3], 0.0f64);
+                let mut add = |l: [f64; 3], h: [f64; 3], r: f64| {
+                    for j in 0..3 {
+                        lo[j] = lo[j].min(l[j]);
+                        hi[j] = hi[j].max(h[j]);
+                    }
+                    rmax = rmax.max(r);
+                };
+                if n.left == 0 {
+                    for (it, _) in &items[n.start as usize..n.end as usize] {
+                        let c = [it[0], it[1], it[2]];
+                        add(c, c, it[3]);
+                    }
+                } else {
+                    for c in [nodes[n.left as usize], nodes[n.left as usize + 1]] {
+                        add(c.lo, c.hi, c.rmax);
+                    }
+                }
+                nodes[k].lo = lo;
+                nodes[k].hi = hi;
+                nodes[k].rmax = rmax;
             }
-            rmax = rmax.max(it[3]);
         }
-        KdNode { lo, hi, rmax, start: s as u32, end: e as u32, left: 0 }
+        SphereTree { items, nodes }
     }
 
     /// Number of items.
@@ -220,7 +252,8 @@ impl SphereTree {
             let n = &self.nodes[k as usize];
             if n.left == 0 {
                 for i in n.start as usize..n.end as usize {
-                    let d = eval(self.ids[i], &self.items[i], best);
+                    let (it, id) = &self.items[i];
+                    let d = eval(*id, it, best);
                     if d < best {
                         best = d;
                         arg = Some(i);
@@ -250,7 +283,7 @@ impl SphereTree {
     /// nearer than `best_in`.
     pub fn nearest(&self, p: [f64; 3], best_in: f64) -> Option<(f64, f64)> {
         let (d, i) = self.search(p, best_in, 0.0, |_, it, _| sphere_distance(p, it));
-        i.map(|i| (d, self.items[i][3]))
+        i.map(|i| (d, self.items[i].0[3]))
     }
 }
 
