@@ -10,7 +10,7 @@ use serde_json::json;
 use crate::error::Error;
 use crate::load::{load, LoadOptions};
 use crate::mesh::{Instance, LoadedScene};
-use crate::sample::{sample_points, sample_scene, AreaMode, Density, Method, SampleOptions, Sampled};
+use crate::sample::{sample_points, sample_scene, AreaMode, Density, Method, SampleOptions, Sampled, SampledMesh};
 
 /// Options of a run.
 #[derive(Clone, Debug)]
@@ -149,16 +149,26 @@ pub fn load_all(inputs: &[PathBuf], opts: &LoadOptions) -> Result<LoadedScene, E
 
 /// Assembles the samples file of a sampled scene (plus an optional point cloud).
 pub fn to_samples_file(sampled: &Sampled, points: Vec<sct_format::Node>, generator: Generator) -> SamplesFile {
+    into_samples_file(sampled.meshes.clone(), points, generator)
+}
+
+/// [`to_samples_file`] consuming the sampled meshes: the first mesh's samples are moved,
+/// not copied (a dense single-mesh run would otherwise hold its samples twice).
+pub fn into_samples_file(sampled: Vec<SampledMesh>, points: Vec<sct_format::Node>, generator: Generator) -> SamplesFile {
     let mut meshes = Vec::new();
     let mut instances = Vec::new();
     let mut affine_instances = Vec::new();
     let mut samples = Vec::new();
     // A mesh without samples (only points/lines, or fully transparent) has nothing to build
     // a tree from; it is left out (and reported by `sample_in_memory`).
-    for m in sampled.meshes.iter().filter(|m| !m.samples.is_empty()) {
+    for m in sampled.into_iter().filter(|m| !m.samples.is_empty()) {
         let idx = meshes.len() as u32;
         meshes.push(MeshEntry { name: m.name.clone(), first: samples.len() as u64, count: m.samples.len() as u64 });
-        samples.extend_from_slice(&m.samples);
+        if samples.is_empty() {
+            samples = m.samples;
+        } else {
+            samples.extend_from_slice(&m.samples);
+        }
         instances.extend(m.instances.iter().map(|t| SampleInstance { mesh: idx, transform: *t }));
         affine_instances.extend(m.affine.iter().map(|a| AffineInstance { mesh: idx, matrix: *a }));
     }
@@ -257,13 +267,15 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
         sources: sources.clone(),
     };
     let n_points = points.len() as u64;
-    let file = to_samples_file(&sampled, points, generator);
-    let st = &sampled.stats;
-    let rel = if st.mesh_area > 0.0 { (st.sample_area - st.mesh_area) / st.mesh_area } else { 0.0 };
     let mut warnings = scene.warnings.clone();
     for m in sampled.meshes.iter().filter(|m| m.samples.is_empty()) {
         warnings.push(format!("mesh {:?} produced no samples (no triangles, or every sample transparent) and is left out", m.name));
     }
+    let Sampled { meshes: sampled_meshes, voxel, stats } = sampled;
+    let sampled = crate::sample::Sampled { meshes: Vec::new(), voxel, stats };
+    let file = into_samples_file(sampled_meshes, points, generator);
+    let st = &sampled.stats;
+    let rel = if st.mesh_area > 0.0 { (st.sample_area - st.mesh_area) / st.mesh_area } else { 0.0 };
     if st.baked_non_similar > 0 {
         warnings.push(format!("{} placement(s) of reused meshes had a projective or singular transform and were baked into world space", st.baked_non_similar));
     }

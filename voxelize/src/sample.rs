@@ -990,8 +990,8 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i6
     };
     let mut tri = Poly2 { v: [[0.0; 2]; MAXV], n: 3 };
     tri.v[..3].copy_from_slice(&q);
-    let mut lo_a = q.iter().map(|p| p[0]).fold(f64::INFINITY, f64::min).floor() as i64;
-    let mut hi_a = q.iter().map(|p| p[0]).fold(f64::NEG_INFINITY, f64::max).floor() as i64;
+    let mut lo_a = floor_i64(q.iter().map(|p| p[0]).fold(f64::INFINITY, f64::min));
+    let mut hi_a = floor_i64(q.iter().map(|p| p[0]).fold(f64::NEG_INFINITY, f64::max));
     if a == 0 {
         (lo_a, hi_a) = (lo_a.max(xr.0), hi_a.min(xr.1));
     }
@@ -1018,7 +1018,7 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i6
         }
         let first_in = (in_lo + EPS).ceil();
         let last_in = (in_hi - EPS).floor() - 1.0; // last ib with ib + 1 ≤ in_hi
-        let (mut blo, mut bhi) = (bmin.floor() as i64, bmax.floor() as i64);
+        let (mut blo, mut bhi) = (floor_i64(bmin), floor_i64(bmax));
         if b == 0 {
             (blo, bhi) = (blo.max(xr.0), bhi.min(xr.1));
         }
@@ -1038,8 +1038,8 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i6
                 let (dmin, dmax) = col.range(depth);
                 (Some(col), ar, cen, dmin, dmax)
             };
-            let kmin = dmin.floor() as i64;
-            let mut kmax = dmax.floor() as i64;
+            let kmin = floor_i64(dmin);
+            let mut kmax = floor_i64(dmax);
             if kmax > kmin && dmax == kmax as f64 {
                 kmax -= 1; // touches the next voxel's face only
             }
