@@ -11,7 +11,7 @@ use build_tree::batch::{self, run_batch, BatchOptions, JobResult, Shard};
 use build_tree::convert::{convert_meshes, is_mesh_path, ConvertReport};
 use build_tree::pipeline::{run, run_samples, Config, Report, Upstream};
 use build_tree::{BuildOptions, Weld};
-use clap::Parser;
+use clap::{Args, CommandFactory, FromArgMatches, Parser};
 use sct_format::samples::SamplesFile;
 use sct_format::Profile;
 use voxelize::args::SamplingArgs;
@@ -81,6 +81,13 @@ struct Cli {
     sampling: SamplingArgs,
 }
 
+/// The first sampling flag given on the command line, if any.
+fn sampling_flag_given(m: &clap::ArgMatches) -> Option<String> {
+    let group = SamplingArgs::augment_args(clap::Command::new("sampling"));
+    let ids: Vec<String> = group.get_arguments().map(|a| a.get_id().to_string()).collect();
+    ids.into_iter().find(|id| m.value_source(id) == Some(clap::parser::ValueSource::CommandLine)).map(|id| id.replace('_', "-"))
+}
+
 /// What the positional inputs are.
 enum Mode {
     Samples(PathBuf),
@@ -127,7 +134,11 @@ fn print_build(rep: &Report) {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let matches = Cli::command().get_matches();
+    let cli = match Cli::from_arg_matches(&matches) {
+        Ok(c) => c,
+        Err(e) => e.exit(),
+    };
     let weld = match (cli.no_weld, cli.weld_tolerance) {
         (true, _) => Weld::Off,
         (false, Some(t)) if t.is_finite() && t >= 0.0 => Weld::Absolute(t),
@@ -144,6 +155,16 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    // Sampling flags on a samples-file input would be silently ignored: refuse them.
+    let not_meshes = match &mode {
+        Mode::Samples(p) => Some(format!("{} (a samples file)", p.display())),
+        Mode::SceneOnly => Some("a scene without inputs".to_string()),
+        _ => None,
+    };
+    if let (Some(what), Some(flag)) = (not_meshes, sampling_flag_given(&matches)) {
+        eprintln!("error: --{flag} applies to mesh inputs, not to {what}");
+        return ExitCode::from(2);
+    }
     let build = BuildOptions { weld, depth_slack: cli.depth_slack };
     if let Mode::Batch(dir) = &mode {
         if cli.scene.is_some() {

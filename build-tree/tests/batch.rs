@@ -180,6 +180,15 @@ fn inputs_are_checked() {
     // Mixing a mesh and a non-mesh is a usage error.
     let out = bin(&[m.as_os_str(), Path::new("x.samples").as_os_str(), "-o".as_ref(), o.as_os_str()]);
     assert_eq!(out.status.code(), Some(2));
+    // Sampling flags on a samples-file input would be ignored: refused instead.
+    let samples = dir.path().join("cube.samples");
+    let opts = voxelize::Options { inputs: vec![m.clone()], output: Some(samples.clone()), load: Default::default(), sample: Default::default() };
+    voxelize::run(&opts, &|_, _| {}).expect("voxelize");
+    let out = bin(&[samples.as_os_str(), "-o".as_ref(), o.as_os_str(), "--voxel-size".as_ref(), "0.1".as_ref()]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--voxel-size applies to mesh inputs"), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(bin(&[samples.as_os_str(), "-o".as_ref(), o.as_os_str()]).status.success());
+    std::fs::remove_file(&o).expect("rm");
     // A mesh that fails to load is bad input, named in the message.
     let bad = models().join("nasty/ply-truncated-ant-half/ant-half.ply");
     let out = bin(&[bad.as_os_str(), "-o".as_ref(), o.as_os_str()]);
