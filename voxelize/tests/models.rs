@@ -376,3 +376,109 @@ fn deterministic_across_thread_counts() {
     assert!(a.len() > 1000);
     assert!(a == b, "outputs differ between 1 and 2 threads");
 }
+
+/// Spot, strictly: with the vertex sampler every sample sits on a mesh vertex and carries
+/// that vertex's UV, so its colour must be the texture's colour there — computed here from
+/// an independent decode of the PNG with the OBJ convention (v = 0 is the bottom row) and
+/// bilinear filtering — within 8-bit quantization (±1 level) for every sample.
+#[test]
+fn spot_texture_strict() {
+    let (Some(path), Some(tex)) = (model("textured-obj/spot/spot_triangulated.obj"), model("textured-obj/spot/spot_texture.png")) else {
+        return;
+    };
+    let scene = load(&path, &LoadOptions { texture_override: Some(tex.clone()), ..Default::default() }).unwrap();
+    let opts = voxelize::SampleOptions {
+        method: voxelize::Method::Vertex,
+        density: voxelize::Density::VoxelSize(coarse(&scene, 100.0)),
+        ..Default::default()
+    };
+    let s = voxelize::sample::sample_scene(&scene, &opts, &|_, _| {}).unwrap();
+    let img = image::open(&tex).unwrap().into_rgba8();
+    let (w, h) = (img.width() as i64, img.height() as i64);
+    let lin = |c: u8| {
+        let c = f64::from(c) / 255.0;
+        if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+    };
+    let enc = |l: f64| {
+        let s = if l <= 0.0031308 { 12.92 * l } else { 1.055 * l.powf(1.0 / 2.4) - 0.055 };
+        (s.clamp(0.0, 1.0) * 255.0).round() as i32
+    };
+    // Raw OBJ texcoords by vertex position (positions shared across UV seams keep all).
+    let text = std::fs::read_to_string(&path).unwrap();
+    let (mut vs, mut vts) = (Vec::new(), Vec::new());
+    let mut uv_at: std::collections::HashMap<[u32; 3], Vec<[f64; 2]>> = std::collections::HashMap::new();
+    for line in text.lines() {
+        let mut it = line.split_whitespace();
+        let tag = it.next();
+        let nums: Vec<&str> = it.collect();
+        match tag {
+            Some("v") => vs.push([0, 1, 2].map(|k| nums[k].parse::<f32>().unwrap())),
+            Some("vt") => vts.push([0, 1].map(|k| nums[k].parse::<f64>().unwrap())),
+            Some("f") => {
+                for c in nums {
+                    let mut p = c.split('/');
+                    let vi: usize = p.next().unwrap().parse().unwrap();
+                    let ti: usize = p.next().unwrap().parse().unwrap();
+                    uv_at.entry(vs[vi - 1].map(f32::to_bits)).or_default().push(vts[ti - 1]);
+                }
+            }
+            _ => {}
+        }
+    }
+    let texel = |uv: [f64; 2]| -> [f64; 3] {
+        // Bottom-left origin: row 0 of the image is v = 1.
+        let x = uv[0] * w as f64 - 0.5;
+        let y = (1.0 - uv[1]) * h as f64 - 0.5;
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let px = |xi: i64, yi: i64| img.get_pixel(xi.rem_euclid(w) as u32, yi.rem_euclid(h) as u32).0;
+        let (xi, yi) = (x0 as i64, y0 as i64);
+        let (a, b, c, d) = (px(xi, yi), px(xi + 1, yi), px(xi, yi + 1), px(xi + 1, yi + 1));
+        [0, 1, 2].map(|k| {
+            let top = lin(a[k]) + (lin(b[k]) - lin(a[k])) * fx;
+            let bot = lin(c[k]) + (lin(d[k]) - lin(c[k])) * fx;
+            top + (bot - top) * fy
+        })
+    };
+    let mut checked = 0;
+    for n in &s.meshes[0].samples {
+        let uvs = uv_at.get(&n.center.map(f32::to_bits)).expect("every vertex sample sits on an OBJ vertex");
+        let ok = uvs.iter().any(|&uv| {
+            let want = texel(uv);
+            (0..3).all(|k| (enc(want[k]) - i32::from(n.color[k])).abs() <= 1)
+        });
+        assert!(ok, "sample at {:?} has colour {:?}, texture gives {:?}", n.center, n.color, uvs.iter().map(|&uv| texel(uv).map(enc)).collect::<Vec<_>>());
+        checked += 1;
+    }
+    assert!(checked > 2000, "only {checked} samples");
+}
+
+/// Fuze as PLY with per-face-corner texcoords and a `TextureFile` comment looks like the
+/// same model as OBJ/MTL: same texture bound, mean sample colour within 2 levels.
+#[test]
+fn ply_face_texcoords_match_obj() {
+    let (Some(ply), Some(obj)) = (model("ply/fuze-vertexcolour-facetexcoord/fuze.ply"), model("textured-obj/fuze/fuze.obj")) else {
+        return;
+    };
+    let a = load(&ply, &LoadOptions::default()).unwrap();
+    let b = load(&obj, &LoadOptions::default()).unwrap();
+    assert_eq!(a.images.len(), 1, "the TextureFile image is bound: {:?}", a.warnings);
+    assert_eq!(a.meshes[0].primitives[0].uvs.len(), 1);
+    assert_eq!(a.stats.triangles_read, 1000);
+    let h = coarse(&b, 150.0);
+    let mean = |scene: &LoadedScene| {
+        let s = sample(scene, h, true);
+        let (mut acc, mut wsum) = ([0.0f64; 3], 0.0);
+        for n in &s.meshes[0].samples {
+            for k in 0..3 {
+                acc[k] += f64::from(n.area) * f64::from(n.color[k]);
+            }
+            wsum += f64::from(n.area);
+        }
+        acc.map(|x| x / wsum)
+    };
+    let (ma, mb) = (mean(&a), mean(&b));
+    for k in 0..3 {
+        assert!((ma[k] - mb[k]).abs() < 2.0, "mean colour PLY {ma:?} vs OBJ {mb:?}");
+    }
+}

@@ -1,5 +1,11 @@
 //! PLY (ASCII and binary) via ply-rs-bw: faces and triangle strips, vertex colours (uchar
-//! or float), normals, UVs; a file without faces is a point cloud.
+//! or float), normals, per-vertex UVs, and per-face-corner UVs (a `texcoord` float list on
+//! faces, MeshLab/VCGLIB) with the texture named by a `comment TextureFile <name>` header
+//! line; a file without faces is a point cloud.
+//!
+//! PLY has no material model: when a texture is bound it gives the colour and vertex
+//! colours are not multiplied in (MeshLab shows one or the other; VCGLIB writes a
+//! placeholder grey per vertex next to textures).
 
 use std::io::{BufRead, Cursor};
 use std::path::Path;
@@ -7,7 +13,7 @@ use std::path::Path;
 use ply_rs_bw::parser::Parser;
 use ply_rs_bw::ply::{DefaultElement, Encoding, Property};
 
-use super::{finish_primitive, LoadOptions};
+use super::{decode_image, finish_primitive, read_file, LoadOptions};
 use crate::error::LoadError;
 use crate::mesh::*;
 
@@ -33,6 +39,14 @@ fn list(p: &Property) -> Option<Vec<i64>> {
         Property::ListUShort(v) => v.iter().map(|&x| x.into()).collect(),
         Property::ListInt(v) => v.iter().map(|&x| x.into()).collect(),
         Property::ListUInt(v) => v.iter().map(|&x| x.into()).collect(),
+        _ => return None,
+    })
+}
+
+fn float_list(p: &Property) -> Option<Vec<f64>> {
+    Some(match p {
+        Property::ListFloat(v) => v.iter().map(|&x| x.into()).collect(),
+        Property::ListDouble(v) => v.clone(),
         _ => return None,
     })
 }
@@ -69,7 +83,7 @@ fn sanitize_header(bytes: &[u8]) -> Option<Vec<u8>> {
     Some(out)
 }
 
-pub(super) fn load(path: &Path, bytes: &[u8], _opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
+pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
     let perr = |loc: String, msg: String| LoadError::parse(path, "PLY", loc, msg);
     let parser = Parser::<DefaultElement>::new();
     let fixed = sanitize_header(bytes);
@@ -157,11 +171,49 @@ pub(super) fn load(path: &Path, bytes: &[u8], _opts: &LoadOptions) -> Result<Loa
         }
         Ok(v as u32)
     };
-    for (fi, f) in payload.get("face").map(Vec::as_slice).unwrap_or(&[]).iter().enumerate() {
+    let faces = payload.get("face").map(Vec::as_slice).unwrap_or(&[]);
+    // Per-corner UVs: every corner becomes its own vertex (attributes copied), since the
+    // same position can carry different UVs across a seam.
+    let corner_uv = faces.first().is_some_and(|f| f.contains_key("texcoord"));
+    let (mut positions, mut normals, mut colors, mut uvs) = (positions, normals, colors, uvs);
+    let (src_pos, src_nrm, src_col) = if corner_uv { (positions.clone(), normals.clone(), colors.clone()) } else { (Vec::new(), None, None) };
+    let mut corner_uvs: Vec<[f32; 2]> = Vec::new();
+    if corner_uv {
+        positions.clear();
+        if let Some(n) = &mut normals {
+            n.clear();
+        }
+        if let Some(c) = &mut colors {
+            c.clear();
+        }
+    }
+    for (fi, f) in faces.iter().enumerate() {
         let Some(idx) = idx_of(f) else {
             return Err(perr(format!("face {fi}"), "no vertex_indices list".into()));
         };
-        let idx: Vec<u32> = idx.iter().map(|&v| check("face", fi, v)).collect::<Result<_, _>>()?;
+        let mut idx: Vec<u32> = idx.iter().map(|&v| check("face", fi, v)).collect::<Result<_, _>>()?;
+        if corner_uv {
+            let tc = f.get("texcoord").and_then(float_list).unwrap_or_default();
+            if tc.len() != 2 * idx.len() {
+                return Err(perr(format!("face {fi}"), format!("texcoord list has {} values for {} corners (expected 2 per corner)", tc.len(), idx.len())));
+            }
+            for (k, v) in idx.iter_mut().enumerate() {
+                let uv = [tc[2 * k] as f32, 1.0 - tc[2 * k + 1] as f32];
+                if !uv.iter().all(|c| c.is_finite()) {
+                    return Err(LoadError::NonFinite { path: path.to_path_buf(), element: "face texcoord".into(), index: fi as u64 });
+                }
+                let src = *v as usize;
+                positions.push(src_pos[src]);
+                if let (Some(n), Some(sn)) = (&mut normals, &src_nrm) {
+                    n.push(sn[src]);
+                }
+                if let (Some(c), Some(sc)) = (&mut colors, &src_col) {
+                    c.push(sc[src]);
+                }
+                corner_uvs.push(uv);
+                *v = (positions.len() - 1) as u32;
+            }
+        }
         match idx.len() {
             0..=2 => {}
             3 => triangles.push([idx[0], idx[1], idx[2]]),
@@ -189,10 +241,31 @@ pub(super) fn load(path: &Path, bytes: &[u8], _opts: &LoadOptions) -> Result<Loa
     let mut scene = LoadedScene::default();
     scene.stats.polygons_triangulated = polygons;
     if triangles.is_empty() {
+        let (positions, normals, colors) = if corner_uv { (src_pos, src_nrm, src_col) } else { (positions, normals, colors) };
         scene.points = Some(PointCloud { positions, normals, colors });
         return Ok(scene);
     }
-    let mut prim = Primitive { positions, normals, colors, uvs: uvs.into_iter().collect(), triangles, material: None };
+    if corner_uv {
+        uvs = Some(corner_uvs);
+    }
+    let mut material = None;
+    if uvs.is_some() && opts.load_textures {
+        if let Some(name) = header.comments.iter().find_map(|c| c.trim().strip_prefix("TextureFile").map(str::trim)).filter(|n| !n.is_empty()) {
+            let file = path.parent().unwrap_or(Path::new(".")).join(name);
+            match read_file(&file, opts.max_file_bytes).map_err(|e| e.to_string()).and_then(|b| decode_image(&b, file.display().to_string())) {
+                Ok(img) => {
+                    scene.images.push(img);
+                    scene.files.push(file);
+                    let texture = TextureRef { image: 0, tex_coord: 0, transform: UV_IDENTITY, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat };
+                    scene.materials.push(Material { name: name.to_string(), base_color: [1.0; 4], texture: Some(texture), ..Default::default() });
+                    material = Some(0);
+                    colors = None;
+                }
+                Err(e) => scene.warnings.push(format!("{}: TextureFile {name:?}: {e}; using vertex colours", path.display())),
+            }
+        }
+    }
+    let mut prim = Primitive { positions, normals, colors, uvs: uvs.into_iter().collect(), triangles, material };
     finish_primitive(path, "faces", &mut prim, &mut scene.stats)?;
     scene.meshes.push(Mesh { name: super::obj::file_stem(path), primitives: vec![prim] });
     scene.instances.push(Instance { mesh: 0, transform: IDENTITY });
