@@ -95,6 +95,14 @@ pub struct TreeStats {
     pub flag_bytes: u64,
     /// Uncompressed bytes of codec payloads.
     pub payload_bytes: u64,
+    /// Blocks of each level (level 0, the root in the header, has none). A block is our
+    /// "container": a run of at most `block_nodes` consecutive nodes of one level.
+    pub blocks_per_level: Vec<u32>,
+    /// Stored block bytes by what they encode: `topology` (has-children masks), then
+    /// `position_radius`, `normal`, `cone`, `color`, `area` (see [`crate::codec::streams`];
+    /// exact for the default profile's streams, split by field width for record profiles).
+    /// Their sum plus `index_bytes` is `section_bytes`.
+    pub attribute_bytes: Vec<(String, u64)>,
 }
 
 /// What was written.
@@ -238,54 +246,44 @@ fn encode_graph(g: &SceneGraph) -> Vec<u8> {
     out
 }
 
-/// Lengths of the homogeneous byte streams of a block payload (mask first), in order.
-fn stream_lens(profile: Profile, params: CodecParams, mask_len: usize, m: usize) -> Vec<usize> {
-    let mut v = vec![mask_len];
-    v.extend(crate::codec::stream_lens(profile, params, m));
-    v
-}
-
 /// One zstd frame of `payload`, ending a zstd block at every stream boundary of `lens`, so
 /// that each block's entropy tables (Huffman literals, FSE) fit one stream instead of a mix.
 /// Any zstd decoder reads it as before (a frame of several blocks); only the bytes shrink.
-fn compress_streams(payload: &[u8], lens: &[usize], level: i32) -> Result<Vec<u8>> {
+/// Also returns the stored bytes of each stream (the frame's end goes to the last).
+fn compress_streams(payload: &[u8], lens: &[usize], level: i32) -> Result<(Vec<u8>, Vec<usize>)> {
     use zstd::stream::raw::{Encoder, InBuffer, Operation, OutBuffer};
     let mut enc = Encoder::new(level)?;
     enc.set_pledged_src_size(Some(payload.len() as u64))?;
     let mut out: Vec<u8> = Vec::with_capacity(payload.len() / 2 + 1024);
     let mut buf = vec![0u8; zstd::zstd_safe::CCtx::out_size().max(1 << 17)];
+    let mut sizes = Vec::with_capacity(lens.len());
     let mut at = 0usize;
-    let drain = |out: &mut Vec<u8>, ob: &OutBuffer<'_, [u8]>| out.extend_from_slice(ob.as_slice());
-    for &len in lens.iter().chain(std::iter::once(&usize::MAX)) {
-        let end = if len == usize::MAX { payload.len() } else { (at + len).min(payload.len()) };
+    let mut done = 0usize;
+    for (k, &len) in lens.iter().enumerate() {
+        let end = (at + len).min(payload.len());
         let mut inb = InBuffer::around(&payload[at..end]);
         while inb.pos() < inb.src.len() {
             let mut ob = OutBuffer::around(&mut buf[..]);
             enc.run(&mut inb, &mut ob)?;
-            drain(&mut out, &ob);
+            out.extend_from_slice(ob.as_slice());
         }
         at = end;
-        if len == usize::MAX {
-            loop {
-                let mut ob = OutBuffer::around(&mut buf[..]);
-                let left = enc.finish(&mut ob, true)?;
-                drain(&mut out, &ob);
-                if left == 0 {
-                    break;
-                }
-            }
-        } else if end > 0 {
-            loop {
-                let mut ob = OutBuffer::around(&mut buf[..]);
-                let left = enc.flush(&mut ob)?;
-                drain(&mut out, &ob);
-                if left == 0 {
-                    break;
-                }
+        let last = k + 1 == lens.len();
+        loop {
+            let mut ob = OutBuffer::around(&mut buf[..]);
+            let left = if last { enc.finish(&mut ob, true)? } else { enc.flush(&mut ob)? };
+            out.extend_from_slice(ob.as_slice());
+            if left == 0 {
+                break;
             }
         }
+        sizes.push(out.len() - done);
+        done = out.len();
     }
-    Ok(out)
+    if at != payload.len() {
+        return Err(Error::Misuse(format!("streams cover {at} of {} payload bytes (bug)", payload.len())));
+    }
+    Ok((out, sizes))
 }
 
 /// One encoded block, as a worker returns it.
@@ -294,16 +292,37 @@ struct EncodedBlock {
     flags: u32,
     mask_len: u64,
     payload_len: u64,
-    /// The block's nodes with children, as decoded: the next level's parents.
-    next_parents: Vec<Node>,
+    /// Stored bytes per [`TreeStats::attribute_bytes`] entry.
+    attribute_bytes: [u64; 7],
 }
 
+/// Splits `bytes` over the attributes in proportion to `widths` (remainder to the first).
+fn split_bytes(bytes: usize, widths: &[u32; 6], into: &mut [u64; 7]) {
+    let total: u64 = widths.iter().map(|&w| w as u64).sum();
+    if total == 0 {
+        into[6] += bytes as u64;
+        return;
+    }
+    let mut given = 0;
+    for (k, &w) in widths.iter().enumerate() {
+        let share = bytes as u64 * w as u64 / total;
+        into[k + 1] += share;
+        given += share;
+    }
+    if let Some(k) = widths.iter().position(|&w| w > 0) {
+        into[k + 1] += bytes as u64 - given;
+    }
+}
+
+/// Encodes one block; writes its decoded nodes with children to `next_parents` (exactly as
+/// many as `flags` has set).
 fn encode_block(
     opts: &WriteOptions,
     params: CodecParams,
     parents: &[Node],
     nodes: &[Node],
     flags: &[bool],
+    next_parents: &mut [Node],
 ) -> Result<EncodedBlock> {
     let profile = opts.profile;
     let m = nodes.len();
@@ -314,21 +333,40 @@ fn encode_block(
     }
     let decoded = encode_children(profile, params, parents, nodes, &mut payload)?;
     let raw_len = payload.len();
+    let streams = crate::codec::streams(profile, params, m);
+    let mut attribute_bytes = [0u64; 7];
     let (stored, bflags) = match opts.zstd_level() {
-        Some(l) => (compress_streams(&payload, &stream_lens(profile, params, mask_len, m), l)?, 1u32),
-        None => (payload, 0u32),
+        Some(l) => {
+            let lens: Vec<usize> = std::iter::once(mask_len).chain(streams.iter().map(|s| s.len)).collect();
+            let (stored, sizes) = compress_streams(&payload, &lens, l)?;
+            attribute_bytes[0] = sizes[0] as u64;
+            for (st, &sz) in streams.iter().zip(&sizes[1..]) {
+                split_bytes(sz, &st.widths, &mut attribute_bytes);
+            }
+            (stored, 1u32)
+        }
+        None => {
+            attribute_bytes[0] = mask_len as u64;
+            for st in &streams {
+                split_bytes(st.len, &st.widths, &mut attribute_bytes);
+            }
+            (payload, 0u32)
+        }
     };
-    // Only nodes with children are needed later; dropping leaves here keeps the writer's
-    // memory at one level's parents instead of a whole decoded level.
-    let next_parents = decoded.into_iter().zip(flags).filter(|(_, &f)| f).map(|(n, _)| n).collect();
-    Ok(EncodedBlock { stored, flags: bflags, mask_len: mask_len as u64, payload_len: (raw_len - mask_len) as u64, next_parents })
+    let mut slots = next_parents.iter_mut();
+    for (n, _) in decoded.iter().zip(flags).filter(|(_, &f)| f) {
+        let slot = slots.next().ok_or_else(|| Error::Misuse("more internal nodes than reserved (bug)".into()))?;
+        *slot = *n;
+    }
+    Ok(EncodedBlock { stored, flags: bflags, mask_len: mask_len as u64, payload_len: (raw_len - mask_len) as u64, attribute_bytes })
 }
 
 /// Encodes one tree as a `TREE` section body.
 ///
 /// Blocks of a level are encoded in parallel (each needs only its decoded parents), levels in
 /// order; stored blocks are appended to the section as each level completes, and the index in
-/// front of them is filled in last (its size is known from the level sizes).
+/// front of them is filled in last (its size is known from the level sizes). Besides the tree,
+/// memory holds one level's decoded nodes with children (and the next's being written).
 pub fn encode_tree(tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, TreeStats)> {
     let profile = opts.profile;
     let params = CodecParams { alpha: tree.nodes().iter().any(|n| n.color[3] != 255) };
@@ -342,6 +380,7 @@ pub fn encode_tree(tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, Tr
     let index_len = TREE_HEADER_LEN + levels * LEVEL_ENTRY_LEN + block_count * BLOCK_ENTRY_LEN;
     let mut out = vec![0u8; index_len];
     let mut blocks: Vec<BlockEntry> = Vec::with_capacity(block_count);
+    let mut attribute_bytes = [0u64; 7];
     // Decoded internal nodes of the previous level: the parents of the current one.
     let mut parents: Vec<Node> = Vec::new();
     if levels > 0 {
@@ -349,6 +388,7 @@ pub fn encode_tree(tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, Tr
         if flags[0] {
             parents.push(nodes[0]);
         }
+        stats.blocks_per_level.push(0);
     }
     for (d, entry) in level_table.iter_mut().enumerate().skip(1) {
         let range = tree.level(d);
@@ -356,23 +396,39 @@ pub fn encode_tree(tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, Tr
         let level_flags = &flags[range];
         let chunks: Vec<(usize, usize)> =
             (0..level_nodes.len()).step_by(block_nodes).map(|s| (s, (s + block_nodes).min(level_nodes.len()))).collect();
+        // Each block writes its decoded internal nodes straight into its part of the next
+        // level's parents (no per-block vectors to concatenate).
+        let internal: Vec<usize> = chunks.iter().map(|&(s, e)| level_flags[s..e].iter().filter(|&&f| f).count()).collect();
+        let mut next_parents = vec![Node::default(); internal.iter().sum()];
+        let mut parts: Vec<&mut [Node]> = Vec::with_capacity(chunks.len());
+        let mut rest: &mut [Node] = &mut next_parents;
+        for &k in &internal {
+            let (head, tail) = rest.split_at_mut(k);
+            parts.push(head);
+            rest = tail;
+        }
         let encoded: Vec<Result<EncodedBlock>> = chunks
             .par_iter()
-            .map(|&(s, e)| encode_block(opts, params, &parents[s / 2..e / 2], &level_nodes[s..e], &level_flags[s..e]))
+            .zip(parts.into_par_iter())
+            .map(|(&(s, e), part)| encode_block(opts, params, &parents[s / 2..e / 2], &level_nodes[s..e], &level_flags[s..e], part))
             .collect();
         entry.node_count = level_nodes.len() as u64;
         entry.first_block = blocks.len() as u32;
         entry.block_count = chunks.len() as u32;
-        let mut next_parents = Vec::with_capacity(level_flags.iter().filter(|&&f| f).count());
-        for (&(s, e), r) in chunks.iter().zip(encoded) {
+        stats.blocks_per_level.push(chunks.len() as u32);
+        let mut internal_before = 0u64;
+        for ((&(s, e), r), &k) in chunks.iter().zip(encoded).zip(&internal) {
             let b = r?;
             stats.flag_bytes += b.mask_len;
             stats.payload_bytes += b.payload_len;
+            for (t, v) in attribute_bytes.iter_mut().zip(b.attribute_bytes) {
+                *t += v;
+            }
             blocks.push(BlockEntry {
                 level: d as u32,
                 node_count: (e - s) as u32,
                 first_node: s as u64,
-                internal_before: next_parents.len() as u64,
+                internal_before,
                 offset: out.len() as u64,
                 stored_len: b.stored.len() as u32,
                 raw_len: (b.mask_len + b.payload_len) as u32,
@@ -380,7 +436,7 @@ pub fn encode_tree(tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, Tr
                 flags: b.flags,
             });
             out.extend_from_slice(&b.stored);
-            next_parents.extend_from_slice(&b.next_parents);
+            internal_before += k as u64;
         }
         parents = next_parents;
     }
@@ -404,6 +460,80 @@ pub fn encode_tree(tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, Tr
     out[..index_len].copy_from_slice(&index);
     stats.blocks = blocks.len() as u32;
     stats.index_bytes = index_len as u64;
+    stats.attribute_bytes = std::iter::once("topology")
+        .chain(crate::codec::ATTRIBUTES)
+        .zip(attribute_bytes)
+        .filter(|&(name, b)| name != "other" || b > 0)
+        .map(|(name, b)| (name.to_string(), b))
+        .collect();
     stats.section_bytes = out.len() as u64;
     Ok((out, stats))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::parent_of;
+
+    /// A perfect tree over `2^levels` leaves on a helix, breadth first.
+    fn perfect_tree(levels: u32) -> SceneTree {
+        let n = 1usize << levels;
+        let leaves: Vec<Node> = (0..n)
+            .map(|i| {
+                let t = i as f32 * 0.1;
+                Node {
+                    center: [t.cos(), t.sin(), 0.05 * t],
+                    radius: 0.02,
+                    normal: [t.cos(), t.sin(), 0.3],
+                    cone: 0.0,
+                    area: 1e-3 * (1.0 + (i % 7) as f32),
+                    color: [(i * 37 % 256) as u8, (i * 11 % 256) as u8, 90, 255],
+                }
+            })
+            .collect();
+        let mut rows = vec![leaves];
+        while rows.last().map_or(0, Vec::len) > 1 {
+            let below = rows.last().map(|r| r.chunks(2).map(|p| parent_of(&p[0], &p[1])).collect()).unwrap_or_default();
+            rows.push(below);
+        }
+        let nodes: Vec<Node> = rows.iter().rev().flatten().copied().collect();
+        let internal = (0..nodes.len()).map(|i| i < n - 1).collect();
+        SceneTree::from_bfs(nodes, internal).expect("tree")
+    }
+
+    #[test]
+    fn stats_account_for_every_byte() {
+        let tree = perfect_tree(10);
+        for profile in [Profile::Raw, Profile::Canopy, Profile::Default] {
+            for level in [None, Some(0), Some(3)] {
+                let opts = WriteOptions { profile, compression_level: level, block_nodes: 64 };
+                let (bytes, st) = encode_tree(&tree, &opts).expect("encode");
+                let attrs: u64 = st.attribute_bytes.iter().map(|a| a.1).sum();
+                assert_eq!(attrs + st.index_bytes, st.section_bytes, "{profile:?} {level:?}: {:?}", st.attribute_bytes);
+                assert_eq!(st.section_bytes as usize, bytes.len());
+                assert_eq!(st.blocks_per_level.len(), 11);
+                // Level d holds 2^d nodes: ⌈2^d / 64⌉ blocks.
+                for (d, &b) in st.blocks_per_level.iter().enumerate().skip(1) {
+                    assert_eq!(b as usize, (1usize << d).div_ceil(64), "level {d}");
+                }
+                assert!(st.attribute_bytes.iter().all(|a| a.1 > 0), "{:?}", st.attribute_bytes);
+            }
+        }
+    }
+
+    #[test]
+    fn stream_split_compression_round_trips() {
+        let tree = perfect_tree(12);
+        let scene = Scene::single_tree(Generator::default(), tree.clone());
+        let mut buf = Vec::new();
+        write_scene(&scene, &WriteOptions { block_nodes: 512, compression_level: Some(5), ..Default::default() }, &mut buf).expect("write");
+        let r = crate::SctReader::from_bytes(buf, &crate::Limits::default()).expect("read");
+        let back = r.read_tree(0).expect("decode");
+        assert_eq!(back.internal_flags(), tree.internal_flags());
+        // Same nodes as encoding without compression: zstd is lossless whatever its blocks.
+        let mut plain = Vec::new();
+        write_scene(&scene, &WriteOptions { block_nodes: 512, compression_level: Some(0), ..Default::default() }, &mut plain).expect("write");
+        let r0 = crate::SctReader::from_bytes(plain, &crate::Limits::default()).expect("read");
+        assert_eq!(r0.read_tree(0).expect("decode").nodes(), back.nodes());
+    }
 }

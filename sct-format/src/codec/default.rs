@@ -154,10 +154,12 @@ fn child_node(t: &posrad::Tables, p: &Node, c: Codes, axis: [f32; 3], ch: usize,
     Some(Node { center, radius, normal: axis, cone: normal::cone_decode(cone), area, color })
 }
 
-/// Lengths of the payload's streams for `m` children, in order (see the table above).
-pub fn stream_lens(params: CodecParams, m: usize) -> Vec<usize> {
-    let mut v = vec![m; 5 + channels(params)];
-    v.extend([m / 2, m / 2]);
+/// The payload's streams for `m` children, in order (see the table above).
+pub fn streams(params: CodecParams, m: usize) -> Vec<super::Stream> {
+    use super::Stream;
+    let mut v = vec![Stream::of(0, m), Stream::of(0, m), Stream::of(1, m), Stream::of(1, m), Stream::of(2, m)];
+    v.extend((0..channels(params)).map(|_| Stream::of(3, m)));
+    v.extend([Stream::of(4, m / 2), Stream::of(4, m / 2)]);
     v
 }
 

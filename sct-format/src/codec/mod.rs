@@ -116,14 +116,39 @@ pub fn encode_children(
     }
 }
 
-/// Lengths of the consecutive homogeneous streams of a payload of `m` children (one entry
-/// covering all of it for record-oriented profiles). A writer may use them as compression
-/// boundaries; they change nothing in the payload.
-pub fn stream_lens(profile: Profile, params: CodecParams, m: usize) -> Vec<usize> {
+/// Attribute names used by [`streams`], in the order a report lists them.
+pub const ATTRIBUTES: [&str; 6] = ["position_radius", "normal", "cone", "color", "area", "other"];
+
+/// The payload of `m` children as consecutive homogeneous streams: `(attribute, bytes)`, where
+/// the attribute is an index into [`ATTRIBUTES`]. A writer may end compression blocks at
+/// these boundaries and attribute stored bytes to them; the payload itself is unchanged.
+/// Record profiles (raw, canopy) interleave fields, so they are one stream each, split over
+/// the attributes by field width (exact without compression).
+pub fn streams(profile: Profile, params: CodecParams, m: usize) -> Vec<Stream> {
     match profile {
-        Profile::Raw => vec![m * raw::NODE_BYTES],
-        Profile::Canopy => vec![m * canopy::node_bytes(params)],
-        Profile::Default => default::stream_lens(params, m),
+        // centre + radius 16, normal 12, cone 4, colour 4, area 4 bytes.
+        Profile::Raw => vec![Stream { len: m * raw::NODE_BYTES, widths: [16, 12, 4, 4, 4, 0] }],
+        // state 2, normal 2, cone 1, colour 2 (3 with alpha), area 4 bytes.
+        Profile::Canopy => vec![Stream { len: m * canopy::node_bytes(params), widths: [2, 2, 1, 2 + params.alpha as u32, 4, 0] }],
+        Profile::Default => default::streams(params, m),
+    }
+}
+
+/// One consecutive stream of a block payload (see [`streams`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Stream {
+    /// Bytes.
+    pub len: usize,
+    /// How its bytes split over [`ATTRIBUTES`] (relative widths).
+    pub widths: [u32; 6],
+}
+
+impl Stream {
+    /// A stream holding one attribute.
+    pub(crate) fn of(attribute: usize, len: usize) -> Stream {
+        let mut widths = [0; 6];
+        widths[attribute] = 1;
+        Stream { len, widths }
     }
 }
 
