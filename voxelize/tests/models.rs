@@ -111,7 +111,9 @@ fn nasty_files_table() {
         })),
         ("nasty/gltf-uri-with-spaces/glTF/Box With Spaces.gltf", Loads(|s| assert_eq!(s.images.len(), 3, "percent-encoded URIs resolved"))),
         ("nasty/gltf-draco-duck/glTF-Draco/Duck.gltf", Refused(|e| matches!(e, LoadError::UnsupportedExtension { extension, .. } if extension == "KHR_draco_mesh_compression"))),
-        ("nasty/gltf-quantized-duck/glTF-Quantized/Duck.gltf", Refused(|e| matches!(e, LoadError::UnsupportedExtension { extension, .. } if extension == "KHR_mesh_quantization"))),
+        // KHR_mesh_quantization: u16 positions, i8 normalized normals, u16 texcoords (compared
+        // with the float Duck in quantized_duck_matches_float_duck).
+        ("nasty/gltf-quantized-duck/glTF-Quantized/Duck.gltf", Loads(|s| assert_eq!(s.stats.triangles_read, 4212))),
         ("nasty/gltf-invalid-assimp/BoxWithInfinites.glb", Refused(|e| matches!(e, LoadError::NonFinite { element, .. } if element.contains("position")))),
         ("nasty/gltf-invalid-assimp/BoxBadNormals.glb", Loads(|s| assert_eq!(s.stats.triangles_read, 12))),
         ("nasty/gltf-invalid-assimp/IndexOutOfRange/IndexOutOfRange.gltf", Refused(|e| matches!(e, LoadError::IndexOutOfRange { .. }))),
@@ -480,5 +482,40 @@ fn ply_face_texcoords_match_obj() {
     let (ma, mb) = (mean(&a), mean(&b));
     for k in 0..3 {
         assert!((ma[k] - mb[k]).abs() < 2.0, "mean colour PLY {ma:?} vs OBJ {mb:?}");
+    }
+}
+
+/// KHR_mesh_quantization: the quantized Duck (integer positions, normals and texcoords,
+/// dequantized by its node and texture transforms) is the float Duck within quantization:
+/// same bounds and area (0.5 %), same mean sample colour (2 levels).
+#[test]
+fn quantized_duck_matches_float_duck() {
+    let (Some(q), Some(f)) = (model("nasty/gltf-quantized-duck/glTF-Quantized/Duck.gltf"), model("gltf/Duck/glTF-Binary/Duck.glb")) else {
+        return;
+    };
+    let (q, f) = (load(&q, &LoadOptions::default()).unwrap(), load(&f, &LoadOptions::default()).unwrap());
+    let ((qlo, qhi), (flo, fhi)) = (q.world_bounds().unwrap(), f.world_bounds().unwrap());
+    let diag: f64 = (0..3).map(|k| (fhi[k] - flo[k]).powi(2)).sum::<f64>().sqrt();
+    for k in 0..3 {
+        assert!((qlo[k] - flo[k]).abs() < 5e-3 * diag && (qhi[k] - fhi[k]).abs() < 5e-3 * diag, "bounds {qlo:?}..{qhi:?} vs {flo:?}..{fhi:?}");
+    }
+    assert!((q.world_area() / f.world_area() - 1.0).abs() < 5e-3, "area {} vs {}", q.world_area(), f.world_area());
+    let h = coarse(&f, 150.0);
+    let mean = |scene: &LoadedScene| {
+        let s = sample(scene, h, true);
+        let (mut acc, mut wsum) = ([0.0f64; 3], 0.0);
+        for m in &s.meshes {
+            for n in &m.samples {
+                for k in 0..3 {
+                    acc[k] += f64::from(n.area) * f64::from(n.color[k]);
+                }
+                wsum += f64::from(n.area);
+            }
+        }
+        acc.map(|x| x / wsum)
+    };
+    let (mq, mf) = (mean(&q), mean(&f));
+    for k in 0..3 {
+        assert!((mq[k] - mf[k]).abs() < 2.0, "mean colour quantized {mq:?} vs float {mf:?}");
     }
 }

@@ -13,6 +13,7 @@ use crate::mesh::{self as m, *};
 /// Extensions we implement or may safely ignore when a file lists them as required.
 const HANDLED: &[&str] = &[
     "KHR_texture_transform",
+    "KHR_mesh_quantization",
     "EXT_mesh_gpu_instancing",
     "KHR_materials_unlit",
     "KHR_materials_emissive_strength",
@@ -29,7 +30,6 @@ fn unsupported_hint(ext: &str) -> &'static str {
     match ext {
         "KHR_draco_mesh_compression" => "Draco-compressed geometry is not decoded; decompress it first (e.g. `gltf-transform copy in.gltf out.glb` without Draco, or `gltf-pipeline -i in.gltf -o out.gltf`)",
         "EXT_meshopt_compression" | "KHR_meshopt_compression" => "meshoptimizer-compressed buffers are not decoded; decompress them first (e.g. `gltfpack -noq` or `gltf-transform copy`)",
-        "KHR_mesh_quantization" => "quantized (integer) vertex attributes are not supported; dequantize first (e.g. `gltf-transform dequantize in.gltf out.glb`)",
         "KHR_texture_basisu" | "EXT_texture_webp" | "EXT_texture_avif" => "this texture encoding is not decoded; convert textures to PNG or JPEG",
         _ => "not implemented by sct-voxelize",
     }
@@ -49,6 +49,9 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
     // implement them (EXT_mesh_gpu_instancing); having checked them above, drop them and run
     // its validation for everything else (indices in range, required fields …).
     root.extensions_required.clear();
+    // KHR_mesh_quantization allows 8/16-bit (normalized) integer POSITION, NORMAL and
+    // TEXCOORD; without it the core float-only layouts are enforced.
+    let quantized = root.extensions_used.iter().any(|e| e == "KHR_mesh_quantization");
     // POSITION min/max are required by the validator, but a bound of ±Infinity is not valid
     // JSON and reads as "missing"; we never use them, so fill them in and let the real data
     // check report the non-finite vertex precisely.
@@ -209,7 +212,7 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
             let mi = match mesh_map.get(&gm.index()) {
                 Some(&i) => i,
                 None => {
-                    let mesh = convert_mesh(path, &gm, &buffers, &mut scene)?;
+                    let mesh = convert_mesh(path, &gm, &buffers, quantized, &mut scene)?;
                     scene.meshes.push(mesh);
                     let i = scene.meshes.len() - 1;
                     mesh_map.insert(gm.index(), i);
@@ -273,7 +276,7 @@ fn check_accessor(path: &Path, acc: &gltf::Accessor, what: &str, dt: &[DataType]
             path,
             "glTF",
             format!("accessor {} ({what})", acc.index()),
-            format!("unsupported component layout {:?} {:?} (quantized attributes need KHR_mesh_quantization, which is not supported)", acc.data_type(), acc.dimensions()),
+            format!("unsupported component layout {:?} {:?} (integer attributes need KHR_mesh_quantization in extensionsUsed)", acc.data_type(), acc.dimensions()),
         ));
     }
     if let Some(s) = acc.sparse() {
@@ -284,7 +287,34 @@ fn check_accessor(path: &Path, acc: &gltf::Accessor, what: &str, dt: &[DataType]
     Ok(())
 }
 
-fn convert_mesh(path: &Path, gm: &gltf::Mesh, buffers: &[gltf::buffer::Data], scene: &mut LoadedScene) -> Result<Mesh, LoadError> {
+/// Reads a float attribute stored as f32 or (KHR_mesh_quantization) as 8/16-bit integers,
+/// normalized (scaled to [0, 1] or [-1, 1]) or not (integer values as floats).
+fn read_floats<const N: usize>(acc: &gltf::Accessor, buffers: &[gltf::buffer::Data]) -> Option<Vec<[f32; N]>>
+where
+    [f32; N]: gltf::accessor::Item,
+    [i8; N]: gltf::accessor::Item,
+    [u8; N]: gltf::accessor::Item,
+    [i16; N]: gltf::accessor::Item,
+    [u16; N]: gltf::accessor::Item,
+{
+    use gltf::accessor::Iter;
+    let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
+    let norm = acc.normalized();
+    // Normalized signed values: max(c / MAX, -1) (glTF 2.0 §3.11).
+    let f = |c: f32, max: f32, signed: bool| if !norm { c } else if signed { (c / max).max(-1.0) } else { c / max };
+    Some(match acc.data_type() {
+        DataType::F32 => Iter::<[f32; N]>::new(acc.clone(), get)?.collect(),
+        DataType::I8 => Iter::<[i8; N]>::new(acc.clone(), get)?.map(|v| v.map(|c| f(c.into(), 127.0, true))).collect(),
+        DataType::U8 => Iter::<[u8; N]>::new(acc.clone(), get)?.map(|v| v.map(|c| f(c.into(), 255.0, false))).collect(),
+        DataType::I16 => Iter::<[i16; N]>::new(acc.clone(), get)?.map(|v| v.map(|c| f(c.into(), 32767.0, true))).collect(),
+        DataType::U16 => Iter::<[u16; N]>::new(acc.clone(), get)?.map(|v| v.map(|c| f(c.into(), 65535.0, false))).collect(),
+        _ => return None,
+    })
+}
+
+fn convert_mesh(path: &Path, gm: &gltf::Mesh, buffers: &[gltf::buffer::Data], quantized: bool, scene: &mut LoadedScene) -> Result<Mesh, LoadError> {
+    let q_all: &[DataType] = if quantized { &[DataType::F32, DataType::I8, DataType::U8, DataType::I16, DataType::U16] } else { &[DataType::F32] };
+    let q_signed: &[DataType] = if quantized { &[DataType::F32, DataType::I8, DataType::I16] } else { &[DataType::F32] };
     let mut out = Mesh { name: gm.name().map(str::to_string).unwrap_or_else(|| format!("mesh {}", gm.index())), primitives: Vec::new() };
     for prim in gm.primitives() {
         let what = format!("mesh {} primitive {}", gm.index(), prim.index());
@@ -302,20 +332,17 @@ fn convert_mesh(path: &Path, gm: &gltf::Mesh, buffers: &[gltf::buffer::Data], sc
         if pacc.count() == 0 {
             continue;
         }
-        check_accessor(path, &pacc, "POSITION", &[DataType::F32], &[Dimensions::Vec3])?;
-        let positions: Vec<[f32; 3]> = reader
-            .read_positions()
-            .ok_or_else(|| LoadError::parse(path, "glTF", loc("POSITION"), "accessor data missing or out of its buffer view"))?
-            .collect();
+        check_accessor(path, &pacc, "POSITION", q_all, &[Dimensions::Vec3])?;
+        let positions: Vec<[f32; 3]> = read_floats::<3>(&pacc, buffers)
+            .ok_or_else(|| LoadError::parse(path, "glTF", loc("POSITION"), "accessor data missing or out of its buffer view"))?;
         if positions.len() != pacc.count() {
             return Err(LoadError::parse(path, "glTF", loc("POSITION"), "accessor data shorter than its count"));
         }
         let nv = positions.len();
         let mut p = Primitive { positions, material: prim.material().index(), ..Default::default() };
         if let Some(nacc) = prim.get(&gltf::Semantic::Normals).filter(|a| a.count() > 0) {
-            check_accessor(path, &nacc, "NORMAL", &[DataType::F32], &[Dimensions::Vec3])?;
-            if let Some(it) = reader.read_normals() {
-                let n: Vec<[f32; 3]> = it.collect();
+            check_accessor(path, &nacc, "NORMAL", q_signed, &[Dimensions::Vec3])?;
+            if let Some(n) = read_floats::<3>(&nacc, buffers) {
                 if n.len() == nv {
                     p.normals = Some(n);
                 }
@@ -332,10 +359,10 @@ fn convert_mesh(path: &Path, gm: &gltf::Mesh, buffers: &[gltf::buffer::Data], sc
         }
         for set in 0..8u32 {
             let Some(tacc) = prim.get(&gltf::Semantic::TexCoords(set)).filter(|a| a.count() > 0) else { break };
-            check_accessor(path, &tacc, "TEXCOORD", &[DataType::F32, DataType::U8, DataType::U16], &[Dimensions::Vec2])?;
-            match reader.read_tex_coords(set) {
-                Some(it) => {
-                    let t: Vec<[f32; 2]> = it.into_f32().collect();
+            let core: &[DataType] = &[DataType::F32, DataType::U8, DataType::U16];
+            check_accessor(path, &tacc, "TEXCOORD", if quantized { q_all } else { core }, &[Dimensions::Vec2])?;
+            match read_floats::<2>(&tacc, buffers) {
+                Some(t) => {
                     if t.len() != nv {
                         break;
                     }
