@@ -13,15 +13,26 @@ fn main() -> anyhow::Result<()> {
     let w: u32 = args.get(2).map_or(Ok(1280), |s| s.parse())?;
     let h: u32 = args.get(3).map_or(Ok(720), |s| s.parse())?;
     let threads = rayon::current_num_threads();
-    let r = sct_format::SctReader::open(&path, &sct_format::Limits::default())?;
+    let opts = RenderOptions { width: w, height: h, ..Default::default() };
+    // RP_RASTER_ONLY=1: only the rasterizer figure (for profiling).
+    if std::env::var_os("RP_RASTER_ONLY").is_none() {
+        previews(&path, &opts, threads)?;
+    }
+    raster_throughput(&path, &opts)
+}
+
+fn previews(path: &std::path::Path, opts: &RenderOptions, threads: usize) -> anyhow::Result<()> {
+    let (w, h) = (opts.width, opts.height);
+    let r = sct_format::SctReader::open(path, &sct_format::Limits::default())?;
     let t = Instant::now();
     let tree = r.read_tree(0)?;
     println!("full decode: {} nodes ({} leaves) in {:.3} s", tree.len(), tree.leaf_count(), t.elapsed().as_secs_f64());
-    let opts = RenderOptions { width: w, height: h, ..Default::default() };
     let mut best = f64::INFINITY;
     let mut last = None;
+    let mut all = Vec::new();
     for _ in 0..5 {
-        let out = render_file(&path, &opts)?;
+        let out = render_file(path, opts)?;
+        all.push(out.stats.seconds.total);
         best = best.min(out.stats.seconds.total);
         last = Some(out);
     }
@@ -37,35 +48,44 @@ fn main() -> anyhow::Result<()> {
         out.stats.bytes_read,
         out.stats.file_size
     );
+    all.sort_by(f64::total_cmp);
+    println!("preview totals (s): {all:.3?}, median {:.3}", all[all.len() / 2]);
+    Ok(())
+}
+
+fn raster_throughput(path: &std::path::Path, opts: &RenderOptions) -> anyhow::Result<()> {
+    let (w, h) = (opts.width, opts.height);
     // Rasterizer throughput on this view's splats (collected again through the library).
-    let mut files = render_preview::SceneFiles::open(&path, &opts.limits)?;
-    let splats = render_preview::collect_splats(&mut files, &opts)?;
+    let mut files = render_preview::SceneFiles::open(path, &opts.limits)?;
+    let splats = render_preview::collect_splats(&mut files, opts)?;
     bbox_stats(&splats);
     let mut all = Vec::with_capacity(splats.len() * 8);
     while all.len() < 4_000_000 && !splats.is_empty() {
         all.extend_from_slice(&splats);
     }
-    let mut best = f64::INFINITY;
-    let reps: usize = std::env::var("RP_REPS").ok().and_then(|v| v.parse().ok()).unwrap_or(5);
+    let reps: usize = std::env::var("RP_REPS").ok().and_then(|v| v.parse().ok()).unwrap_or(7).max(1);
     let cpu0 = cpu_seconds();
-    let mut total = 0.0;
+    let mut times = Vec::with_capacity(reps);
     for _ in 0..reps {
         let mut f = Frame::new(w as usize, h as usize, [0, 0, 0, 255]);
         let t = Instant::now();
         raster::rasterize(&mut f, &all);
-        best = best.min(t.elapsed().as_secs_f64());
-        total += t.elapsed().as_secs_f64();
+        times.push(t.elapsed().as_secs_f64());
     }
-    println!("raster cpu/wall ratio {:.2}", (cpu_seconds() - cpu0) / total);
-    println!("raster: {} splats in {:.4} s = {:.1} M splats/s", all.len(), best, all.len() as f64 / best / 1e6);
+    let total: f64 = times.iter().sum();
+    times.sort_by(f64::total_cmp);
+    let (best, median) = (times[0], times[reps / 2]);
+    println!("raster cpu/wall ratio {:.2}, threads {}", (cpu_seconds() - cpu0) / total, rayon::current_num_threads());
+    let n = all.len() as f64;
+    println!("raster: {} splats, median {median:.4} s = {:.1} M splats/s (best {best:.4} s = {:.1} M/s)", all.len(), n / median / 1e6, n / best / 1e6);
     Ok(())
 }
 
 #[allow(dead_code)]
 fn bbox_stats(s: &[render_preview::Splat]) {
     let n = s.len() as f64;
-    let area: f64 = s.iter().map(|s| ((2.0 * s.ex + 1.0) * (2.0 * s.ey + 1.0)) as f64).sum();
-    println!("mean bbox area {:.2} px", area / n);
+    let area: f64 = s.iter().map(|s| ((s.bounds[1] - s.bounds[0] + 1).max(0) as f64) * ((s.bounds[3] - s.bounds[2] + 1).max(0) as f64)).sum();
+    println!("mean pixel bounding box {:.2} px (pixel centres)", area / n);
 }
 
 /// User + system CPU seconds of this process (Linux), to see how much of the machine we got.

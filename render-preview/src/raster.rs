@@ -1,12 +1,13 @@
-//! Depth-tested splat rasterizer: splats are binned to screen tiles, and bands of tiles
-//! are rasterized in parallel with rayon. Each pixel keeps the nearest splat; ties go to
-//! the splat that comes first in the input, so the output does not depend on the number
+//! Depth-tested splat rasterizer: splats are binned to horizontal bands of the image, and
+//! bands are rasterized in parallel with rayon. Each pixel keeps the nearest splat; ties go
+//! to the splat that comes first in the input, so the output does not depend on the number
 //! of threads.
 
 use rayon::prelude::*;
 
-/// Tile side in pixels.
-pub const TILE: usize = 32;
+/// Rows per band: a band of a 1280-pixel-wide frame (colour + depth) is 160 KiB, which
+/// stays in a core's L2 cache while its splats are drawn.
+pub const BAND: usize = 16;
 
 /// One screen-space splat: an ellipse (a circle when both radii agree).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -17,7 +18,8 @@ pub struct Splat {
     pub y: f32,
     /// Depth (camera-space distance along the view axis), smaller is nearer.
     pub z: f32,
-    /// Unit direction of the minor axis.
+    /// Unit direction of the minor axis. (Kept apart from the radii rather than expanded
+    /// into a quadratic form, which loses all precision for very thin ellipses.)
     pub ux: f32,
     /// Unit direction of the minor axis.
     pub uy: f32,
@@ -25,10 +27,10 @@ pub struct Splat {
     pub inv_a2: f32,
     /// 1 / major radius².
     pub inv_b2: f32,
-    /// Half extent of the bounding box along x.
-    pub ex: f32,
-    /// Half extent of the bounding box along y.
-    pub ey: f32,
+    /// Pixels whose centre lies in the bounding box, inclusive and unclipped (saturated to
+    /// the i16 range): `[x0, x1, y0, y1]`, computed once when the splat is made so that
+    /// binning and drawing do no float-to-int conversions. `x0 > x1` when there are none.
+    pub bounds: [i16; 4],
     /// sRGB colour, straight alpha (alpha < 255 is drawn with an ordered-dither screen door).
     pub color: [u8; 4],
 }
@@ -38,7 +40,7 @@ impl Splat {
     pub fn disc(x: f32, y: f32, z: f32, r: f32, color: [u8; 4]) -> Splat {
         let r = r.max(1e-6);
         let inv = 1.0 / (r * r);
-        Splat { x, y, z, ux: 1.0, uy: 0.0, inv_a2: inv, inv_b2: inv, ex: r, ey: r, color }
+        Splat { x, y, z, ux: 1.0, uy: 0.0, inv_a2: inv, inv_b2: inv, bounds: pixel_bounds(x, y, r, r), color }
     }
 
     /// An elliptical splat: major radius `b`, minor radius `a` along unit `(ux, uy)`.
@@ -48,22 +50,19 @@ impl Splat {
         let a = a.clamp(1e-6, b);
         let ex = ((a * ux).powi(2) + (b * uy).powi(2)).sqrt();
         let ey = ((a * uy).powi(2) + (b * ux).powi(2)).sqrt();
-        Splat { x, y, z, ux, uy, inv_a2: 1.0 / (a * a), inv_b2: 1.0 / (b * b), ex, ey, color }
+        Splat { x, y, z, ux, uy, inv_a2: 1.0 / (a * a), inv_b2: 1.0 / (b * b), bounds: pixel_bounds(x, y, ex, ey), color }
     }
 
-    /// Inclusive pixel bounds `[x0, x1] × [y0, y1]` (unclipped) of the pixels whose centre
-    /// lies in the bounding box. Splats are sampled at pixel centres like the mesh
-    /// reference's triangles: a splat that contains no pixel centre draws nothing (forcing
-    /// its centre pixel grew every silhouette by about half a pixel), and the cracks that
-    /// can leave inside a surface are closed by [`fill_holes`].
-    #[inline]
-    fn bounds(&self) -> (i32, i32, i32, i32) {
-        let x0 = iceil(self.x - self.ex - 0.5);
-        let x1 = ifloor(self.x + self.ex - 0.5);
-        let y0 = iceil(self.y - self.ey - 0.5);
-        let y1 = ifloor(self.y + self.ey - 0.5);
-        (x0, x1, y0, y1)
-    }
+}
+
+/// Inclusive pixel bounds `[x0, x1, y0, y1]` of the pixels whose centre lies in the box of
+/// half extents `ex`, `ey` around `(x, y)`. Splats are sampled at pixel centres like the
+/// mesh reference's triangles: a splat that contains no pixel centre draws nothing
+/// (forcing its centre pixel grew every silhouette by about half a pixel), and the cracks
+/// that can leave inside a surface are closed by [`fill_holes`].
+fn pixel_bounds(x: f32, y: f32, ex: f32, ey: f32) -> [i16; 4] {
+    let c = |v: i32| v.clamp(i16::MIN as i32, i16::MAX as i32) as i16;
+    [c(iceil(x - ex - 0.5)), c(ifloor(x + ex - 0.5)), c(iceil(y - ey - 0.5)), c(ifloor(y + ey - 0.5))]
 }
 
 // Without SSE4.1 `f32::floor` is a libm call; these stay inline. Inputs are clamped so
@@ -131,94 +130,49 @@ pub fn alpha_passes(alpha: u8, x: usize, y: usize) -> bool {
     alpha == 255 || alpha > BAYER[(x & 3) | ((y & 3) << 2)]
 }
 
-/// Per-chunk bins: tile `t` of this chunk is `idx[off[t]..off[t + 1]]`.
-struct Bins {
-    off: Vec<u32>,
-    idx: Vec<u32>,
-}
-
 /// Rasterizes `splats` into `frame` (depth-tested against what the frame holds).
 pub fn rasterize(frame: &mut Frame, splats: &[Splat]) {
     let (w, h) = (frame.width, frame.height);
     if w == 0 || h == 0 || splats.is_empty() {
         return;
     }
-    let tx = w.div_ceil(TILE);
-    let ty = h.div_ceil(TILE);
-    let ntiles = tx * ty;
-    // Screen-clipped pixel bounds, computed once and reused by binning and drawing.
-    let bounds: Vec<[i16; 4]> = splats
-        .par_iter()
-        .with_min_len(4096)
-        .map(|s| {
-            let (x0, x1, y0, y1) = s.bounds();
-            if x1 < 0 || y1 < 0 || x0 >= w as i32 || y0 >= h as i32 {
-                return [1, 0, 1, 0]; // empty
-            }
-            [x0.max(0) as i16, x1.min(w as i32 - 1) as i16, y0.max(0) as i16, y1.min(h as i32 - 1) as i16]
-        })
-        .collect();
-    // Counting sort per chunk. Chunks keep input order and a tile walks them in order, so
-    // ties resolve to the earliest splat whatever the thread count.
+    let nbands = h.div_ceil(BAND);
+    let (wm, hm) = (w as i32 - 1, h as i32 - 1);
+    let clip = |s: &Splat| -> Option<[i32; 4]> {
+        let [x0, x1, y0, y1] = s.bounds.map(i32::from);
+        let b = [x0.max(0), x1.min(wm), y0.max(0), y1.min(hm)];
+        (b[0] <= b[1] && b[2] <= b[3]).then_some(b)
+    };
+    // One pass per chunk pushes each splat's index to the bands it touches. Chunks keep
+    // input order and a band walks them in order, so ties resolve to the earliest splat
+    // whatever the thread count.
     let threads = rayon::current_num_threads().max(1);
     let chunk_len = (splats.len() / (threads * 2)).max(16384);
-    let bins: Vec<Bins> = bounds
+    let bins: Vec<Vec<Vec<u32>>> = splats
         .par_chunks(chunk_len)
-        .enumerate()
-        .map(|(ci, chunk)| {
-            let tiles = |b: &[i16; 4]| {
-                let (x0, x1) = (b[0] as usize / TILE, b[1] as usize / TILE);
-                let (y0, y1) = (b[2] as usize / TILE, b[3] as usize / TILE);
-                (x0, x1, y0, y1)
-            };
-            let mut off = vec![0u32; ntiles + 1];
-            for b in chunk {
-                if b[0] > b[1] {
-                    continue;
-                }
-                let (x0, x1, y0, y1) = tiles(b);
-                for t_y in y0..=y1 {
-                    for t_x in x0..=x1 {
-                        off[t_y * tx + t_x + 1] += 1;
+        .map(|chunk| {
+            let mut bands: Vec<Vec<u32>> = (0..nbands).map(|_| Vec::with_capacity(2 * chunk.len() / nbands + 16)).collect();
+            for (i, s) in chunk.iter().enumerate() {
+                if let Some(b) = clip(s) {
+                    for band in &mut bands[b[2] as usize / BAND..=b[3] as usize / BAND] {
+                        band.push(i as u32);
                     }
                 }
             }
-            for t in 0..ntiles {
-                off[t + 1] += off[t];
-            }
-            let mut fill = off.clone();
-            let mut idx = vec![0u32; off[ntiles] as usize];
-            let base = (ci * chunk_len) as u32;
-            for (k, b) in chunk.iter().enumerate() {
-                if b[0] > b[1] {
-                    continue;
-                }
-                let (x0, x1, y0, y1) = tiles(b);
-                for t_y in y0..=y1 {
-                    for t_x in x0..=x1 {
-                        let f = &mut fill[t_y * tx + t_x];
-                        idx[*f as usize] = base + k as u32;
-                        *f += 1;
-                    }
-                }
-            }
-            Bins { off, idx }
+            bands
         })
         .collect();
 
-    let band_px = TILE * w;
+    let band_px = BAND * w;
     frame.color.par_chunks_mut(band_px).zip(frame.depth.par_chunks_mut(band_px)).enumerate().for_each(|(band, (color, depth))| {
-        let y_base = band * TILE;
-        for tile_x in 0..tx {
-            let x_lo = (tile_x * TILE) as i32;
-            let x_hi = ((tile_x + 1) * TILE).min(w) as i32 - 1;
-            let (y_lo, y_hi) = (y_base as i32, (y_base + color.len() / w) as i32 - 1);
-            let tile = band * tx + tile_x;
-            for b in &bins {
-                for &i in &b.idx[b.off[tile] as usize..b.off[tile + 1] as usize] {
-                    let bb = bounds[i as usize];
-                    let clip = [(bb[0] as i32).max(x_lo), (bb[1] as i32).min(x_hi), (bb[2] as i32).max(y_lo), (bb[3] as i32).min(y_hi)];
-                    draw(&splats[i as usize], clip, color, depth, w, y_base);
+        let y_lo = (band * BAND) as i32;
+        let y_hi = y_lo + (color.len() / w) as i32 - 1;
+        for (ci, b) in bins.iter().enumerate() {
+            let chunk = &splats[ci * chunk_len..];
+            for &i in &b[band] {
+                let s = &chunk[i as usize];
+                if let Some(bb) = clip(s) {
+                    draw(s, bb[0] as usize, bb[1] as usize, (bb[2].max(y_lo), bb[3].min(y_hi)), color, depth, w, y_lo);
                 }
             }
         }
@@ -261,25 +215,40 @@ pub fn fill_holes(frame: &mut Frame) {
     }
 }
 
-/// Draws one splat over the inclusive pixel rectangle `clip` (inside the band starting at
-/// image row `y_base`).
+/// Draws one splat over columns `xa..=xb` and image rows `ya..=yb` (inside the band
+/// starting at image row `y_base`).
 #[inline]
-fn draw(s: &Splat, clip: [i32; 4], color: &mut [[u8; 4]], depth: &mut [f32], w: usize, y_base: usize) {
-    let [xa, xb, ya, yb] = clip;
+#[allow(clippy::too_many_arguments)]
+fn draw(s: &Splat, xa: usize, xb: usize, (ya, yb): (i32, i32), color: &mut [[u8; 4]], depth: &mut [f32], w: usize, y_base: i32) {
     let opaque = s.color[3] == 255;
+    let x0 = xa as f32 + 0.5 - s.x;
+    if xa == xb && ya == yb {
+        // Most splats of a preview hold one pixel centre or two: no loops for those.
+        let dy = ya as f32 + 0.5 - s.y;
+        let (a, b) = (x0 * s.ux + dy * s.uy, dy * s.ux - x0 * s.uy);
+        let i = (ya - y_base) as usize * w + xa;
+        if let (Some(d), true) = (depth.get_mut(i), a * a * s.inv_a2 + b * b * s.inv_b2 <= 1.0) {
+            if s.z < *d && (opaque || alpha_passes(s.color[3], xa, ya as usize)) {
+                *d = s.z;
+                if let Some(c) = color.get_mut(i) {
+                    *c = s.color;
+                }
+            }
+        }
+        return;
+    }
     for py in ya..=yb {
         let dy = py as f32 + 0.5 - s.y;
-        let row = (py as usize - y_base) * w;
         let (ay, by) = (dy * s.uy, dy * s.ux);
-        for px in xa..=xb {
-            let dx = px as f32 + 0.5 - s.x;
-            let a = dx * s.ux + ay;
-            let b = by - dx * s.uy;
-            let inside = a * a * s.inv_a2 + b * b * s.inv_b2 <= 1.0;
-            let i = row + px as usize;
-            if inside && s.z < depth[i] && (opaque || alpha_passes(s.color[3], px as usize, py as usize)) {
-                depth[i] = s.z;
-                color[i] = s.color;
+        let row = (py - y_base) as usize * w;
+        // Row slices: no per-pixel bounds checks.
+        let (drow, crow) = (&mut depth[row + xa..=row + xb], &mut color[row + xa..=row + xb]);
+        for (k, (d, c)) in drow.iter_mut().zip(crow.iter_mut()).enumerate() {
+            let dx = x0 + k as f32;
+            let (a, b) = (dx * s.ux + ay, by - dx * s.uy);
+            if a * a * s.inv_a2 + b * b * s.inv_b2 <= 1.0 && s.z < *d && (opaque || alpha_passes(s.color[3], xa + k, py as usize)) {
+                *d = s.z;
+                *c = s.color;
             }
         }
     }
@@ -307,6 +276,16 @@ mod tests {
         // The first misses every pixel centre, the second sits on one.
         assert_eq!(f.covered(), 1);
         assert_eq!(f.color[2 * 8 + 1], [7, 7, 7, 255]);
+    }
+
+    #[test]
+    fn far_and_huge_splats_saturate_their_bounds() {
+        let mut f = Frame::new(16, 8, [0; 4]);
+        // Far off screen either way: nothing; centred far away but huge: everything.
+        rasterize(&mut f, &[Splat::disc(1e7, 4.0, 1.0, 2.0, [1; 4]), Splat::disc(-1e7, -1e7, 1.0, 2.0, [1; 4])]);
+        assert_eq!(f.covered(), 0);
+        rasterize(&mut f, &[Splat::disc(-5e4, 4.0, 1.0, 6e4, [2, 2, 2, 255])]);
+        assert_eq!(f.covered(), 16 * 8);
     }
 
     #[test]
