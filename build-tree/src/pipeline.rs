@@ -60,6 +60,25 @@ pub struct Report {
     pub bytes_per_leaf: f64,
     /// Stored bytes per section tag.
     pub sections: Vec<(String, u64)>,
+    /// Containers: our blocks (spec/SCT.md §6.2), runs of at most 16,384 consecutive nodes of
+    /// one level, each compressed and checksummed on its own; summed over all trees.
+    pub containers: u64,
+    /// Containers of each level (index = depth; level 0, the root, lives in the tree header).
+    pub containers_by_level: Vec<u64>,
+    /// Containers by height, i.e. by the number of tree levels one spans: every SCT 1.0
+    /// block holds nodes of a single level, so this is `{"1": containers}` (the thesis's
+    /// containers are subtrees of several levels; see spec/build-tree-json.md).
+    pub containers_by_height: std::collections::BTreeMap<u32, u64>,
+    /// Stored links (child pointers) per leaf: 0, since children are addressed implicitly
+    /// (breadth-first order plus one has-children bit per node).
+    pub links_per_leaf: f64,
+    /// Topology cost: stored bits of the has-children masks per geometry leaf.
+    pub topology_bits_per_leaf: f64,
+    /// Stored bytes per geometry leaf by stream: `topology`, `position_radius`, `normal`,
+    /// `cone`, `color`, `area` (all trees' blocks), `index` (tree headers, level and block
+    /// tables) and `file` (everything else: file header, section table, GENR, GRPH). They sum
+    /// to `bytes_per_leaf`.
+    pub bytes_per_leaf_by_stream: std::collections::BTreeMap<String, f64>,
     /// Seconds per phase.
     pub seconds: Phases,
     /// Peak resident memory (VmHWM) in bytes, when the OS reports it.
@@ -183,6 +202,7 @@ pub fn run_samples(
     rep.bytes = ws.bytes;
     rep.sections = ws.sections;
     rep.bytes_per_leaf = if rep.leaves > 0 { rep.bytes as f64 / rep.leaves as f64 } else { 0.0 };
+    container_figures(&mut rep, &ws.trees);
     rep.seconds.total = t0.elapsed().as_secs_f64();
     rep.peak_memory_bytes = peak_memory();
     rep.peak_bytes_per_sample = rep.peak_memory_bytes.filter(|_| rep.samples > 0).map(|p| p as f64 / rep.samples as f64);
@@ -205,6 +225,34 @@ pub fn bake_affine_instances(samples: &mut SamplesFile) {
         samples.meshes.push(MeshEntry { name: format!("{}#affine", src.name), first, count: src.count });
         samples.instances.push(SampleInstance { mesh: idx, transform: sct_format::Similarity::IDENTITY });
     }
+}
+
+/// Fills the container, topology and per-stream figures from the writer's statistics.
+fn container_figures(rep: &mut Report, trees: &[sct_format::write::TreeStats]) {
+    let per_leaf = |b: u64| if rep.leaves > 0 { b as f64 / rep.leaves as f64 } else { 0.0 };
+    let mut by_stream: std::collections::BTreeMap<String, u64> = Default::default();
+    let mut in_trees = 0;
+    for t in trees {
+        rep.containers += t.blocks as u64;
+        if rep.containers_by_level.len() < t.blocks_per_level.len() {
+            rep.containers_by_level.resize(t.blocks_per_level.len(), 0);
+        }
+        for (c, &b) in rep.containers_by_level.iter_mut().zip(&t.blocks_per_level) {
+            *c += b as u64;
+        }
+        for (name, b) in &t.attribute_bytes {
+            *by_stream.entry(name.clone()).or_default() += b;
+        }
+        *by_stream.entry("index".into()).or_default() += t.index_bytes;
+        in_trees += t.section_bytes;
+    }
+    by_stream.insert("file".into(), rep.bytes.saturating_sub(in_trees));
+    if rep.containers > 0 {
+        rep.containers_by_height.insert(1, rep.containers);
+    }
+    rep.links_per_leaf = 0.0;
+    rep.topology_bits_per_leaf = 8.0 * per_leaf(by_stream.get("topology").copied().unwrap_or(0));
+    rep.bytes_per_leaf_by_stream = by_stream.into_iter().map(|(k, v)| (k, per_leaf(v))).collect();
 }
 
 fn generator(cfg: &Config, upstream: &Upstream, inlines: &[(String, String)]) -> Result<Generator, BuildError> {
