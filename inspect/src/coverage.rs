@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use sct_format::traverse::{ReachedKind, Traversal, TraverseOptions};
-use sct_format::{Limits, Node, Similarity, SctReader};
+use sct_format::{Limits, Node, SctReader, Similarity};
 
 use crate::InspectError;
 
@@ -119,8 +119,8 @@ pub struct Seconds {
 #[derive(Debug, Default)]
 pub struct SphereTree {
     /// Items `[x, y, z, r]` with their original index, reordered so every node's items are
-    /// contiguous.
-    items: Vec<([f64; 4], u32)>,
+    /// contiguous. f32 like the file's leaves: 20 bytes per leaf.
+    items: Vec<([f32; 4], u32)>,
     nodes: Vec<KdNode>,
 }
 
@@ -139,12 +139,12 @@ struct KdNode {
 /// along the longest extent of its centres: the implicit layout [`SphereTree::build`] indexes.
 /// The halves are disjoint, so large ones are ordered in parallel; ties break on the
 /// original index, so the order does not depend on the thread count.
-fn partition(items: &mut [([f64; 4], u32)]) {
+fn partition(items: &mut [([f32; 4], u32)]) {
     if items.len() <= BUCKET {
         return;
     }
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
     for (it, _) in items.iter() {
         for k in 0..3 {
             lo[k] = lo[k].min(it[k]);
@@ -152,7 +152,13 @@ fn partition(items: &mut [([f64; 4], u32)]) {
         }
     }
     let ext = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
-    let ax = if ext[0] >= ext[1] && ext[0] >= ext[2] { 0 } else if ext[1] >= ext[2] { 1 } else { 2 };
+    let ax = if ext[0] >= ext[1] && ext[0] >= ext[2] {
+        0
+    } else if ext[1] >= ext[2] {
+        1
+    } else {
+        2
+    };
     let m = items.len() / 2;
     items.select_nth_unstable_by(m, |a, b| a.0[ax].total_cmp(&b.0[ax]).then(a.1.cmp(&b.1)));
     let (a, b) = items.split_at_mut(m);
@@ -165,9 +171,9 @@ fn partition(items: &mut [([f64; 4], u32)]) {
 }
 
 impl SphereTree {
-    /// Builds the tree over spheres `[x, y, z, r]` (at most `u32::MAX` of them).
-    pub fn build(spheres: Vec<[f64; 4]>) -> SphereTree {
-        let mut items: Vec<([f64; 4], u32)> = spheres.into_iter().zip(0u32..).collect();
+    /// Builds the tree over spheres `[x, y, z, r]`, each with the id searches report
+    /// (taken as they come, so the caller's vector is not copied).
+    pub fn build(mut items: Vec<([f32; 4], u32)>) -> SphereTree {
         partition(&mut items);
         let mut nodes = Vec::new();
         if !items.is_empty() {
@@ -198,8 +204,8 @@ impl SphereTree {
                 };
                 if n.left == 0 {
                     for (it, _) in &items[n.start as usize..n.end as usize] {
-                        let c = [it[0], it[1], it[2]];
-                        add(c, c, it[3]);
+                        let c = [it[0] as f64, it[1] as f64, it[2] as f64];
+                        add(c, c, it[3] as f64);
                     }
                 } else {
                     for c in [nodes[n.left as usize], nodes[n.left as usize + 1]] {
@@ -237,7 +243,7 @@ impl SphereTree {
     /// to something inside the item's sphere). Stops as soon as the best is `<= stop`.
     /// Returns the best and the (reordered) index of its item, `None` when nothing beat
     /// `best_in`.
-    fn search(&self, p: [f64; 3], best_in: f64, stop: f64, mut eval: impl FnMut(u32, &[f64; 4], f64) -> f64) -> (f64, Option<usize>) {
+    fn search(&self, p: [f64; 3], best_in: f64, stop: f64, mut eval: impl FnMut(u32, &[f32; 4], f64) -> f64) -> (f64, Option<usize>) {
         let mut best = best_in;
         let mut arg = None;
         if self.nodes.is_empty() {
@@ -283,12 +289,12 @@ impl SphereTree {
     /// nearer than `best_in`.
     pub fn nearest(&self, p: [f64; 3], best_in: f64) -> Option<(f64, f64)> {
         let (d, i) = self.search(p, best_in, 0.0, |_, it, _| sphere_distance(p, it));
-        i.map(|i| (d, self.items[i].0[3]))
+        i.map(|i| (d, self.items[i].0[3] as f64))
     }
 }
 
-fn sphere_distance(p: [f64; 3], it: &[f64; 4]) -> f64 {
-    dist(p, [it[0], it[1], it[2]]) - it[3] * (1.0 + RADIUS_SLACK)
+fn sphere_distance(p: [f64; 3], it: &[f32; 4]) -> f64 {
+    dist(p, [it[0] as f64, it[1] as f64, it[2] as f64]) - it[3] as f64 * (1.0 + RADIUS_SLACK)
 }
 
 fn lower_bound(n: &KdNode, p: [f64; 3]) -> f64 {
@@ -317,39 +323,42 @@ fn to_local(t: &Similarity, p: [f64; 3]) -> [f64; 3] {
 
 /// Decodes the leaves of tree `t` of `file` level by level, keeping only leaves and the
 /// previous level's internal nodes.
-fn decode_leaves(file: &SctReader, t: usize) -> Result<Vec<[f64; 4]>, sct_format::Error> {
+fn decode_leaves(file: &SctReader, t: usize) -> Result<Vec<([f32; 4], u32)>, sct_format::Error> {
     let Some(idx) = file.trees().get(t) else { return Ok(Vec::new()) };
-    let sphere = |n: &Node| [n.center[0] as f64, n.center[1] as f64, n.center[2] as f64, n.radius as f64];
+    let sphere = |n: &Node, id: usize| ([n.center[0], n.center[1], n.center[2], n.radius], id as u32);
     if idx.header.node_count == 0 {
         return Ok(Vec::new());
     }
     let mut leaves = Vec::with_capacity(idx.header.leaf_count.min(1 << 28) as usize);
     if idx.header.root_internal == 0 {
-        leaves.push(sphere(&idx.header.root));
+        leaves.push(sphere(&idx.header.root, 0));
         return Ok(leaves);
     }
     let mut parents = vec![idx.header.root];
     for d in 1..idx.levels.len() {
         let blocks: Vec<usize> = idx.level_blocks(d).collect();
-        let decoded: Vec<Result<sct_format::read::DecodedBlock, sct_format::Error>> = blocks
-            .par_iter()
-            .map(|&b| {
-                let e = &idx.blocks[b];
-                let lo = (e.first_node / 2) as usize;
-                let ps = parents.get(lo..lo + e.node_count as usize / 2).ok_or_else(|| {
-                    sct_format::Error::malformed(idx.section.offset + e.offset, "block refers to parents that do not exist")
-                })?;
-                file.decode_block(t, b, ps)
-            })
-            .collect();
         let mut next = Vec::new();
-        for blk in decoded {
-            let blk = blk?;
-            for (n, &f) in blk.nodes.iter().zip(&blk.internal) {
-                if f {
-                    next.push(*n);
-                } else {
-                    leaves.push(sphere(n));
+        // A few blocks at a time: decoded nodes are held only until their leaves are taken.
+        for chunk in blocks.chunks(2 * rayon::current_num_threads().max(1)) {
+            let decoded: Vec<Result<sct_format::read::DecodedBlock, sct_format::Error>> = chunk
+                .par_iter()
+                .map(|&b| {
+                    let e = &idx.blocks[b];
+                    let lo = (e.first_node / 2) as usize;
+                    let ps = parents
+                        .get(lo..lo + e.node_count as usize / 2)
+                        .ok_or_else(|| sct_format::Error::malformed(idx.section.offset + e.offset, "block refers to parents that do not exist"))?;
+                    file.decode_block(t, b, ps)
+                })
+                .collect();
+            for blk in decoded {
+                let blk = blk?;
+                for (n, &f) in blk.nodes.iter().zip(&blk.internal) {
+                    if f {
+                        next.push(*n);
+                    } else {
+                        leaves.push(sphere(n, leaves.len()));
+                    }
                 }
             }
         }
@@ -418,13 +427,18 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
         }
     }
     // Top level: each use's world bound.
-    let bounds: Vec<[f64; 4]> = uses
+    let bounds: Vec<([f32; 4], u32)> = uses
         .iter()
         .map(|u| {
             let b = trees[u.tree].bound().unwrap_or_default();
             let c = u.transform.apply_point([b[0], b[1], b[2]]);
-            [c[0], c[1], c[2], b[3] * u.transform.scale]
+            let c32 = c.map(|x| x as f32);
+            // Rounding the centre to f32 moves it: grow the radius by that and round up.
+            let moved = dist(c, c32.map(f64::from));
+            let r = ((b[3] * u.transform.scale + moved) as f32).next_up();
+            [c32[0], c32[1], c32[2], r]
         })
+        .zip(0u32..)
         .collect();
     let top = SphereTree::build(bounds);
     let t2 = std::time::Instant::now();
@@ -481,11 +495,7 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
             leaf_radii: if r > 0.0 { d / r } else { f64::INFINITY },
         }),
         errors,
-        seconds: Seconds {
-            mesh: (t1 - t0).as_secs_f64(),
-            index: (t2 - t1).as_secs_f64(),
-            query: (t3 - t2).as_secs_f64(),
-        },
+        seconds: Seconds { mesh: (t1 - t0).as_secs_f64(), index: (t2 - t1).as_secs_f64(), query: (t3 - t2).as_secs_f64() },
     })
 }
 
@@ -497,12 +507,12 @@ mod tests {
     #[test]
     fn nearest_matches_brute_force() {
         let mut rng = voxelize::mesh::SplitMix(7);
-        let spheres: Vec<[f64; 4]> =
-            (0..2000).map(|_| [rng.next_f64() * 10.0, rng.next_f64() * 10.0, rng.next_f64(), 0.01 + rng.next_f64() * 0.2]).collect();
-        let t = SphereTree::build(spheres.clone());
+        let spheres: Vec<[f32; 4]> =
+            (0..2000).map(|_| [rng.next_f64() * 10.0, rng.next_f64() * 10.0, rng.next_f64(), 0.01 + rng.next_f64() * 0.2].map(|x| x as f32)).collect();
+        let t = SphereTree::build(spheres.iter().copied().zip(0u32..).collect());
         for _ in 0..500 {
             let p = [rng.next_f64() * 12.0 - 1.0, rng.next_f64() * 12.0 - 1.0, rng.next_f64() * 3.0 - 1.0];
-            let (want, wr) = spheres.iter().map(|s| (sphere_distance(p, s), s[3])).fold((f64::INFINITY, 0.0), |a, b| if b.0 < a.0 { b } else { a });
+            let (want, wr) = spheres.iter().map(|s| (sphere_distance(p, s), s[3] as f64)).fold((f64::INFINITY, 0.0), |a, b| if b.0 < a.0 { b } else { a });
             let (got, gr) = t.nearest(p, f64::INFINITY).unwrap();
             if want <= 0.0 {
                 assert!(got <= 0.0, "{p:?}: inside per brute force, k-d says {got}");
