@@ -1,5 +1,6 @@
-//! `cargo bench -p voxelize`: the bunny at thesis Table 8 (k = 3, γ = 2) and a dense run.
-//! Prints figures for BENCHMARKS.md; not a timed test.
+//! `cargo bench -p voxelize`: the bunny at thesis Table 8 (k = 3, γ = 2), a dense bunny run
+//! and a dense textured run (spot, ≥ 20 M samples). Prints figures for BENCHMARKS.md; not a
+//! timed test.
 
 use std::time::Instant;
 
@@ -9,14 +10,21 @@ use voxelize::{load, LoadOptions};
 fn main() {
     let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/models");
     let bunny = root.join("scans/stanford-bunny/stanford-bunny.obj");
-    let Ok(scene) = load(&bunny, &LoadOptions::default()) else {
-        eprintln!("bunny not found under {}: skipped", root.display());
-        return;
-    };
-    for (label, density) in [
-        ("bunny Table 8 (k=3, γ=2)", Density::Auto { k: 3.0, gamma: 2.0, min_base: None }),
-        ("bunny dense (voxel 6e-5)", Density::VoxelSize(6e-5)),
-    ] {
+    let spot = root.join("textured-obj/spot/spot_triangulated.obj");
+    let spot_opts = LoadOptions { texture_override: Some(root.join("textured-obj/spot/spot_texture.png")), ..Default::default() };
+    let runs = [
+        ("bunny Table 8 (k=3, γ=2)", &bunny, LoadOptions::default(), Density::Auto { k: 3.0, gamma: 2.0, min_base: None }),
+        ("bunny dense (voxel 6e-5)", &bunny, LoadOptions::default(), Density::VoxelSize(6e-5)),
+        ("spot textured dense (voxel 6e-4)", &spot, spot_opts, Density::VoxelSize(6e-4)),
+    ];
+    for (label, path, lopts, density) in runs {
+        let scene = match load(path, &lopts) {
+            Ok(s) => s,
+            Err(e) => {
+                eprintln!("{label}: skipped ({e})");
+                continue;
+            }
+        };
         let opts = SampleOptions { density, ..Default::default() };
         let t = Instant::now();
         let s = match sample_scene(&scene, &opts, &|_, _| {}) {

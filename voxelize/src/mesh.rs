@@ -386,31 +386,44 @@ pub fn srgb_to_linear(c: f32) -> f32 {
 
 /// Encodes a linear channel in [0, 1] as 8-bit sRGB.
 pub fn linear_to_srgb8(c: f32) -> u8 {
-    // The code is the number of midpoints between 8-bit codes (in linear) below `c`: the same
-    // rounding as encoding with powf. A 4096-entry table gives that count at the start of
-    // c's 1/4096 cell, and at most a step or two of the midpoint list finishes it exactly
-    // (a hot path: once per sample channel).
-    struct Tables {
-        mid: [f32; 255],
-        start: Vec<u8>,
+    Srgb8::get().encode(c)
+}
+
+/// Tables of the exact linear → 8-bit sRGB encoder ([`linear_to_srgb8`]); hold on to
+/// [`Srgb8::get`] to encode many values without re-checking the lazy initialisation.
+pub struct Srgb8 {
+    mid: [f32; 255],
+    start: Vec<u8>,
+}
+
+impl Srgb8 {
+    /// The shared tables.
+    pub fn get() -> &'static Srgb8 {
+        static T: std::sync::OnceLock<Srgb8> = std::sync::OnceLock::new();
+        T.get_or_init(|| {
+            let mid: [f32; 255] = std::array::from_fn(|i| srgb_to_linear((i as f32 + 0.5) / 255.0));
+            let start = (0..=4096).map(|j| mid.partition_point(|&m| m < j as f32 / 4096.0) as u8).collect();
+            Srgb8 { mid, start }
+        })
     }
-    static T: std::sync::OnceLock<Tables> = std::sync::OnceLock::new();
-    let t = T.get_or_init(|| {
-        let mid: [f32; 255] = std::array::from_fn(|i| srgb_to_linear((i as f32 + 0.5) / 255.0));
-        let start = (0..=4096).map(|j| mid.partition_point(|&m| m < j as f32 / 4096.0) as u8).collect();
-        Tables { mid, start }
-    });
-    if !(c > 0.0) || !c.is_finite() {
-        return 0; // also NaN and infinities, as the exact encoder did
+
+    /// The code is the number of midpoints between 8-bit codes (in linear) below `c`: the
+    /// same rounding as encoding with powf. A 4096-entry table gives that count at the start
+    /// of c's 1/4096 cell, and at most a step or two of the midpoint list finishes it exactly.
+    #[inline]
+    pub fn encode(&self, c: f32) -> u8 {
+        if !(c > 0.0) || !c.is_finite() {
+            return 0; // also NaN and infinities, as the exact encoder did
+        }
+        if c >= 1.0 {
+            return 255;
+        }
+        let mut code = self.start[((c * 4096.0) as usize).min(4096)] as usize;
+        while code < 255 && self.mid[code] < c {
+            code += 1;
+        }
+        code as u8
     }
-    if c >= 1.0 {
-        return 255;
-    }
-    let mut code = t.start[(c * 4096.0) as usize] as usize;
-    while code < 255 && t.mid[code] < c {
-        code += 1;
-    }
-    code as u8
 }
 
 /// Lookup table: 8-bit sRGB → linear.
@@ -436,16 +449,14 @@ impl Image {
         let fx = (x - xi as f64) as f32;
         let fy = (y - yi as f64) as f32;
         let lut = srgb_lut();
-        let texel = |xi: i64, yi: i64| -> [f32; 4] {
-            let xi = wrap_index(xi, w, wrap_s);
-            let yi = wrap_index(yi, h, wrap_t);
-            let t = self.rgba[(yi * w + xi) as usize];
+        // Wrap the two columns and rows once (4 wraps, not 8); a hot path (once per sample).
+        let (x0, x1) = (wrap_index(xi, w, wrap_s), wrap_index(xi + 1, w, wrap_s));
+        let (r0, r1) = (wrap_index(yi, h, wrap_t) * w, wrap_index(yi + 1, h, wrap_t) * w);
+        let texel = |i: i64| -> [f32; 4] {
+            let t = self.rgba[i as usize];
             [lut[t[0] as usize], lut[t[1] as usize], lut[t[2] as usize], t[3] as f32 / 255.0]
         };
-        let a = texel(xi, yi);
-        let b = texel(xi + 1, yi);
-        let c = texel(xi, yi + 1);
-        let d = texel(xi + 1, yi + 1);
+        let (a, b, c, d) = (texel(r0 + x0), texel(r0 + x1), texel(r1 + x0), texel(r1 + x1));
         std::array::from_fn(|k| {
             let top = a[k] + (b[k] - a[k]) * fx;
             let bot = c[k] + (d[k] - c[k]) * fx;
@@ -454,6 +465,7 @@ impl Image {
     }
 }
 
+#[inline]
 fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
     if (0..n).contains(&i) {
         return i; // the common case, without a division

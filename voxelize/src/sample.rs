@@ -990,8 +990,24 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i6
     };
     let mut tri = Poly2 { v: [[0.0; 2]; MAXV], n: 3 };
     tri.v[..3].copy_from_slice(&q);
-    let mut lo_a = floor_i64(q.iter().map(|p| p[0]).fold(f64::INFINITY, f64::min));
-    let mut hi_a = floor_i64(q.iter().map(|p| p[0]).fold(f64::NEG_INFINITY, f64::max));
+    let (txlo, txhi) = t.p.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| (l.min(p[0]), h.max(p[0])));
+    if floor_i64(txlo) < xr.0 || floor_i64(txhi) > xr.1 {
+        // Only part of the triangle lies in the caller's slab: cut it to the slab's x band
+        // first, so strips and columns outside it cost nothing. The band's faces are voxel
+        // faces, so pieces and areas are unchanged.
+        let (x0, x1) = (xr.0 as f64, xr.1 as f64 + 1.0);
+        tri = match (a, b) {
+            (0, _) => tri.clip_axis(0, x0, x1),
+            (_, 0) => tri.clip_axis(1, x0, x1),
+            _ => tri.clip_half(|p| depth(p) - x0, None).clip_half(|p| x1 - depth(p), None),
+        };
+        if tri.n < 3 {
+            return 0;
+        }
+    }
+    let (alo, ahi) = tri.range(|p| p[0]);
+    let mut lo_a = floor_i64(alo);
+    let mut hi_a = floor_i64(ahi);
     if a == 0 {
         (lo_a, hi_a) = (lo_a.max(xr.0), hi_a.min(xr.1));
     }
@@ -1196,7 +1212,8 @@ fn vertex_patches(
 
 fn srgb8(c: [f32; 4]) -> [u8; 4] {
     let a = (c[3].clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
-    [linear_to_srgb8(c[0]), linear_to_srgb8(c[1]), linear_to_srgb8(c[2]), a]
+    let t = Srgb8::get();
+    [t.encode(c[0]), t.encode(c[1]), t.encode(c[2]), a]
 }
 
 /// Samples a point cloud: one sample per point, radius = mean distance to its 4 nearest
