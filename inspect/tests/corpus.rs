@@ -128,6 +128,29 @@ fn nan_in_any_attribute() {
     }
 }
 
+#[test]
+fn nan_in_tree_root_and_inline_bound() {
+    // The root is stored raw in the tree header: quick mode already sees it.
+    let d = tmp();
+    let f = path_in(&d, "root.sct");
+    let mut t = small_tree();
+    t.nodes_mut()[0].center[0] = f32::NAN;
+    write_single(&f, t, Profile::Raw);
+    expect(&f, false, &["non-finite"]);
+    expect(&f, true, &["non-finite"]);
+    // An inline's recorded bound is in the graph: quick reports it, deep also finds that it
+    // does not match the target's root.
+    let inner = path_in(&d, "inner.sct");
+    let t = small_tree();
+    let mut b = bound_of(&t);
+    write_single(&inner, t, Profile::Raw);
+    b.radius = f32::NAN;
+    let f = path_in(&d, "inline.sct");
+    write(&f, SceneGraph { nodes: vec![GraphNode::Inline { path: "inner.sct".into(), hash: *blake3_of(&inner), bound: b }], root: 0 }, vec![], Profile::Raw);
+    expect(&f, false, &["non-finite"]);
+    expect(&f, true, &["inline-bound", "non-finite"]);
+}
+
 fn bound_of(t: &SceneTree) -> Node {
     t.nodes()[0]
 }

@@ -1,5 +1,6 @@
 //! Property: validating any file the writer produced from a consistent tree reports no
-//! issue, in quick and deep mode, for every profile.
+//! issue, in quick and deep mode, for every profile, whether the tree comes from the test
+//! helper's median splits or from `build-tree` itself (welding, centre splits, depth limit).
 
 mod common;
 
@@ -34,6 +35,28 @@ proptest! {
         let d = tmp();
         let f = path_in(&d, "p.sct");
         write_single(&f, kd_tree(leaves), profile);
+        for deep in [false, true] {
+            let r = validate_file(&f, &ValidateOptions { deep, ..Default::default() }).unwrap();
+            prop_assert!(r.is_valid(), "{profile:?} deep {deep}: {:#?}", r.issues);
+        }
+    }
+
+    #[test]
+    fn build_tree_output_validates(
+        samples in prop::collection::vec(arb_leaf(), 1..400),
+        duplicates in 0usize..40,
+        profile in prop::sample::select(vec![Profile::Raw, Profile::Canopy, Profile::Default]),
+    ) {
+        // Exact duplicates exercise welding; a leaf repeated many times, degenerate splits.
+        let mut samples = samples;
+        for k in 0..duplicates {
+            samples.push(samples[k % samples.len()]);
+        }
+        let (tree, stats) = build_tree::build_tree(&samples, &build_tree::BuildOptions::default()).unwrap();
+        prop_assert_eq!(stats.nodes as usize, tree.len());
+        let d = tmp();
+        let f = path_in(&d, "b.sct");
+        write_single(&f, tree, profile);
         for deep in [false, true] {
             let r = validate_file(&f, &ValidateOptions { deep, ..Default::default() }).unwrap();
             prop_assert!(r.is_valid(), "{profile:?} deep {deep}: {:#?}", r.issues);
