@@ -30,6 +30,15 @@ fn sgn(v: f32) -> f32 {
 /// Decodes an octahedral code to a unit vector (f32, deterministic IEEE operations only).
 #[inline]
 pub fn oct_decode(code: u16) -> [f32; 3] {
+    let [x, y, z] = oct_unnormalized(code);
+    let l = (x * x + y * y + z * z).sqrt();
+    // l ≥ 1/√3 on the octahedron surface: never zero.
+    [x / l, y / l, z / l]
+}
+
+/// The octahedron-surface point of `code`, before [`oct_decode`] normalises it.
+#[inline]
+fn oct_unnormalized(code: u16) -> [f32; 3] {
     let u = (code & 0xff) as f32;
     let v = (code >> 8) as f32;
     let mut x = u / 255.0 * 2.0 - 1.0;
@@ -40,9 +49,7 @@ pub fn oct_decode(code: u16) -> [f32; 3] {
         x = (1.0 - oy.abs()) * sgn(ox);
         y = (1.0 - ox.abs()) * sgn(oy);
     }
-    let l = (x * x + y * y + z * z).sqrt();
-    // l ≥ 1/√3 on the octahedron surface: never zero.
-    [x / l, y / l, z / l]
+    [x, y, z]
 }
 
 /// Octahedral projection to [0, 255]² (continuous), f32.
@@ -93,23 +100,33 @@ pub fn oct_encode(n: [f32; 3]) -> u16 {
 /// (this runs once per encoded node).
 pub fn oct_encode_decoded(n: [f32; 3]) -> (u16, [f32; 3]) {
     let p = oct_project(n);
-    let l = ((n[0] as f64).powi(2) + (n[1] as f64).powi(2) + (n[2] as f64).powi(2)).sqrt();
-    let m = [n[0] as f64 / l, n[1] as f64 / l, n[2] as f64 / l];
     let (fu, fv) = (super::rounding::floor_f32(p[0]), super::rounding::floor_f32(p[1]));
-    let mut best = (f64::NEG_INFINITY, 0u16, [0f32; 3]);
-    for du in 0..2 {
-        for dv in 0..2 {
-            let u = (fu + du as f32).clamp(0.0, 255.0) as u16;
-            let v = (fv + dv as f32).clamp(0.0, 255.0) as u16;
-            let code = u | v << 8;
-            let d = oct_decode(code);
-            let c = m[0] * d[0] as f64 + m[1] * d[1] as f64 + m[2] * d[2] as f64;
-            if c > best.0 {
-                best = (c, code, d);
-            }
+    // Rank by cos² = (n·w)² / |w|² (the |n|² factor is common) on the unnormalised surface
+    // points w, cross-multiplied: no square root or division per candidate. Valid while every
+    // n·w > 0, which holds for these neighbouring codes; otherwise fall back to cosines.
+    let m = [n[0] as f64, n[1] as f64, n[2] as f64];
+    let mut cand = [(0u16, 0f64, 0f64); 4];
+    let mut all_positive = true;
+    for (k, c) in cand.iter_mut().enumerate() {
+        let u = (fu + (k >> 1) as f32).clamp(0.0, 255.0) as u16;
+        let v = (fv + (k & 1) as f32).clamp(0.0, 255.0) as u16;
+        let code = u | v << 8;
+        let w = oct_unnormalized(code);
+        let d = m[0] * w[0] as f64 + m[1] * w[1] as f64 + m[2] * w[2] as f64;
+        let l2 = (w[0] as f64).powi(2) + (w[1] as f64).powi(2) + (w[2] as f64).powi(2);
+        all_positive &= d > 0.0;
+        *c = (code, d, l2);
+    }
+    let mut best = 0;
+    for k in 1..4 {
+        let (b, c) = (cand[best], cand[k]);
+        let better = if all_positive { c.1 * c.1 * b.2 > b.1 * b.1 * c.2 } else { c.1 / c.2.sqrt() > b.1 / b.2.sqrt() };
+        if better {
+            best = k;
         }
     }
-    (best.1, best.2)
+    let code = cand[best].0;
+    (code, oct_decode(code))
 }
 
 /// Decoded cone semi-angle of `code`.
