@@ -10,6 +10,8 @@
 //! - [`run`] does the whole job of the `sct-voxelize` binary.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
+// `!(x > 0.0)` is the deliberate NaN-rejecting test throughout (NaN fails every comparison).
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod args;
 pub mod error;

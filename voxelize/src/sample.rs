@@ -723,11 +723,11 @@ fn merge_sorted(items: &[(u64, u64)], recs: &[Rec], kp: &KeyPack, r: f32, h: f64
             let w = f64::from(x.area).max(1e-12);
             a += f64::from(x.area);
             wsum += w;
-            for k in 0..3 {
-                nn[k] += w * f64::from(x.normal[k]);
+            for (s, v) in nn.iter_mut().zip(x.normal) {
+                *s += w * f64::from(v);
             }
-            for k in 0..4 {
-                c[k] += w * f64::from(x.color[k]);
+            for (s, v) in c.iter_mut().zip(x.color) {
+                *s += w * f64::from(v);
             }
             j += 1;
         }
@@ -742,6 +742,7 @@ fn merge_sorted(items: &[(u64, u64)], recs: &[Rec], kp: &KeyPack, r: f32, h: f64
 /// Stable LSD radix sort of `items` by the low `bits` bits of their key (the bucket fixed the
 /// rest), 11 bits per pass; passes where every key has the same digit are skipped.
 fn radix_sort_low(items: &mut [(u64, u64)], tmp: &mut Vec<(u64, u64)>, bits: u32) {
+    type Item = (u64, u64);
     if items.len() <= 64 {
         items.sort_by_key(|x| x.0); // stable
         return;
@@ -753,13 +754,13 @@ fn radix_sort_low(items: &mut [(u64, u64)], tmp: &mut Vec<(u64, u64)>, bits: u32
     let mut sh = 0;
     while sh < bits {
         let mask = (1u64 << D.min(bits - sh)) - 1;
-        let (src, dst): (&[(u64, u64)], &mut [(u64, u64)]) = if in_items { (items, tmp) } else { (tmp, items) };
+        let (src, dst): (&[Item], &mut [Item]) = if in_items { (items, tmp) } else { (tmp, items) };
         let mut count = vec![0usize; 1 << D];
         for x in src {
             count[((x.0 >> sh) & mask) as usize] += 1;
         }
         sh += D;
-        if count.iter().any(|&c| c == src.len()) {
+        if count.contains(&src.len()) {
             continue;
         }
         let mut pos = 0;

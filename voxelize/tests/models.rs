@@ -288,7 +288,7 @@ fn texture_colours_reproduced() {
             for (ti, (w, _, _)) in tris.iter().enumerate() {
                 let (bc, dist) = project(w, c);
                 let eps = 1e-9;
-                if bc.iter().all(|&x| x >= -eps) && best.map_or(true, |b| dist < b.0) {
+                if bc.iter().all(|&x| x >= -eps) && best.is_none_or(|b| dist < b.0) {
                     best = Some((dist, ti, bc));
                 }
             }
@@ -472,8 +472,8 @@ fn ply_face_texcoords_match_obj() {
         let s = sample(scene, h, true);
         let (mut acc, mut wsum) = ([0.0f64; 3], 0.0);
         for n in &s.meshes[0].samples {
-            for k in 0..3 {
-                acc[k] += f64::from(n.area) * f64::from(n.color[k]);
+            for (s, c) in acc.iter_mut().zip(n.color) {
+                *s += f64::from(n.area) * f64::from(c);
             }
             wsum += f64::from(n.area);
         }
@@ -506,8 +506,8 @@ fn quantized_duck_matches_float_duck() {
         let (mut acc, mut wsum) = ([0.0f64; 3], 0.0);
         for m in &s.meshes {
             for n in &m.samples {
-                for k in 0..3 {
-                    acc[k] += f64::from(n.area) * f64::from(n.color[k]);
+                for (s, c) in acc.iter_mut().zip(n.color) {
+                    *s += f64::from(n.area) * f64::from(c);
                 }
                 wsum += f64::from(n.area);
             }

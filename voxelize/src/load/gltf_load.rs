@@ -99,7 +99,7 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
     }
     for v in document.views() {
         let blen = buffers.get(v.buffer().index()).map_or(0, |d| d.len());
-        if v.offset().checked_add(v.length()).map_or(true, |end| end > blen) {
+        if v.offset().checked_add(v.length()).is_none_or(|end| end > blen) {
             return Err(perr(&format!("bufferView {}", v.index()), format!("range {}+{} exceeds buffer {} ({} bytes)", v.offset(), v.length(), v.buffer().index(), blen)));
         }
     }

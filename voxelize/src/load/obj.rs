@@ -54,9 +54,7 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
         r
     });
     let (models, mats) = result.map_err(|e| LoadError::parse(path, "OBJ", "face or vertex line", e.to_string()))?;
-    let mut scene = LoadedScene::default();
-    scene.warnings = warnings.into_inner();
-    scene.files = files.into_inner();
+    let mut scene = LoadedScene { warnings: warnings.into_inner(), files: files.into_inner(), ..Default::default() };
     let mtl_dirs = mtl_dirs.into_inner();
     let mats = mats.unwrap_or_default();
     let mut image_cache: HashMap<PathBuf, Option<usize>> = HashMap::new();
