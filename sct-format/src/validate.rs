@@ -8,11 +8,11 @@
 //!   group child counts, instance transforms (finite, unit quaternion, positive scale) and
 //!   inline targets (present, matching their recorded BLAKE3 hash, no cycles, nesting within
 //!   [`Limits::max_inline_depth`]). Inlined files are validated too, once each.
-//! - **deep** adds hierarchical consistency (§5.11.1): every block is decoded level by level
-//!   keeping only the previous level's internal nodes (plus one bit per node, to name the
-//!   path of a failing node), and every child is checked against its decoded parent; group
-//!   leaves are checked against the (transformed, tinted) bounds of the children they stand
-//!   for, and inline bounds against the root of the file they name.
+//! - **deep** adds hierarchical consistency (§5.11.1): every block is decoded once, as a
+//!   wavefront over all levels that keeps a few blocks' nodes per level (plus one bit per
+//!   node, to name the path of a failing node), and every child is checked against its
+//!   decoded parent; group leaves are checked against the (transformed, tinted) bounds of
+//!   the children they stand for, and inline bounds against the root of the file they name.
 //!
 //! Each tree is checked once, in its own frame, even when it is instanced many times: the
 //! checks are invariant under similarity transforms (up to rounding), so checking every
