@@ -390,3 +390,20 @@ fn cli_exit_codes_and_json() {
     let msg = String::from_utf8_lossy(&d.stderr);
     assert!(msg.contains("camera") && msg.lines().count() == 1, "{msg}");
 }
+
+#[test]
+fn same_bytes_on_1_and_4_threads() {
+    let dir = tempfile::tempdir().unwrap();
+    let (sphere, _) = sphere_file(dir.path());
+    let outer = composed_scene(dir.path());
+    // Large enough that refinement splits its frontier across threads (≥ 8192 nodes).
+    for (path, opts) in [(&sphere, RenderOptions { pixel_error: 0.5, ..small(640, 480) }), (&outer, small(320, 240))] {
+        let run = |n: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
+            pool.install(|| render_file(path, &opts).unwrap())
+        };
+        let (a, b) = (run(1), run(4));
+        assert!(a.stats.lod.nodes_visited > 8192 || path == &outer);
+        assert_eq!(a.frame, b.frame, "{}", path.display());
+    }
+}
