@@ -53,7 +53,7 @@ struct Cli {
     levels: usize,
     /// Coverage of a source mesh (OBJ, glTF/GLB, PLY): the fraction of random surface points
     /// inside some leaf sphere, leaves in world space (instances and inlines applied).
-    #[arg(long, value_name = "MESH")]
+    #[arg(long, value_name = "MESH", conflicts_with_all = ["dump", "export_ply"])]
     against: Option<PathBuf>,
     /// Surface points tested by --against.
     #[arg(long, value_name = "N", default_value_t = DEFAULT_POINTS, requires = "against")]

@@ -161,6 +161,7 @@ fn mesh_errors_have_their_exit_status() {
     let unknown = d.path().join("mesh.xyz");
     std::fs::write(&unknown, b"1 2 3\n").unwrap();
     assert_eq!(against(&sct, &unknown, &[]).0.status.code(), Some(1));
-    // Threshold outside [0, 1]: usage, 2.
+    // Threshold outside [0, 1], or --against with --dump: usage, 2.
     assert_eq!(against(&sct, &fuze_obj(), &["--min-coverage", "99"]).0.status.code(), Some(2));
+    assert_eq!(against(&sct, &fuze_obj(), &["--dump"]).0.status.code(), Some(2));
 }
