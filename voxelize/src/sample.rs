@@ -354,15 +354,16 @@ struct KeyPack {
 impl KeyPack {
     /// Covers the grid cells of `lo..=hi` (grid units) with one cell of margin.
     fn new(lo: [f64; 3], hi: [f64; 3]) -> Result<KeyPack, String> {
-        let l = lo.map(|v| v.floor() as i64 - 1);
-        let h = hi.map(|v| v.floor() as i64 + 1);
-        let bits: [u32; 3] = std::array::from_fn(|k| 64 - ((h[k] - l[k]).max(1) as u64).leading_zeros());
+        // Saturating: coordinates far beyond the grid must give an error, not an overflow.
+        let l = lo.map(|v| floor_i64(v).saturating_sub(1));
+        let h = hi.map(|v| floor_i64(v).saturating_add(1));
+        let bits: [u32; 3] = std::array::from_fn(|k| 64 - (h[k].saturating_sub(l[k]).max(1) as u64).leading_zeros());
         if bits.iter().sum::<u32>() > 64 {
             return Err(format!(
                 "the voxel grid ({} × {} × {} voxels) is too large to index with 64-bit voxel keys; use a larger voxel size",
-                h[0] - l[0],
-                h[1] - l[1],
-                h[2] - l[2]
+                h[0].saturating_sub(l[0]),
+                h[1].saturating_sub(l[1]),
+                h[2].saturating_sub(l[2])
             ));
         }
         Ok(KeyPack { lo: l, hi: h, bits })
@@ -1388,6 +1389,7 @@ mod tests {
         // Out-of-range coordinates clamp instead of spilling into another field.
         assert_eq!(kp.unpack(kp.pack([i64::MAX, 0, 1000])), [301, 0, 1000]);
         assert!(KeyPack::new([0.0; 3], [3e6; 3]).is_err(), "3 × 22 bits do not fit");
+        assert!(KeyPack::new([-1e300; 3], [1e300; 3]).is_err(), "saturates, then refuses");
     }
 
     #[test]
