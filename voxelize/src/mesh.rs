@@ -369,7 +369,7 @@ pub fn trs_matrix(t: [f64; 3], q: [f64; 4], s: [f64; 3]) -> Mat4 {
 pub fn floor_i64(x: f64) -> i64 {
     let t = x as i64;
     if (t as f64) > x {
-        t - 1
+        t.saturating_sub(1) // saturated at i64::MIN for huge negative x
     } else {
         t
     }
@@ -629,6 +629,14 @@ impl SplitMix {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn floor_i64_is_floor_and_saturates() {
+        for x in [-1.5, -1.0, -0.25, 0.0, 0.75, 2.0, 2.7, -3e9, 7.5e12] {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
+        assert_eq!((floor_i64(-1e300), floor_i64(1e300), floor_i64(f64::NAN)), (i64::MIN, i64::MAX, 0));
+    }
 
     /// The table-driven encoder equals a binary search over the midpoints everywhere.
     #[test]
