@@ -131,6 +131,26 @@ fn leaves_are_placed_through_instances_and_inlines() {
 }
 
 #[test]
+fn point_cloud_mesh_uses_its_points() {
+    // A PLY without faces: the fuze's vertices lie on its surface, so all are covered.
+    let d = tmp();
+    let sct = build_fuze(d.path(), Profile::Raw);
+    let text = std::fs::read_to_string(fuze_obj()).unwrap();
+    let verts: Vec<&str> = text.lines().filter_map(|l| l.strip_prefix("v ")).collect();
+    let mut ply = format!("ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nend_header\n", verts.len());
+    for v in &verts {
+        ply.push_str(v.trim());
+        ply.push('\n');
+    }
+    let cloud = d.path().join("cloud.ply");
+    std::fs::write(&cloud, ply).unwrap();
+    let (o, v) = against(&sct, &cloud, &["--points", "3000"]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(v["coverage"]["points"], 3000);
+    assert_eq!(v["coverage"]["fraction"], 1.0, "{}", v["coverage"]);
+}
+
+#[test]
 fn output_is_deterministic_across_thread_counts() {
     let d = tmp();
     let sct = build_fuze(d.path(), Profile::Default);

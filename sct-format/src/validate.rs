@@ -988,7 +988,7 @@ impl<'a> Wavefront<'a> {
             })
             .collect();
         // Parents below `need` have been consumed by this level's blocks so far.
-        let consumed = (need - base).min(parents.queue.len() as u64) as usize;
+        let consumed = need.saturating_sub(base).min(parents.queue.len() as u64) as usize;
         parents.queue.drain(..consumed);
         parents.first_rank += consumed as u64;
         for r in results {
