@@ -1067,8 +1067,26 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i6
                 }
                 continue;
             }
-            let (kmin, kmax) = if d == 0 { (kmin.max(xr.0), kmax.min(xr.1)) } else { (kmin, kmax) };
             let poly = piece.unwrap_or_else(|| Poly2::square(x0, y));
+            if kmax == kmin + 1 {
+                // One depth face crosses the piece (the common steep case): one clip gives the
+                // lower part; the upper part is the remainder (area and centroid by
+                // difference), so the two areas still add up to the piece's exactly.
+                let kf = kmax as f64;
+                let lower = poly.clip_half(|p| kf - depth(p), None);
+                let (al, cl) = if lower.n >= 3 { lower.area_centroid() } else { (0.0, cen) };
+                let au = area2 - al;
+                let cu = if au > 0.0 { [(area2 * cen[0] - al * cl[0]) / au, (area2 * cen[1] - al * cl[1]) / au] } else { cen };
+                let keep = |k: i64| d != 0 || (xr.0..=xr.1).contains(&k);
+                if al > 0.0 && keep(kmin) {
+                    emit(out, ia, ib, kmin, al, cl);
+                }
+                if au > 0.0 && keep(kmax) {
+                    emit(out, ia, ib, kmax, au, cu);
+                }
+                continue;
+            }
+            let (kmin, kmax) = if d == 0 { (kmin.max(xr.0), kmax.min(xr.1)) } else { (kmin, kmax) };
             for k in kmin..=kmax {
                 let kf = k as f64;
                 let sub = poly.clip_half(|p| depth(p) - kf, None).clip_half(|p| kf + 1.0 - depth(p), None);
