@@ -16,12 +16,18 @@ fn fuze_obj() -> PathBuf {
 
 /// Voxelizes the fuze and builds it with `profile` into `dir/fuze-<profile>.sct`.
 fn build_fuze(dir: &Path, profile: Profile) -> PathBuf {
-    let samples = dir.join("fuze.samples");
+    build_mesh(dir, &fuze_obj(), "fuze", profile)
+}
+
+/// Voxelizes `mesh` and builds it with `profile` into `dir/<name>-<profile>.sct`.
+fn build_mesh(dir: &Path, mesh: &Path, name: &str, profile: Profile) -> PathBuf {
+    let samples = dir.join(format!("{name}.samples"));
     if !samples.exists() {
-        let opts = voxelize::Options { inputs: vec![fuze_obj()], output: Some(samples.clone()), load: Default::default(), sample: Default::default() };
+        let opts =
+            voxelize::Options { inputs: vec![mesh.to_path_buf()], output: Some(samples.clone()), load: Default::default(), sample: Default::default() };
         voxelize::run(&opts, &|_, _| {}).expect("voxelize");
     }
-    let out = dir.join(format!("fuze-{}.sct", profile.name()));
+    let out = dir.join(format!("{name}-{}.sct", profile.name()));
     let cfg = build_tree::pipeline::Config {
         samples,
         output: out.clone(),
@@ -128,6 +134,21 @@ fn leaves_are_placed_through_instances_and_inlines() {
     assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(v["coverage"]["fraction"], 1.0);
     assert_eq!(v["coverage"]["tree_uses"], 1);
+}
+
+#[test]
+fn instanced_gltf_through_build_tree_is_fully_covered() {
+    // Khronos SimpleInstancing: build-tree turns the glTF's placements into instances.
+    let mesh = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models/gltf/SimpleInstancing/glTF/SimpleInstancing.gltf");
+    let mesh = mesh.as_path();
+    let d = tmp();
+    let sct = build_mesh(d.path(), mesh, "si", Profile::Default);
+    let (o, v) = against(&sct, mesh, &["--points", "20000"]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let c = &v["coverage"];
+    assert_eq!(c["fraction"], 1.0, "{c}");
+    assert!(v["graph"]["instances"].as_u64().unwrap() > 0, "{}", v["graph"]);
+    assert!(c["tree_uses"].as_u64().unwrap() > c["trees"].as_u64().unwrap(), "{c}");
 }
 
 #[test]
