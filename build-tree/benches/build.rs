@@ -2,7 +2,8 @@
 //!
 //! `cargo bench -p build-tree --bench build -- [N] [PLY] [OUT.samples]`
 //!
-//! Until `sct-voxelize` lands, samples are drawn uniformly on the triangles of an ASCII PLY
+//! Synthetic samples (for real voxelized samples and the CLI figures see BENCHMARKS.md,
+//! "Build tree"): drawn uniformly on the triangles of an ASCII PLY
 //! mesh (default: the Stanford bunny), N of them (default 1,401,494 as in thesis Table 8).
 //! Writes the samples file (for the end-to-end CLI measurement), then times the library
 //! phases in process: partition, layout, attributes, encode+write, and reports leaf
@@ -75,7 +76,10 @@ fn tightness(t: &sct_format::SceneTree) -> (f64, f64) {
     (ratio / count.max(1) as f64, sum / nodes[0].radius.max(f32::MIN_POSITIVE) as f64)
 }
 
-fn read_ascii_ply(path: &std::path::Path) -> Result<(Vec<[f64; 3]>, Vec<[usize; 3]>), Box<dyn std::error::Error>> {
+/// Vertices and triangles of a mesh.
+type Mesh = (Vec<[f64; 3]>, Vec<[usize; 3]>);
+
+fn read_ascii_ply(path: &std::path::Path) -> Result<Mesh, Box<dyn std::error::Error>> {
     let text = std::fs::read_to_string(path)?;
     let mut lines = text.lines();
     let (mut nv, mut nf) = (0usize, 0usize);

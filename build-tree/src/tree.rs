@@ -98,9 +98,9 @@ impl Aabb {
 
     #[inline]
     fn add(&mut self, c: &[f32; 3]) {
-        for k in 0..3 {
-            self.min[k] = self.min[k].min(c[k]);
-            self.max[k] = self.max[k].max(c[k]);
+        for ((lo, hi), &v) in self.min.iter_mut().zip(self.max.iter_mut()).zip(c) {
+            *lo = lo.min(v);
+            *hi = hi.max(v);
         }
     }
 
@@ -290,8 +290,8 @@ fn weld(samples: &[Node], members: &[Item]) -> Node {
         if i > 0 {
             acc = parent_of(&acc, s);
         }
-        for k in 0..3 {
-            mean[k] += s.center[k] as f64;
+        for (m, &v) in mean.iter_mut().zip(&s.center) {
+            *m += v as f64;
         }
     }
     let inv = 1.0 / members.len() as f64;
