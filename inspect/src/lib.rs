@@ -476,9 +476,12 @@ pub fn write_validation(v: &Validation, w: &mut dyn Write) -> std::io::Result<()
     if v.is_valid() {
         writeln!(w, "validation ({mode}): valid ({} files, {} trees, {} blocks, {} nodes checked)", v.files.len(), v.trees, v.blocks, v.nodes)?;
     } else {
-        writeln!(w, "validation ({mode}): {} issue(s)", v.issues.len())?;
+        writeln!(w, "validation ({mode}): {} issue(s)", v.issues.len() as u64 + v.issues_omitted)?;
         for i in &v.issues {
             writeln!(w, "{i}")?;
+        }
+        if v.issues_omitted > 0 {
+            writeln!(w, "… and {} more issue(s) not listed (at most {} are kept)", v.issues_omitted, sct_format::validate::MAX_ISSUES)?;
         }
     }
     Ok(())

@@ -53,6 +53,10 @@ use crate::read::TreeIndex;
 use crate::traverse::{hex, leaf_paths};
 use crate::tree::SceneTree;
 
+/// Issues kept in a [`Report`]; later ones are only counted ([`Report::issues_omitted`]), so
+/// a file that is wrong everywhere cannot make validation hold one message per node.
+pub const MAX_ISSUES: usize = 100_000;
+
 /// Relative area tolerance (see the module docs).
 pub const AREA_REL_TOL: f64 = 1e-4;
 /// Unit-length tolerance of quaternions (the reader's).
@@ -195,12 +199,19 @@ pub struct Report {
     pub blocks: u64,
     /// Nodes checked against their parent (deep).
     pub nodes: u64,
+    /// Issues found beyond [`MAX_ISSUES`] and not listed (absent from JSON when 0).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub issues_omitted: u64,
+}
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
 }
 
 impl Report {
     /// True when no issue was found.
     pub fn is_valid(&self) -> bool {
-        self.issues.is_empty()
+        self.issues.is_empty() && self.issues_omitted == 0
     }
     /// The distinct check ids found, sorted.
     pub fn check_ids(&self) -> Vec<CheckId> {
@@ -545,11 +556,13 @@ struct Validator<'o> {
     stack: Vec<PathBuf>,
     /// Files already validated, with their root bound.
     done: HashMap<PathBuf, Option<Node>>,
+    /// [`MAX_ISSUES`] (smaller in tests).
+    max_issues: usize,
 }
 
 impl<'o> Validator<'o> {
     fn new(opts: &'o ValidateOptions) -> Self {
-        Validator { opts, report: Report { deep: opts.deep, ..Default::default() }, stack: Vec::new(), done: HashMap::new() }
+        Validator { opts, report: Report { deep: opts.deep, ..Default::default() }, stack: Vec::new(), done: HashMap::new(), max_issues: MAX_ISSUES }
     }
 
     fn finish(self) -> Report {
@@ -557,6 +570,10 @@ impl<'o> Validator<'o> {
     }
 
     fn issue(&mut self, path: impl Into<String>, check: CheckId, label: &str, message: impl std::fmt::Display) {
+        if self.report.issues.len() >= self.max_issues {
+            self.report.issues_omitted += 1;
+            return;
+        }
         let message = if label.is_empty() { message.to_string() } else { format!("{label}: {message}") };
         self.report.issues.push(Issue { path: path.into(), check, message });
     }
@@ -867,11 +884,11 @@ impl<'o> Validator<'o> {
             return;
         }
         let root = idx.header.root;
-        let mut w = Wavefront::new(idx, &self.opts.limits);
+        let mut w = Wavefront::new(idx, &self.opts.limits, self.max_issues.saturating_sub(self.report.issues.len()));
         w.bits[0].push(idx.header.root_internal == 1);
         let mut root_issues = Vec::new();
         check_node(&root, 0, &mut root_issues);
-        w.pending.extend(root_issues.into_iter().map(|(i, k, m)| (0, i, k, m)));
+        w.keep(0, root_issues);
         if idx.header.root_internal == 1 {
             w.fronts[0].queue.push_back(root);
         }
@@ -888,6 +905,7 @@ impl<'o> Validator<'o> {
             }
         }
         self.report.nodes += w.nodes;
+        self.report.issues_omitted += w.omitted;
         self.report.blocks += w.blocks;
         if let Some((d, (k, m))) = failed {
             // Deeper nodes need the failed block's nodes as parents: stop this tree.
@@ -939,12 +957,15 @@ struct Wavefront<'a> {
     fronts: Vec<Front>,
     bits: Vec<LevelBits>,
     pending: Vec<(usize, u64, CheckId, String)>,
+    /// Issues that may still be kept ([`MAX_ISSUES`] less those already reported).
+    room: usize,
+    omitted: u64,
     nodes: u64,
     blocks: u64,
 }
 
 impl<'a> Wavefront<'a> {
-    fn new(idx: &'a TreeIndex, limits: &'a Limits) -> Self {
+    fn new(idx: &'a TreeIndex, limits: &'a Limits, room: usize) -> Self {
         let fronts = (0..idx.levels.len())
             .map(|d| {
                 let r = idx.level_blocks(d);
@@ -954,7 +975,18 @@ impl<'a> Wavefront<'a> {
         let bits = (0..idx.levels.len()).map(|_| LevelBits::default()).collect();
         // Enough blocks per batch to keep every thread busy; the result does not depend on it.
         let batch = (2 * rayon::current_num_threads()).clamp(2, 32);
-        Wavefront { idx, limits, batch, fronts, bits, pending: Vec::new(), nodes: 0, blocks: 0 }
+        Wavefront { idx, limits, batch, fronts, bits, pending: Vec::new(), room, omitted: 0, nodes: 0, blocks: 0 }
+    }
+
+    /// Keeps level `d`'s issues while there is room, counts the rest.
+    fn keep(&mut self, d: usize, issues: Vec<(u64, CheckId, String)>) {
+        for (i, k, m) in issues {
+            if self.pending.len() < self.room {
+                self.pending.push((d, i, k, m));
+            } else {
+                self.omitted += 1;
+            }
+        }
     }
 
     /// Decodes and checks the next batch of level `d`'s blocks, first pulling the parents
@@ -997,7 +1029,7 @@ impl<'a> Wavefront<'a> {
             self.nodes += out.flags.len() as u64;
             out.flags.iter().for_each(|&f| self.bits[d].push(f));
             self.fronts[d].queue.extend(out.internal_nodes);
-            self.pending.extend(out.issues.into_iter().map(|(i, k, m)| (d, i, k, m)));
+            self.keep(d, out.issues);
         }
         self.fronts[d].next_block = b1;
         Ok(())
@@ -1090,6 +1122,28 @@ mod tests {
         let got: Vec<(String, &str)> = r.issues.iter().map(|i| (i.path.clone(), i.check.as_str())).collect();
         assert_eq!(got, vec![(paths[j].clone(), "child-outside-parent")]);
         assert!(paths[j].matches('/').count() >= 8, "{}", paths[j]);
+    }
+
+    /// Past the cap, issues are counted, not kept; the report is still invalid.
+    #[test]
+    fn issues_beyond_the_cap_are_counted() {
+        let mut t = build(40);
+        let leaves: Vec<usize> = t.leaves().collect();
+        for &l in &leaves {
+            t.nodes_mut()[l].radius = f32::NAN;
+        }
+        let bytes = bytes_of(t, Profile::Raw);
+        let full = validate_bytes(&bytes, &deep());
+        assert_eq!(full.issues.len(), 40);
+        assert_eq!(full.issues_omitted, 0);
+        let opts = deep();
+        let mut v = Validator::new(&opts);
+        v.max_issues = 15;
+        v.file(&bytes, None, "root", "");
+        let r = v.finish();
+        assert_eq!((r.issues.len(), r.issues_omitted), (15, 25));
+        assert_eq!(r.issues[..], full.issues[..15]);
+        assert!(!r.is_valid());
     }
 
     #[test]
