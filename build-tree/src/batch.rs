@@ -164,11 +164,14 @@ pub fn job_key(opts: &BatchOptions) -> String {
     blake3::hash(v.to_string().as_bytes()).to_hex().to_string()
 }
 
+/// Mesh files found (relative paths) and unreadable entries (relative path, error).
+pub type Discovered = (Vec<PathBuf>, Vec<(PathBuf, String)>);
+
 /// Every mesh file below `root`, as sorted relative paths. Hidden entries (names starting
 /// with `.`) and `skip` (the output root, when it lies inside the library) are left out;
 /// directory symlinks are not followed (no cycles). Unreadable directories are returned in
 /// the second list.
-pub fn discover(root: &Path, skip: Option<&Path>) -> Result<(Vec<PathBuf>, Vec<(PathBuf, String)>), BuildError> {
+pub fn discover(root: &Path, skip: Option<&Path>) -> Result<Discovered, BuildError> {
     let meta = std::fs::metadata(root).map_err(|e| BuildError::Io(format!("{}: {e}", root.display())))?;
     if !meta.is_dir() {
         return Err(BuildError::Io(format!("{}: not a directory", root.display())));

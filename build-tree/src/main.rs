@@ -208,12 +208,12 @@ fn main() -> ExitCode {
     };
     let result = match mode {
         Mode::Meshes(meshes) => convert_meshes(&meshes, &cli.sampling, &cfg, None, &mut phase)
-            .map(Outcome::Converted)
+            .map(|c| Outcome::Converted(Box::new(c)))
             .map_err(|e| (e.to_string(), e.exit_code())),
         Mode::SceneOnly => run_samples(&cfg, SamplesFile::default(), Upstream::None, Instant::now(), &mut phase)
-            .map(Outcome::Built)
+            .map(|r| Outcome::Built(Box::new(r)))
             .map_err(|e| (e.to_string(), e.exit_code())),
-        _ => run(&cfg, &mut phase).map(Outcome::Built).map_err(|e| (e.to_string(), e.exit_code())),
+        _ => run(&cfg, &mut phase).map(|r| Outcome::Built(Box::new(r))).map_err(|e| (e.to_string(), e.exit_code())),
     };
     if let Some(b) = &bar {
         b.finish_and_clear();
@@ -221,7 +221,7 @@ fn main() -> ExitCode {
     match result {
         Ok(outcome) => {
             let (rep, warnings) = match &outcome {
-                Outcome::Built(r) => (r, &[][..]),
+                Outcome::Built(r) => (&**r, &[][..]),
                 Outcome::Converted(c) => (&c.build, &c.sampling.warnings[..]),
             };
             for w in warnings {
@@ -232,8 +232,8 @@ fn main() -> ExitCode {
                     print_build(rep);
                     true
                 }
-                (Outcome::Built(r), true) => print_json(r),
-                (Outcome::Converted(c), true) => print_json(c),
+                (Outcome::Built(r), true) => print_json(&**r),
+                (Outcome::Converted(c), true) => print_json(&**c),
             };
             if printed {
                 ExitCode::SUCCESS
@@ -250,8 +250,8 @@ fn main() -> ExitCode {
 
 /// A single build's report: from samples, or sampling + build (one step).
 enum Outcome {
-    Built(Report),
-    Converted(ConvertReport),
+    Built(Box<Report>),
+    Converted(Box<ConvertReport>),
 }
 
 fn run_batch_cli(opts: &BatchOptions, json: bool) -> ExitCode {

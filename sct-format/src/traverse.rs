@@ -356,6 +356,8 @@ impl Traversal {
         self.deferred = None;
     }
 
+    // Built once per failing group, never on a hot path: no need to box it.
+    #[allow(clippy::result_large_err)]
     fn expand_group(&mut self, g: Pending) -> Result<(), TraverseError> {
         let GraphNode::Group { children, tree } = &g.file.graph().nodes[g.node as usize] else { return Ok(()) };
         let err = |kind| TraverseError { path: g.path.clone(), file: g.chain.path.clone(), graph_node: g.node, kind };
