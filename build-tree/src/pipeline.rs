@@ -143,7 +143,7 @@ pub fn run_samples(
     let mut rep = Report { output: cfg.output.display().to_string(), profile: cfg.profile.name().into(), ..Default::default() };
     let limits = Limits::default();
     rep.samples = samples.samples.len() as u64;
-    bake_affine_instances(&mut samples);
+    bake_affine_instances(&mut samples, &limits)?;
     rep.seconds.read = t0.elapsed().as_secs_f64();
 
     phase("building trees");
@@ -213,18 +213,38 @@ pub fn run_samples(
 /// the matrix — placed at the identity, since a scene-tree instance must be a similarity.
 /// Original meshes keep their indices and names (scene files refer to them); a mesh left
 /// with no similarity instance is simply not built.
-pub fn bake_affine_instances(samples: &mut SamplesFile) {
+///
+/// A few bytes of compressed `AFFI` entries can ask for billions of baked samples, so the
+/// total is checked against `limits.max_samples` before anything is allocated, and a matrix
+/// that maps a sample to a non-finite node (finite but huge entries) is refused.
+pub fn bake_affine_instances(samples: &mut SamplesFile, limits: &Limits) -> Result<(), BuildError> {
+    let mut total = samples.samples.len() as u64;
+    for a in &samples.affine_instances {
+        let count = samples.meshes.get(a.mesh as usize).map_or(0, |m| m.count);
+        total = total.checked_add(count).filter(|&t| t <= limits.max_samples).ok_or_else(|| {
+            BuildError::Input(format!(
+                "baking {} affine instances needs more than the limit of {} samples",
+                samples.affine_instances.len(),
+                limits.max_samples
+            ))
+        })?;
+    }
     for a in std::mem::take(&mut samples.affine_instances) {
         let m = a.mesh as usize;
         let Some(src) = samples.meshes.get(m).cloned() else { continue };
         let stretch = a.max_stretch();
         let first = samples.samples.len() as u64;
         let baked: Vec<_> = samples.mesh_samples(m).iter().map(|n| a.transform_node(n, stretch)).collect();
+        let finite = |n: &sct_format::Node| n.center.iter().chain(&n.normal).chain([&n.radius, &n.area]).all(|v| v.is_finite());
+        if !baked.iter().all(finite) {
+            return Err(BuildError::Input(format!("affine instance of mesh {:?} maps its samples outside the f32 range", src.name)));
+        }
         samples.samples.extend(baked);
         let idx = samples.meshes.len() as u32;
         samples.meshes.push(MeshEntry { name: format!("{}#affine", src.name), first, count: src.count });
         samples.instances.push(SampleInstance { mesh: idx, transform: sct_format::Similarity::IDENTITY });
     }
+    Ok(())
 }
 
 /// Fills the container, topology and per-stream figures from the writer's statistics.
@@ -328,7 +348,8 @@ mod tests {
         let mut f = SamplesFile::single_mesh(Generator::default(), "m", samples.clone());
         let a = AffineInstance { mesh: 0, matrix: [[1.0, 0.4, 0.0, 3.0], [0.0, 2.5, 0.0, 0.0], [0.0, 0.0, 0.5, -1.0]] };
         f.affine_instances.push(a);
-        bake_affine_instances(&mut f);
+        let mut huge = f.clone();
+        bake_affine_instances(&mut f, &Limits::default()).expect("bake");
         assert!(f.affine_instances.is_empty());
         assert_eq!(f.meshes.len(), 2);
         assert_eq!(f.instances.len(), 2);
@@ -351,5 +372,13 @@ mod tests {
         }
         // Colour is unchanged by baking.
         assert!(leaves.iter().all(|l| l.color == [200, 10, 10, 255]));
+
+        // Hostile AFFI: many entries need more samples than allowed — refused before baking.
+        huge.affine_instances = vec![a; 1000];
+        let small = Limits { max_samples: 100 * samples.len() as u64, ..Limits::default() };
+        assert!(matches!(bake_affine_instances(&mut huge.clone(), &small), Err(BuildError::Input(_))));
+        // Finite but huge entries overflow f32: refused, not baked into infinities.
+        huge.affine_instances = vec![AffineInstance { mesh: 0, matrix: [[1e300, 0.0, 0.0, 0.0], [0.0, 1e-300, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]] }];
+        assert!(matches!(bake_affine_instances(&mut huge, &Limits::default()), Err(BuildError::Input(_))));
     }
 }
