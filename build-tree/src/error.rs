@@ -1,7 +1,9 @@
 //! Errors of the build-tree library, split by who must act: the input's author or the caller/environment.
 
 /// Everything `build-tree` can fail with.
+/// Non-exhaustive so that a new failure kind is not a breaking change for callers.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum BuildError {
     /// The samples, scene description or referenced files are unusable (exit code 1).
     #[error("bad input: {0}")]

@@ -10,7 +10,7 @@ pub mod error;
 pub mod tree;
 
 pub use error::BuildError;
-pub use tree::{build_tree, build_tree_with_map, BuildOptions, BuildStats, Weld};
+pub use tree::{build_tree, build_tree_owned, build_tree_with_map, BuildOptions, BuildStats, Weld};
 pub mod batch;
 pub mod convert;
 pub mod pipeline;

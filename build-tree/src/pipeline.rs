@@ -149,7 +149,7 @@ pub fn run_samples(
     phase("building trees");
     let t1 = Instant::now();
     let out_dir = cfg.output.parent().map(Path::to_path_buf).unwrap_or_default();
-    let composer = Composer::new(&samples, cfg.build, &out_dir, limits.clone());
+    let composer = Composer::new(&mut samples, cfg.build, &out_dir, limits.clone());
     let scene_file = cfg.scene.as_deref().map(read_scene_file).transpose()?;
     let composed = match &scene_file {
         Some(s) => composer.compose_file(s)?,

@@ -13,7 +13,7 @@ use sct_format::traverse::{graph_bound, TraversalState};
 use sct_format::{Limits, Node, SceneTree};
 
 use crate::error::BuildError;
-use crate::tree::{build_tree_with_map, BuildOptions, BuildStats, Weld};
+use crate::tree::{build_tree_owned, build_tree_with_map_owned, BuildOptions, BuildStats, Weld};
 
 /// A `scene.json` file.
 #[derive(Clone, Debug, Deserialize)]
@@ -162,7 +162,8 @@ pub struct Composed {
 
 /// Builds graph nodes bottom-up, sharing mesh trees and `defs`.
 pub struct Composer<'a> {
-    samples: &'a SamplesFile,
+    /// Mutable so a single-mesh file's samples can be handed to the builder (see `mesh`).
+    samples: &'a mut SamplesFile,
     opts: BuildOptions,
     out_dir: PathBuf,
     limits: Limits,
@@ -179,8 +180,10 @@ pub struct Composer<'a> {
 static NO_DEFS: BTreeMap<String, SceneNode> = BTreeMap::new();
 
 impl<'a> Composer<'a> {
-    /// A composer over `samples`; inlines are resolved relative to `out_dir`.
-    pub fn new(samples: &'a SamplesFile, opts: BuildOptions, out_dir: &Path, limits: Limits) -> Self {
+    /// A composer over `samples`; inlines are resolved relative to `out_dir`. When the file
+    /// has a single mesh spanning all its samples, building that mesh's tree moves the
+    /// samples out of `samples` (its `samples` vector is left empty) to save their memory.
+    pub fn new(samples: &'a mut SamplesFile, opts: BuildOptions, out_dir: &Path, limits: Limits) -> Self {
         Composer {
             samples,
             opts,
@@ -306,8 +309,7 @@ impl<'a> Composer<'a> {
         if m as usize >= self.samples.meshes.len() {
             return Err(BuildError::Input(format!("instance refers to mesh {m}, the file has {}", self.samples.meshes.len())));
         }
-        let samples = self.samples.mesh_samples(m as usize);
-        let (tree, stats) = crate::tree::build_tree(samples, &self.opts)
+        let (tree, stats) = build_tree_owned(self.take_mesh_samples(m as usize), &self.opts)
             .map_err(|e| prefix(e, &format!("mesh {m} ({:?})", self.samples.meshes[m as usize].name)))?;
         let root = tree.nodes()[0];
         self.trees.push(tree);
@@ -315,6 +317,20 @@ impl<'a> Composer<'a> {
         let id = self.push(GraphNode::Tree { tree: (self.trees.len() - 1) as u32 }, root);
         self.mesh_node.insert(m, id);
         Ok(id)
+    }
+
+    /// Mesh `m`'s samples for the builder to consume. The file's only mesh (the common
+    /// case, and the memory peak of a build) takes the file's vector itself, so the samples
+    /// are not held twice while its tree is built; other meshes copy their range, since the
+    /// file's vector still serves the rest. Each mesh is built once (`mesh_node`).
+    fn take_mesh_samples(&mut self, m: usize) -> Vec<Node> {
+        let f = &mut *self.samples;
+        let whole = f.meshes.len() == 1 && f.meshes[0].first == 0 && f.meshes[0].count == f.samples.len() as u64;
+        if whole {
+            std::mem::take(&mut f.samples)
+        } else {
+            f.mesh_samples(m).to_vec()
+        }
     }
 
     fn instance(&mut self, child: u32, transform: Similarity, attrs: InstanceAttrs) -> Result<u32, BuildError> {
@@ -359,7 +375,7 @@ impl<'a> Composer<'a> {
         let bounds: Vec<Node> = children.iter().map(|&c| self.bounds[c as usize]).collect();
         // Never weld: every child must keep its own leaf.
         let opts = BuildOptions { weld: Weld::Off, ..self.opts };
-        let (tree, stats, map) = build_tree_with_map(&bounds, &opts)?;
+        let (tree, stats, map) = build_tree_with_map_owned(bounds, &opts)?;
         let mut order: Vec<(u32, u32)> = map.iter().zip(&children).map(|(&leaf, &c)| (leaf, c)).collect();
         order.sort_unstable();
         let children: Vec<u32> = order.into_iter().map(|(_, c)| c).collect();
@@ -439,7 +455,8 @@ fn normalize_quat(q: [f64; 4]) -> Result<[f64; 4], BuildError> {
 
 /// The similarity that maps `bound` onto the sphere (`center`, `radius`) after `rotation`.
 fn fit_transform(bound: &Node, rotation: [f64; 4], center: [f64; 3], radius: f64) -> Result<Similarity, BuildError> {
-    if !(bound.radius > 0.0) || !(radius > 0.0 && radius.is_finite()) {
+    // `!(x > 0.0)` and not `x <= 0.0`: a NaN radius must be refused too.
+    if !(bound.radius > 0.0 && radius > 0.0 && radius.is_finite()) {
         return Err(BuildError::Input(format!("scene: cannot fit a bound of radius {} into radius {radius}", bound.radius)));
     }
     let scale = radius / bound.radius as f64;

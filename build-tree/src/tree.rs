@@ -2,8 +2,15 @@
 //! largest extent, duplicate welding (§5.3.4), breadth-first layout, bottom-up attributes
 //! (§5.1 via [`sct_format::geometry`]).
 //!
-//! Memory layout, chosen to keep the peak near the size of the output tree:
-//! - `items`: 16 bytes per sample (centre + source index), partitioned in place;
+//! Memory layout, chosen to keep the peak near the size of the output tree (issue #4:
+//! at most 100 bytes per sample including the writer):
+//! - the samples vector is owned: after the partition it is put in partition order (in
+//!   place) and welded in place into the leaves; the leaves are copied in breadth-first
+//!   order into the output vector, whose internal nodes are only touched once the samples
+//!   are freed. The peak is therefore the finished tree (with `SceneTree`'s own arrays
+//!   about 90 bytes per leaf), not samples + partition arrays + tree as before;
+//! - `items`: 16 bytes per sample (centre + source index), partitioned in place and freed
+//!   before the layout;
 //! - `slots`: one `u32` per tree node in an implicit pre-order layout: a subtree over the
 //!   `m` items `[lo, hi)` whose root is slot `s` owns slots `[s, s + 2m - 1)`; its left
 //!   child over `[lo, mid)` is slot `s + 1` and its right child slot `s + 2(mid - lo)`. The
@@ -133,9 +140,16 @@ fn ceil_log2(n: usize) -> u32 {
 
 /// Builds the scene tree over `samples` (leaf nodes, cone usually 0).
 ///
-/// Returns the tree in breadth-first order and build figures. With `map`, also returns for
-/// every sample the breadth-first index of the leaf that holds it (after welding).
+/// Returns the tree in breadth-first order and build figures. Copies the samples first;
+/// [`build_tree_owned`] consumes them instead and needs less memory.
 pub fn build_tree(samples: &[Node], opts: &BuildOptions) -> Result<(SceneTree, BuildStats), BuildError> {
+    build_tree_owned(samples.to_vec(), opts)
+}
+
+/// [`build_tree`] over samples it may consume: they are reordered and welded into leaves in
+/// place and freed before the internal nodes exist, so the peak is about the output tree
+/// (the samples and partition arrays never coexist with it).
+pub fn build_tree_owned(samples: Vec<Node>, opts: &BuildOptions) -> Result<(SceneTree, BuildStats), BuildError> {
     build_tree_impl(samples, opts, false).map(|(t, s, _)| (t, s))
 }
 
@@ -144,11 +158,23 @@ pub fn build_tree_with_map(
     samples: &[Node],
     opts: &BuildOptions,
 ) -> Result<(SceneTree, BuildStats, Vec<u32>), BuildError> {
+    build_tree_impl(samples.to_vec(), opts, true)
+}
+
+/// [`build_tree_with_map`] over samples it may consume.
+pub(crate) fn build_tree_with_map_owned(
+    samples: Vec<Node>,
+    opts: &BuildOptions,
+) -> Result<(SceneTree, BuildStats, Vec<u32>), BuildError> {
     build_tree_impl(samples, opts, true)
 }
 
+/// Marks a slot as a leaf once welding has replaced its `hi` by the leaf's depth-first
+/// index (both are below 2^31, see the size check).
+const LEAF: u32 = 1 << 31;
+
 fn build_tree_impl(
-    samples: &[Node],
+    mut samples: Vec<Node>,
     opts: &BuildOptions,
     want_map: bool,
 ) -> Result<(SceneTree, BuildStats, Vec<u32>), BuildError> {
@@ -156,7 +182,8 @@ fn build_tree_impl(
     if n == 0 {
         return Err(BuildError::Input("no samples to build a tree from".into()));
     }
-    // Slots and item indices are u32; SceneTree allows fewer than 2^32 - 1 nodes.
+    // Slots and item indices are u32 with the top bit free (LEAF, gather marks); SceneTree
+    // allows fewer than 2^32 - 1 nodes.
     if n > (u32::MAX / 2) as usize {
         return Err(BuildError::Input(format!("{n} samples exceed the 2^31 - 1 a tree can hold")));
     }
@@ -184,34 +211,64 @@ fn build_tree_impl(
     stats.forced_splits = forced;
     stats.partition_s = t0.elapsed().as_secs_f64();
 
-    // Pass 2: breadth-first layout; leaves get their (welded) sample, parents a placeholder.
+    // Pass 2: layout. The samples are moved into partition order, so every leaf's members
+    // are contiguous and welding can compact them in place; the items are freed first.
     let t1 = Instant::now();
-    let mut nodes: Vec<Node> = Vec::new();
-    let mut internal: Vec<bool> = Vec::new();
+    let order: Vec<u32> = if want_map { items.iter().map(|it| it.idx).collect() } else { Vec::new() };
+    gather_in_place(&mut samples, items, |it: &mut Item| &mut it.idx)?;
+
+    // 2a: leaves in depth-first order (the partition order), welded into the front of
+    // `samples`; leaf `k` covers `[lo, hi)` with `k <= lo`, so nothing unread is overwritten.
+    // Its root slot becomes `LEAF | k`. `map` holds depth-first leaf indices for now.
     let mut map = if want_map { vec![u32::MAX; n] } else { Vec::new() };
-    // (lo, hi, slot) of every node of the current and the next level.
-    let mut level: Vec<(u32, u32, u32)> = vec![(0, n as u32, 0)];
-    let mut next: Vec<(u32, u32, u32)> = Vec::new();
-    let mut depth = 0u32;
-    let mut leaves = 0u64;
-    loop {
-        for &(lo, hi, slot) in &level {
-            let v = slots[slot as usize];
-            if v == hi {
-                let members = &items[lo as usize..hi as usize];
-                if want_map {
-                    for it in members {
-                        map[it.idx as usize] = nodes.len() as u32;
-                    }
+    let mut leaves = 0u32;
+    let mut stack: Vec<(u32, u32, u32)> = vec![(0, n as u32, 0)];
+    while let Some((lo, hi, slot)) = stack.pop() {
+        let v = slots[slot as usize];
+        if v == hi {
+            let w = weld(&samples[lo as usize..hi as usize]);
+            samples[leaves as usize] = w;
+            if want_map {
+                for &s in &order[lo as usize..hi as usize] {
+                    map[s as usize] = leaves;
                 }
-                nodes.push(weld(samples, members));
+            }
+            slots[slot as usize] = LEAF | leaves;
+            leaves += 1;
+        } else {
+            // Right pushed first so the left subtree is visited first (pre-order).
+            stack.push((v, hi, slot + 2 * (v - lo)));
+            stack.push((lo, v, slot + 1));
+        }
+    }
+    drop(stack);
+    drop(order);
+    samples.truncate(leaves as usize);
+
+    // 2b: breadth-first walk: internal flags, and for every breadth-first leaf the
+    // depth-first index it comes from.
+    let total = 2 * leaves as usize - 1;
+    let mut internal: Vec<bool> = Vec::with_capacity(total);
+    let mut bfs_src: Vec<u32> = Vec::with_capacity(leaves as usize);
+    let mut node_of_dfs = if want_map { vec![0u32; leaves as usize] } else { Vec::new() };
+    // (lo, slot) of every node of the current and the next level.
+    let mut level: Vec<(u32, u32)> = vec![(0, 0)];
+    let mut next: Vec<(u32, u32)> = Vec::new();
+    let mut depth = 0u32;
+    loop {
+        for &(lo, slot) in &level {
+            let v = slots[slot as usize];
+            if v & LEAF != 0 {
+                let k = v & !LEAF;
+                if want_map {
+                    node_of_dfs[k as usize] = internal.len() as u32;
+                }
+                bfs_src.push(k);
                 internal.push(false);
-                leaves += 1;
             } else {
-                nodes.push(Node::default());
                 internal.push(true);
-                next.push((lo, v, slot + 1));
-                next.push((v, hi, slot + 2 * (v - lo)));
+                next.push((lo, slot + 1));
+                next.push((v, slot + 2 * (v - lo)));
             }
         }
         if next.is_empty() {
@@ -223,8 +280,35 @@ fn build_tree_impl(
     }
     drop(level);
     drop(next);
-    drop(items);
     drop(slots);
+    if internal.len() != total || bfs_src.len() != leaves as usize {
+        return Err(BuildError::Internal(format!("layout gave {} nodes and {} leaves for {leaves} leaves", internal.len(), bfs_src.len())));
+    }
+    for m in &mut map {
+        *m = node_of_dfs[*m as usize];
+    }
+    drop(node_of_dfs);
+
+    // 2c: leaves into breadth-first leaf order, then every leaf moves back to its node index
+    // (leaf `j` lands at index >= j, so walking from the end moves each leaf before its old
+    // place is overwritten). The gather is out of place and parallel: an in-place one is a
+    // chain of dependent cache misses (0.4 s on the bunny), and this copy, beside the welded
+    // leaves, stays below the finished tree, which is the builder's peak anyway. The capacity
+    // is the whole tree's, so growing it later neither copies nor touches more pages.
+    let mut nodes: Vec<Node> = Vec::with_capacity(total);
+    bfs_src.par_iter().map(|&k| samples[k as usize]).collect_into_vec(&mut nodes);
+    drop(bfs_src);
+    drop(samples);
+    nodes.resize(total, Node::default());
+    let mut j = leaves as usize;
+    for pos in (0..total).rev() {
+        if internal[pos] {
+            nodes[pos] = Node::default();
+        } else {
+            j -= 1;
+            nodes[pos] = nodes[j];
+        }
+    }
     stats.layout_s = t1.elapsed().as_secs_f64();
 
     // Pass 3: parents bottom-up, one level at a time (a level depends only on the next).
@@ -233,11 +317,45 @@ fn build_tree_impl(
     let tree = compute_attributes(tree);
     stats.attributes_s = t2.elapsed().as_secs_f64();
 
-    stats.leaves = leaves;
+    stats.leaves = leaves as u64;
     stats.nodes = tree.len() as u64;
     stats.depth = depth;
-    stats.welded = n as u64 - leaves;
+    stats.welded = n as u64 - leaves as u64;
     Ok((tree, stats, map))
+}
+
+/// Reorders `v` so that `v[i]` becomes the old `v[src[i]]` (`src` read through `idx`),
+/// following the permutation's cycles in place: no second copy of `v`, which is the point.
+/// The top bit of each index marks it done; `src` is consumed (and freed) for that.
+fn gather_in_place<T: Copy, S>(v: &mut [T], mut src: Vec<S>, idx: fn(&mut S) -> &mut u32) -> Result<(), BuildError> {
+    const DONE: u32 = 1 << 31;
+    let bad = || BuildError::Internal("layout permutation is not a permutation".into());
+    if src.len() != v.len() {
+        return Err(bad());
+    }
+    for start in 0..v.len() {
+        if *idx(&mut src[start]) & DONE != 0 {
+            continue;
+        }
+        let first = v[start];
+        let mut i = start;
+        loop {
+            let s = idx(&mut src[i]);
+            let from = *s as usize;
+            *s |= DONE;
+            if from == start {
+                v[i] = first;
+                break;
+            }
+            // An index already done or out of range would mean `src` repeats an entry.
+            if from >= v.len() {
+                return Err(bad());
+            }
+            v[i] = v[from];
+            i = from;
+        }
+    }
+    Ok(())
 }
 
 /// Fills every internal node from its children, bottom level first.
@@ -275,18 +393,18 @@ pub(crate) fn compute_attributes(mut tree: SceneTree) -> SceneTree {
     tree
 }
 
-/// One leaf from the samples of `members` (Table 2): mean position, a radius that covers
+/// One leaf from the samples `members` (Table 2): mean position, a radius that covers
 /// every member, the hierarchical merge of cones and colours, and the *sum* of areas (we
 /// keep the total surface area invariant, so EQ 13 holds for the whole tree).
-fn weld(samples: &[Node], members: &[Item]) -> Node {
-    let first = samples[members[0].idx as usize];
+fn weld(members: &[Node]) -> Node {
+    // The partition never makes an empty leaf; the default only keeps this total.
+    let Some(&first) = members.first() else { return Node::default() };
     if members.len() == 1 {
         return first;
     }
     let mut acc = first;
     let mut mean = [0f64; 3];
-    for (i, it) in members.iter().enumerate() {
-        let s = &samples[it.idx as usize];
+    for (i, s) in members.iter().enumerate() {
         if i > 0 {
             acc = parent_of(&acc, s);
         }
@@ -297,8 +415,7 @@ fn weld(samples: &[Node], members: &[Item]) -> Node {
     let inv = 1.0 / members.len() as f64;
     let center = [(mean[0] * inv) as f32, (mean[1] * inv) as f32, (mean[2] * inv) as f32];
     let mut r = 0f64;
-    for it in members {
-        let s = &samples[it.idx as usize];
+    for s in members {
         let d: f64 = (0..3).map(|k| (s.center[k] as f64 - center[k] as f64).powi(2)).sum::<f64>().sqrt();
         r = r.max(d + s.radius as f64);
     }

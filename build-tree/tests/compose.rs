@@ -34,7 +34,7 @@ fn samples_file(dir: &Path) -> std::path::PathBuf {
         MeshEntry { name: "green".into(), first: 500, count: 300 },
         MeshEntry { name: "blue".into(), first: 800, count: 200 },
     ];
-    let t = Similarity { translation: [10.0, 0.0, 0.0], rotation: [0.0, 0.0, 0.70710678, 0.70710678], scale: 2.0 };
+    let t = Similarity { translation: [10.0, 0.0, 0.0], rotation: [0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2, std::f64::consts::FRAC_1_SQRT_2], scale: 2.0 };
     let instances = vec![
         SampleInstance { mesh: 0, transform: Similarity::IDENTITY },
         SampleInstance { mesh: 1, transform: Similarity::IDENTITY },

@@ -1,6 +1,6 @@
 //! Structure, attribute and determinism tests of `build_tree`.
 
-use build_tree::{build_tree, build_tree_with_map, BuildOptions, Weld};
+use build_tree::{build_tree, build_tree_owned, build_tree_with_map, BuildOptions, Weld};
 use sct_format::geometry::{cone_contains, sphere_contains};
 use sct_format::{Node, SceneTree};
 
@@ -151,4 +151,37 @@ fn deterministic_across_thread_counts() {
     let b = run(2);
     let c = run(3);
     assert!(a == b && b == c);
+}
+
+/// The consuming builder (which reorders, welds and grows the samples' own vector) gives the
+/// same tree as the borrowing one and the mapping one, with many multi-sample welds (whose
+/// result depends on member order) and without welding.
+#[test]
+fn owned_borrowed_and_mapped_builds_agree() {
+    let mut s = sphere_samples(30_000, 7);
+    let near: Vec<Node> = s.iter().step_by(3).map(|x| Node { center: [x.center[0] + 2e-4, x.center[1], x.center[2]], ..*x }).collect();
+    s.extend(near);
+    for weld in [Weld::Absolute(5e-3), Weld::RelativeToMeanRadius(0.5), Weld::Off] {
+        let opts = BuildOptions { weld, ..Default::default() };
+        let (a, sa) = build_tree(&s, &opts).unwrap();
+        let (b, sb) = build_tree_owned(s.clone(), &opts).unwrap();
+        let (c, sc, map) = build_tree_with_map(&s, &opts).unwrap();
+        assert_eq!(a.nodes(), b.nodes());
+        assert_eq!(a.internal_flags(), b.internal_flags());
+        assert_eq!(a.nodes(), c.nodes());
+        assert_eq!((sa.leaves, sa.depth, sa.welded), (sb.leaves, sb.depth, sb.welded));
+        assert_eq!((sa.leaves, sa.depth, sa.welded), (sc.leaves, sc.depth, sc.welded));
+        if weld != Weld::Off {
+            assert!(sa.welded > 1000, "{weld:?} welded only {}", sa.welded);
+        }
+        check_tree(&a);
+        // Every sample maps to a leaf that contains it, and every leaf is used.
+        let mut used = vec![false; a.len()];
+        for (x, &leaf) in s.iter().zip(&map) {
+            assert!(!a.is_internal(leaf as usize));
+            assert!(sphere_contains(&a.nodes()[leaf as usize], x, 0.0));
+            used[leaf as usize] = true;
+        }
+        assert_eq!(used.iter().filter(|&&u| u).count() as u64, sa.leaves);
+    }
 }
