@@ -23,10 +23,18 @@ use voxelize::args::SamplingArgs;
 use crate::convert::{convert_meshes, is_mesh_path};
 use crate::error::BuildError;
 use crate::pipeline::Config;
-use crate::tree::BuildOptions;
+use crate::tree::{BuildOptions, Weld};
 
 /// Version of the `--json` batch report layout.
 pub const REPORT_SCHEMA: &str = "sct-build-tree-batch/1";
+
+/// Bump when the sampler, tree builder or encoders change their output for the same
+/// inputs and flags without a crate version change, so batch runs redo old outputs.
+pub const ENCODER_REVISION: u32 = 2;
+
+/// Temporary files of other processes younger than this are left alone: they may belong
+/// to a run still in progress (a retried shard, another host on shared storage).
+pub const STALE_TEMP_AGE: std::time::Duration = std::time::Duration::from_secs(3600);
 
 /// One shard of a batch: this run converts the inputs whose path hash is `index` mod `count`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -118,6 +126,8 @@ pub struct JobResult {
     pub bytes: u64,
     /// Seconds spent on this input.
     pub seconds: f64,
+    /// Non-fatal problems of the conversion (missing texture, a mesh left out, ...).
+    pub warnings: Vec<String>,
 }
 
 /// The whole batch (`--json` output, schema [`REPORT_SCHEMA`]).
@@ -152,13 +162,21 @@ pub struct BatchReport {
 /// Hash of everything that determines an output besides its sources: tool version,
 /// sampling flags and build parameters.
 pub fn job_key(opts: &BatchOptions) -> String {
+    let weld = match opts.build.weld {
+        Weld::Off => serde_json::json!("off"),
+        Weld::Absolute(t) => serde_json::json!({ "absolute": t }),
+        Weld::RelativeToMeanRadius(f) => serde_json::json!({ "relative_to_mean_radius": f }),
+    };
     let v = serde_json::json!({
         "tool": "sct-build-tree",
         "version": env!("CARGO_PKG_VERSION"),
+        // Encoder changes that keep the crate version still change the output bytes.
+        "encoder_revision": ENCODER_REVISION,
         "sampling": serde_json::to_value(&opts.sampling).unwrap_or(serde_json::Value::Null),
         "profile": opts.profile.name(),
-        "compression_level": opts.compression_level,
-        "weld": format!("{:?}", opts.build.weld),
+        // The effective level, so a changed default invalidates old outputs.
+        "compression_level": opts.compression_level.unwrap_or(sct_format::write::DEFAULT_ZSTD_LEVEL),
+        "weld": weld,
         "depth_slack": opts.build.depth_slack,
     });
     blake3::hash(v.to_string().as_bytes()).to_hex().to_string()
@@ -220,23 +238,41 @@ pub fn discover(root: &Path, skip: Option<&Path>) -> Result<Discovered, BuildErr
 
 /// Output paths (relative) for the inputs: `name.ext` → `name.sct`, except that inputs
 /// whose outputs would collide (`chair.obj` and `chair.ply` in one folder) keep their
-/// extension: `chair.obj.sct`, `chair.ply.sct`.
+/// extension: `chair.obj.sct`, `chair.ply.sct`; names that still collide also get a hash
+/// of their input path (`chair.obj.1a2b3c4d.sct`). Collisions are judged case-insensitively,
+/// so the outputs stay distinct on case-insensitive file systems too.
 pub fn output_paths(inputs: &[PathBuf]) -> Vec<PathBuf> {
+    let fold = |p: &Path| slash(p).to_lowercase();
+    let counts = |v: &[PathBuf]| {
+        let mut count: BTreeMap<String, usize> = BTreeMap::new();
+        for p in v {
+            *count.entry(fold(p)).or_default() += 1;
+        }
+        count
+    };
+    let with_ext = |input: &PathBuf, extra: &str| {
+        let mut name = input.file_name().unwrap_or_default().to_os_string();
+        name.push(extra);
+        name.push(".sct");
+        input.with_file_name(name)
+    };
     let plain: Vec<PathBuf> = inputs.iter().map(|p| p.with_extension("sct")).collect();
-    let mut count: BTreeMap<&Path, usize> = BTreeMap::new();
-    for p in &plain {
-        *count.entry(p.as_path()).or_default() += 1;
-    }
-    inputs
+    let c = counts(&plain);
+    let second: Vec<PathBuf> = inputs
         .iter()
         .zip(&plain)
+        .map(|(input, out)| if c.get(&fold(out)).copied().unwrap_or(0) > 1 { with_ext(input, "") } else { out.clone() })
+        .collect();
+    let c = counts(&second);
+    inputs
+        .iter()
+        .zip(second)
         .map(|(input, out)| {
-            if count.get(out.as_path()).copied().unwrap_or(0) > 1 {
-                let mut name = input.file_name().unwrap_or_default().to_os_string();
-                name.push(".sct");
-                input.with_file_name(name)
+            if c.get(&fold(&out)).copied().unwrap_or(0) > 1 {
+                let h = blake3::hash(slash(input).as_bytes()).to_hex();
+                with_ext(input, &format!(".{}", &h[..8]))
             } else {
-                out.clone()
+                out
             }
         })
         .collect()
@@ -263,7 +299,7 @@ pub fn is_up_to_date(output: &Path, key: &str) -> bool {
 }
 
 /// Removes temporary files (`.NAME.PID.tmp`, see `sct_format::atomic`) that an interrupted
-/// run left beside `output`. Returns how many were removed.
+/// run left beside `output` at least [`STALE_TEMP_AGE`] ago. Returns how many were removed.
 fn remove_stale_temp_files(output: &Path) -> u64 {
     let (Some(dir), Some(name)) = (output.parent(), output.file_name()) else {
         return 0;
@@ -279,8 +315,10 @@ fn remove_stale_temp_files(output: &Path) -> u64 {
         let Some(pid) = n.strip_prefix(&prefix).and_then(|r| r.strip_suffix(".tmp")) else {
             continue;
         };
-        // Only `.NAME.<digits>.tmp`, never this process's own file in flight.
-        if !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()) && !n.ends_with(&ours) && std::fs::remove_file(e.path()).is_ok() {
+        // Only `.NAME.<digits>.tmp`, never this process's own file in flight, and only
+        // when old enough that no live run can still be writing it.
+        let old = e.metadata().and_then(|m| m.modified()).ok().and_then(|t| t.elapsed().ok()).is_some_and(|age| age >= STALE_TEMP_AGE);
+        if !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()) && !n.ends_with(&ours) && old && std::fs::remove_file(e.path()).is_ok() {
             removed += 1;
         }
     }
@@ -289,11 +327,17 @@ fn remove_stale_temp_files(output: &Path) -> u64 {
 
 /// Converts the library. Per-input failures are in the report (the batch goes on); only a
 /// failure of the batch itself (an unreadable library root, an output root that cannot be
-/// created) is an error. `done` is called once per finished input (for progress display),
-/// from worker threads.
-pub fn run_batch(opts: &BatchOptions, done: &(dyn Fn(&JobResult, usize) + Sync)) -> Result<BatchReport, BuildError> {
+/// created) is an error. `done(job, finished, total)` is called once per finished input
+/// (for progress display), from worker threads.
+pub fn run_batch(opts: &BatchOptions, done: &(dyn Fn(&JobResult, usize, usize) + Sync)) -> Result<BatchReport, BuildError> {
     let t0 = Instant::now();
     std::fs::create_dir_all(&opts.output_dir).map_err(|e| BuildError::Io(format!("{}: {e}", opts.output_dir.display())))?;
+    if opts.output_dir.canonicalize().ok().is_some_and(|o| opts.input_dir.canonicalize().ok() == Some(o)) {
+        return Err(BuildError::Io(format!(
+            "{}: the output directory must differ from the library root (outputs would mix with the inputs)",
+            opts.output_dir.display()
+        )));
+    }
     let (all, unreadable) = discover(&opts.input_dir, Some(&opts.output_dir))?;
     let outputs = output_paths(&all);
     let key = job_key(opts);
@@ -317,7 +361,7 @@ pub fn run_batch(opts: &BatchOptions, done: &(dyn Fn(&JobResult, usize) + Sync))
                 let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run_one(opts, &key, rel, out_rel)))
                     .unwrap_or_else(|_| (failed(rel, out_rel, "internal error: the conversion panicked (a bug; please report it)".into(), 2, 0.0), 0));
                 let n = finished.fetch_add(1, Ordering::Relaxed) + 1;
-                done(&r.0, n);
+                done(&r.0, n, total);
                 if let Ok(mut slot) = results[i].lock() {
                     *slot = Some(r);
                 }
@@ -342,6 +386,7 @@ pub fn run_batch(opts: &BatchOptions, done: &(dyn Fn(&JobResult, usize) + Sync))
             jobs.push(failed(&dir, Path::new(""), format!("cannot read: {e}"), 2, 0.0));
         }
     }
+    jobs.sort_by(|a, b| a.input.cmp(&b.input));
     let count = |s: JobStatus| jobs.iter().filter(|j| j.status == s).count() as u64;
     Ok(BatchReport {
         schema: REPORT_SCHEMA,
@@ -370,6 +415,7 @@ fn failed(rel: &Path, out_rel: &Path, error: String, exit_code: i32, seconds: f6
         leaves: 0,
         bytes: 0,
         seconds,
+        warnings: Vec::new(),
     }
 }
 
@@ -391,6 +437,7 @@ fn run_one(opts: &BatchOptions, key: &str, rel: &Path, out_rel: &Path) -> (JobRe
             leaves: 0,
             bytes,
             seconds: t.elapsed().as_secs_f64(),
+            warnings: Vec::new(),
         };
         return (job, removed);
     }
@@ -418,6 +465,7 @@ fn run_one(opts: &BatchOptions, key: &str, rel: &Path, out_rel: &Path) -> (JobRe
             leaves: rep.build.leaves,
             bytes: rep.build.bytes,
             seconds: t.elapsed().as_secs_f64(),
+            warnings: rep.sampling.warnings,
         },
         Err(e) => failed(rel, out_rel, e.to_string(), e.exit_code(), t.elapsed().as_secs_f64()),
     };
@@ -488,17 +536,31 @@ mod tests {
         let inputs: Vec<PathBuf> = ["a/chair.obj", "a/chair.ply", "a/table.glb", "b/chair.obj"].iter().map(PathBuf::from).collect();
         let out: Vec<String> = output_paths(&inputs).iter().map(|p| slash(p)).collect();
         assert_eq!(out, ["a/chair.obj.sct", "a/chair.ply.sct", "a/table.sct", "b/chair.sct"]);
+        // Second-order and case-only collisions: every output distinct, case-folded.
+        let inputs: Vec<PathBuf> = ["chair.obj", "chair.ply", "chair.obj.ply", "Lamp.OBJ", "lamp.ply"].iter().map(PathBuf::from).collect();
+        let out: Vec<String> = output_paths(&inputs).iter().map(|p| slash(p).to_lowercase()).collect();
+        let mut uniq = out.clone();
+        uniq.sort();
+        uniq.dedup();
+        assert_eq!(uniq.len(), out.len(), "{out:?}");
+        assert!(out.iter().all(|o| o.ends_with(".sct")), "{out:?}");
     }
 
     #[test]
     fn stale_temp_files_are_removed_but_not_others() {
         let dir = tempfile::tempdir().expect("tempdir");
         let out = dir.path().join("m.sct");
-        for n in [".m.sct.123.tmp", ".m.sct.x1.tmp", ".n.sct.5.tmp", "m.sct"] {
-            std::fs::write(dir.path().join(n), b"x").expect("write");
+        let old = std::time::SystemTime::now() - 2 * STALE_TEMP_AGE;
+        for n in [".m.sct.123.tmp", ".m.sct.x1.tmp", ".n.sct.5.tmp", "m.sct", ".m.sct.77.tmp"] {
+            let f = std::fs::File::create(dir.path().join(n)).expect("create");
+            // All old but `.m.sct.77.tmp`: a run that may still be writing it.
+            if n != ".m.sct.77.tmp" {
+                f.set_modified(old).expect("mtime");
+            }
         }
         assert_eq!(remove_stale_temp_files(&out), 1);
         assert!(!dir.path().join(".m.sct.123.tmp").exists());
+        assert!(dir.path().join(".m.sct.77.tmp").exists(), "a fresh temp file is left alone");
         assert!(dir.path().join(".m.sct.x1.tmp").exists() && dir.path().join(".n.sct.5.tmp").exists());
         assert!(out.exists());
     }

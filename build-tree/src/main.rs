@@ -26,8 +26,9 @@ const EXAMPLES: &str = "Examples:
   sct-build-tree bunny.samples -o grid.sct --scene grid.json
   sct-build-tree --scene shards.json -o city.sct             # a scene of inlines only
 
-Input: a samples file (by its magic), mesh files (.obj .gltf .glb .ply, sampled in one
-grid with the sampling options below), or a directory (batch mode: -o is a directory).
+Input: mesh files (.obj .gltf .glb .ply by extension, sampled in one grid with the
+sampling options below), a samples file (any other name), or a directory (batch mode: -o
+is a directory).
 
 Exit status: 0 success, 1 bad input (mesh, samples, scene or inlined file; in batch mode:
 any input failed), 2 usage or I/O error.";
@@ -165,6 +166,13 @@ fn main() -> ExitCode {
         eprintln!("error: --{flag} applies to mesh inputs, not to {what}");
         return ExitCode::from(2);
     }
+    if !matches!(mode, Mode::Batch(_)) {
+        let batch_only = [(cli.force, "--force"), (cli.shard.is_some(), "--shard"), (cli.jobs.is_some(), "--jobs")];
+        if let Some((_, flag)) = batch_only.iter().find(|(given, _)| *given) {
+            eprintln!("error: {flag} applies to batch mode (a directory as the input)");
+            return ExitCode::from(2);
+        }
+    }
     let build = BuildOptions { weld, depth_slack: cli.depth_slack };
     if let Mode::Batch(dir) = &mode {
         if cli.scene.is_some() {
@@ -263,17 +271,13 @@ fn run_batch_cli(opts: &BatchOptions, json: bool) -> ExitCode {
         );
         b
     });
-    let done = |job: &JobResult, n: usize| {
+    let done = |job: &JobResult, n: usize, total: usize| {
         if let Some(b) = &bar {
+            b.set_length(total as u64);
             b.set_position(n as u64);
             b.set_message(job.input.clone());
         }
     };
-    if let Some(b) = &bar {
-        if let Ok((files, _)) = batch::discover(&opts.input_dir, Some(&opts.output_dir)) {
-            b.set_length(files.len() as u64);
-        }
-    }
     let result = run_batch(opts, &done);
     if let Some(b) = &bar {
         b.finish_and_clear();

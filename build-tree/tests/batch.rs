@@ -97,7 +97,9 @@ fn batch_converts_mirrors_skips_up_to_date_and_reports_failures() {
     let wall_out = out.join("props/wall/wallhole.sct");
     let wall = std::fs::read(&wall_out).expect("read");
     std::fs::write(&wall_out, &wall[..wall.len() / 2]).expect("truncate");
-    std::fs::write(out.join("props/wall/.wallhole.sct.999999.tmp"), b"partial").expect("stale");
+    // (an hour old: younger temp files may belong to a run still in progress)
+    let stale = std::fs::File::create(out.join("props/wall/.wallhole.sct.999999.tmp")).expect("stale");
+    stale.set_modified(std::time::SystemTime::now() - std::time::Duration::from_secs(7200)).expect("mtime");
     let rep3 = json(&bin(&[lib.as_os_str(), "-o".as_ref(), out.as_os_str(), "--json".as_ref()]));
     let mut again = jobs_by_status(&rep3, "converted");
     again.sort();
@@ -132,6 +134,12 @@ fn shards_partition_the_library() {
     assert_eq!(whole["jobs"].as_array().expect("jobs").len(), n, "shards miss an input");
     let bad = bin(&[lib.as_os_str(), "-o".as_ref(), dir.path().join("x").as_os_str(), "--shard".as_ref(), "3/3".as_ref()]);
     assert_eq!(bad.status.code(), Some(2));
+    // Batch flags outside batch mode, and an output root equal to the library: usage errors.
+    let mesh = lib.join("props/cube/negative_indices.obj");
+    let one = bin(&[mesh.as_os_str(), "-o".as_ref(), dir.path().join("c.sct").as_os_str(), "--shard".as_ref(), "0/2".as_ref()]);
+    assert_eq!(one.status.code(), Some(2));
+    let same = bin(&[lib.as_os_str(), "-o".as_ref(), lib.as_os_str()]);
+    assert_eq!(same.status.code(), Some(2), "{}", String::from_utf8_lossy(&same.stderr));
 }
 
 #[test]
