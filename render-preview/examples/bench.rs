@@ -81,11 +81,27 @@ fn raster_throughput(path: &std::path::Path, opts: &RenderOptions) -> anyhow::Re
     Ok(())
 }
 
-#[allow(dead_code)]
 fn bbox_stats(s: &[render_preview::Splat]) {
     let n = s.len() as f64;
-    let area: f64 = s.iter().map(|s| ((s.bounds[1] - s.bounds[0] + 1).max(0) as f64) * ((s.bounds[3] - s.bounds[2] + 1).max(0) as f64)).sum();
-    println!("mean pixel bounding box {:.2} px (pixel centres)", area / n);
+    let dims = |s: &render_preview::Splat| {
+        let [x0, x1, y0, y1] = s.bounds.map(i32::from);
+        ((x1 - x0 + 1).max(0), (y1 - y0 + 1).max(0))
+    };
+    let area: f64 = s.iter().map(dims).map(|(w, h)| (w * h) as f64).sum();
+    // Shares by bounding box: no pixel centre, 1x1, within 2x2, larger.
+    let mut hist = [0usize; 4];
+    for (w, h) in s.iter().map(dims) {
+        hist[if w * h == 0 { 0 } else if w * h == 1 { 1 } else if w <= 2 && h <= 2 { 2 } else { 3 }] += 1;
+    }
+    let p = hist.map(|k| 100.0 * k as f64 / n.max(1.0));
+    println!(
+        "mean pixel bounding box {:.2} px (pixel centres); boxes: empty {:.1} %, 1x1 {:.1} %, within 2x2 {:.1} %, larger {:.1} %",
+        area / n,
+        p[0],
+        p[1],
+        p[2],
+        p[3]
+    );
 }
 
 /// User + system CPU seconds of this process (Linux), to see how much of the machine we got.
