@@ -7,7 +7,7 @@ use sct_format::samples::{AffineInstance, MeshEntry, SampleInstance, SamplesFile
 use sct_format::{Generator, SourceRef};
 use serde_json::json;
 
-use crate::error::Error;
+use crate::error::{Error, LoadError};
 use crate::load::{load, LoadOptions};
 use crate::mesh::{Instance, LoadedScene};
 use crate::sample::{sample_points, sample_scene, AreaMode, Density, Method, SampleOptions, Sampled, SampledMesh};
@@ -238,11 +238,17 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
         if !seen.insert(f.clone()) {
             continue;
         }
-        // The inputs were read successfully a moment ago; a resource that vanished since
-        // is simply left out of the provenance.
-        if let Ok(bytes) = std::fs::read(f) {
-            sources.push(SourceRef { path: f.display().to_string(), blake3: blake3::hash(&bytes).to_hex().to_string() });
-        }
+        // Streamed (no second copy of a big GLB in memory). A resource that vanished since
+        // it was loaded is an error: provenance that leaves it out would let batch mode
+        // call the output up to date forever.
+        let blake3 = sct_format::atomic::hash_file(f).map_err(|e| {
+            let source = match e {
+                sct_format::Error::Io { source, .. } => source,
+                other => std::io::Error::other(other.to_string()),
+            };
+            Error::Load(LoadError::Io { path: f.clone(), source })
+        })?;
+        sources.push(SourceRef { path: f.display().to_string(), blake3 });
     }
     let s = &opts.sample;
     let density = match s.density {
