@@ -110,7 +110,8 @@ pub fn level_cut(tree: &SceneTree, level: usize) -> Vec<Node> {
 
 /// Writes the level cut at `level` (`None`: the leaves) of the scene in `sct` to `out`, in
 /// world space through groups, instances (transform and push-down tint) and inlines.
-/// Refuses more than `max_points` points before writing anything.
+/// Refuses more than `max_points` points before writing anything. Memory: the cut of each
+/// distinct tree is held once (40 bytes per cut node), however often it is instanced.
 pub fn scene_to_ply(sct: &Path, level: Option<usize>, out: &Path, opts: TraverseOptions, max_points: u64) -> Result<ExportSummary> {
     let level = level.unwrap_or(usize::MAX - 1);
     let mut cuts: HashMap<(PathBuf, usize), Vec<Node>> = HashMap::new();
@@ -119,7 +120,8 @@ pub fn scene_to_ply(sct: &Path, level: Option<usize>, out: &Path, opts: Traverse
     for reached in Traversal::open(sct, opts)? {
         let r = reached.map_err(|e| match e.kind {
             TraverseErrorKind::Read(inner) => inner,
-            TraverseErrorKind::InlineMissing { target, source } => Error::io(target, source),
+            // A missing, changed or cyclic inline is a defect of the scene (exit 1), as in
+            // validation and rendering.
             other => Error::Malformed { offset: 0, what: format!("{}: {other}", e.path) },
         })?;
         if !matches!(r.kind, ReachedKind::Tree) {

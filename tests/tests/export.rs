@@ -31,8 +31,8 @@ fn samples_and_level_cuts_round_trip_through_a_ply_parser() {
     voxelize::run(&opts, &|_, _| {}).expect("voxelize");
     let samples = SamplesFile::read_file(&samples_path, &Limits::default()).expect("samples");
 
-    // Samples: every sample once (one identity placement), positions and normals exact,
-    // colours as stored (the loader linearises sRGB bytes, so compare after re-encoding).
+    // Samples: every sample once (one identity placement), positions, normals and radii
+    // exact, colours as stored.
     let ply = dir.path().join("samples.ply");
     let s = samples_to_ply(&samples, &ply, u64::MAX).expect("export");
     assert_eq!(s.points as usize, samples.samples.len());
@@ -43,7 +43,23 @@ fn samples_and_level_cuts_round_trip_through_a_ply_parser() {
     }
     let normals = pc.normals.expect("normals");
     assert!(normals.iter().zip(&samples.samples).all(|(a, n)| *a == n.normal));
-    assert!(pc.colors.is_some(), "colours exported");
+    // The loader linearises sRGB bytes; re-encoding must give the stored bytes back.
+    let colors = pc.colors.expect("colours exported");
+    let srgb = |l: f32| {
+        let v = if l <= 0.003_130_8 { 12.92 * l } else { 1.055 * l.powf(1.0 / 2.4) - 0.055 };
+        (v * 255.0).round() as i32
+    };
+    for (c, n) in colors.iter().zip(&samples.samples) {
+        for k in 0..3 {
+            assert!((srgb(c[k]) - i32::from(n.color[k])).abs() <= 1, "{c:?} vs {:?}", n.color);
+        }
+    }
+    // Radius is not read by the mesh loader: check it from the raw records.
+    let data = std::fs::read(&ply).expect("read");
+    let body = data.windows(11).position(|w| w == b"end_header\n").expect("header") + 11;
+    for (rec, n) in data[body..].chunks_exact(32).zip(&samples.samples) {
+        assert_eq!(f32::from_le_bytes([rec[28], rec[29], rec[30], rec[31]]), n.radius);
+    }
 
     // SCT level cut: as many points as the cut of the tree read to that level.
     let sct = dir.path().join("fuze.sct");
