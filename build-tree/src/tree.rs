@@ -4,13 +4,13 @@
 //!
 //! Memory layout, chosen to keep the peak near the size of the output tree (issue #4:
 //! at most 100 bytes per sample including the writer):
-//! - the samples vector is owned: after the partition it is put in partition order (in
-//!   place) and welded in place into the leaves; the leaves are copied in breadth-first
-//!   order into the output vector, whose internal nodes are only touched once the samples
-//!   are freed. The peak is therefore the finished tree (with `SceneTree`'s own arrays
-//!   about 90 bytes per leaf), not samples + partition arrays + tree as before;
-//! - `items`: 16 bytes per sample (centre + source index), partitioned in place and freed
-//!   before the layout;
+//! - the samples vector is owned and freed before the internal nodes exist: the leaves are
+//!   welded straight into their breadth-first places at the front of the output vector,
+//!   which grows to the whole tree only afterwards. The peak is therefore about the finished
+//!   tree (with `SceneTree`'s own arrays about 90 bytes per leaf), not samples + partition
+//!   arrays + tree as before;
+//! - `items`: 16 bytes per sample (centre + source index), partitioned in place; only
+//!   their source indices (4 bytes) are kept for the layout;
 //! - `slots`: one `u32` per tree node in an implicit pre-order layout: a subtree over the
 //!   `m` items `[lo, hi)` whose root is slot `s` owns slots `[s, s + 2m - 1)`; its left
 //!   child over `[lo, mid)` is slot `s + 1` and its right child slot `s + 2(mid - lo)`. The
@@ -146,9 +146,9 @@ pub fn build_tree(samples: &[Node], opts: &BuildOptions) -> Result<(SceneTree, B
     build_tree_owned(samples.to_vec(), opts)
 }
 
-/// [`build_tree`] over samples it may consume: they are reordered and welded into leaves in
-/// place and freed before the internal nodes exist, so the peak is about the output tree
-/// (the samples and partition arrays never coexist with it).
+/// [`build_tree`] over samples it may consume: they are freed as soon as the leaves are
+/// welded, before the internal nodes exist, so the peak is about the output tree (the
+/// samples and partition arrays never coexist with it).
 pub fn build_tree_owned(samples: Vec<Node>, opts: &BuildOptions) -> Result<(SceneTree, BuildStats), BuildError> {
     build_tree_impl(samples, opts, false).map(|(t, s, _)| (t, s))
 }
@@ -169,12 +169,12 @@ pub(crate) fn build_tree_with_map_owned(
     build_tree_impl(samples, opts, true)
 }
 
-/// Marks a slot as a leaf once welding has replaced its `hi` by the leaf's depth-first
-/// index (both are below 2^31, see the size check).
+/// Marks a leaf's root slot once the layout has replaced its `hi` by the leaf's
+/// breadth-first index (both are below 2^31, see the size check).
 const LEAF: u32 = 1 << 31;
 
 fn build_tree_impl(
-    mut samples: Vec<Node>,
+    samples: Vec<Node>,
     opts: &BuildOptions,
     want_map: bool,
 ) -> Result<(SceneTree, BuildStats, Vec<u32>), BuildError> {
@@ -182,8 +182,8 @@ fn build_tree_impl(
     if n == 0 {
         return Err(BuildError::Input("no samples to build a tree from".into()));
     }
-    // Slots and item indices are u32 with the top bit free (LEAF, gather marks); SceneTree
-    // allows fewer than 2^32 - 1 nodes.
+    // Slots and item indices are u32 with the top bit free (LEAF); SceneTree allows fewer
+    // than 2^32 - 1 nodes.
     if n > (u32::MAX / 2) as usize {
         return Err(BuildError::Input(format!("{n} samples exceed the 2^31 - 1 a tree can hold")));
     }
@@ -211,64 +211,35 @@ fn build_tree_impl(
     stats.forced_splits = forced;
     stats.partition_s = t0.elapsed().as_secs_f64();
 
-    // Pass 2: layout. The samples are moved into partition order, so every leaf's members
-    // are contiguous and welding can compact them in place; the items are freed first.
+    // Pass 2: layout. Only the source indices of the partition are needed from here on (4
+    // of the 16 bytes per item).
     let t1 = Instant::now();
-    let order: Vec<u32> = if want_map { items.iter().map(|it| it.idx).collect() } else { Vec::new() };
-    gather_in_place(&mut samples, items, |it: &mut Item| &mut it.idx)?;
+    let src: Vec<u32> = items.par_iter().map(|it| it.idx).collect();
+    drop(items);
 
-    // 2a: leaves in depth-first order (the partition order), welded into the front of
-    // `samples`; leaf `k` covers `[lo, hi)` with `k <= lo`, so nothing unread is overwritten.
-    // Its root slot becomes `LEAF | k`. `map` holds depth-first leaf indices for now.
-    let mut map = if want_map { vec![u32::MAX; n] } else { Vec::new() };
-    let mut leaves = 0u32;
-    let mut stack: Vec<(u32, u32, u32)> = vec![(0, n as u32, 0)];
-    while let Some((lo, hi, slot)) = stack.pop() {
-        let v = slots[slot as usize];
-        if v == hi {
-            let w = weld(&samples[lo as usize..hi as usize]);
-            samples[leaves as usize] = w;
-            if want_map {
-                for &s in &order[lo as usize..hi as usize] {
-                    map[s as usize] = leaves;
-                }
-            }
-            slots[slot as usize] = LEAF | leaves;
-            leaves += 1;
-        } else {
-            // Right pushed first so the left subtree is visited first (pre-order).
-            stack.push((v, hi, slot + 2 * (v - lo)));
-            stack.push((lo, v, slot + 1));
-        }
-    }
-    drop(stack);
-    drop(order);
-    samples.truncate(leaves as usize);
-
-    // 2b: breadth-first walk: internal flags, and for every breadth-first leaf the
-    // depth-first index it comes from.
-    let total = 2 * leaves as usize - 1;
-    let mut internal: Vec<bool> = Vec::with_capacity(total);
-    let mut bfs_src: Vec<u32> = Vec::with_capacity(leaves as usize);
-    let mut node_of_dfs = if want_map { vec![0u32; leaves as usize] } else { Vec::new() };
-    // (lo, slot) of every node of the current and the next level.
-    let mut level: Vec<(u32, u32)> = vec![(0, 0)];
-    let mut next: Vec<(u32, u32)> = Vec::new();
+    // 2a: breadth-first walk: internal flags; every leaf's root slot becomes `LEAF | j`, `j`
+    // its breadth-first leaf index, so the welding below can run in any order.
+    let mut internal: Vec<bool> = Vec::new();
+    let mut node_of_leaf: Vec<u32> = Vec::new();
+    // (lo, hi, slot) of every node of the current and the next level.
+    let mut level: Vec<(u32, u32, u32)> = vec![(0, n as u32, 0)];
+    let mut next: Vec<(u32, u32, u32)> = Vec::new();
     let mut depth = 0u32;
+    let mut leaves = 0u32;
     loop {
-        for &(lo, slot) in &level {
+        for &(lo, hi, slot) in &level {
             let v = slots[slot as usize];
-            if v & LEAF != 0 {
-                let k = v & !LEAF;
+            if v == hi {
                 if want_map {
-                    node_of_dfs[k as usize] = internal.len() as u32;
+                    node_of_leaf.push(internal.len() as u32);
                 }
-                bfs_src.push(k);
+                slots[slot as usize] = LEAF | leaves;
+                leaves += 1;
                 internal.push(false);
             } else {
                 internal.push(true);
-                next.push((lo, slot + 1));
-                next.push((v, slot + 2 * (v - lo)));
+                next.push((lo, v, slot + 1));
+                next.push((v, hi, slot + 2 * (v - lo)));
             }
         }
         if next.is_empty() {
@@ -280,25 +251,49 @@ fn build_tree_impl(
     }
     drop(level);
     drop(next);
-    drop(slots);
-    if internal.len() != total || bfs_src.len() != leaves as usize {
-        return Err(BuildError::Internal(format!("layout gave {} nodes and {} leaves for {leaves} leaves", internal.len(), bfs_src.len())));
+    let total = internal.len();
+    if total != 2 * leaves as usize - 1 {
+        return Err(BuildError::Internal(format!("layout gave {total} nodes for {leaves} leaves")));
     }
-    for m in &mut map {
-        *m = node_of_dfs[*m as usize];
-    }
-    drop(node_of_dfs);
 
-    // 2c: leaves into breadth-first leaf order, then every leaf moves back to its node index
-    // (leaf `j` lands at index >= j, so walking from the end moves each leaf before its old
-    // place is overwritten). The gather is out of place and parallel: an in-place one is a
-    // chain of dependent cache misses (0.4 s on the bunny), and this copy, beside the welded
-    // leaves, stays below the finished tree, which is the builder's peak anyway. The capacity
-    // is the whole tree's, so growing it later neither copies nor touches more pages.
+    // 2b: every leaf welded straight into its breadth-first leaf place (depth-first over the
+    // slots, members read through `src`). Only the leaves are touched now; the vector's
+    // capacity is the whole tree's, so growing it once the samples are freed neither copies
+    // nor overlaps them. Peak here: samples 40 + leaves 40 + slots 8 + src 4 + flags 2 bytes
+    // per sample, about the finished tree's 90.
     let mut nodes: Vec<Node> = Vec::with_capacity(total);
-    bfs_src.par_iter().map(|&k| samples[k as usize]).collect_into_vec(&mut nodes);
-    drop(bfs_src);
+    nodes.resize(leaves as usize, Node::default());
+    let mut map = if want_map { vec![u32::MAX; n] } else { Vec::new() };
+    let mut members: Vec<Node> = Vec::new();
+    let mut stack: Vec<(u32, u32, u32)> = vec![(0, n as u32, 0)];
+    while let Some((lo, hi, slot)) = stack.pop() {
+        let v = slots[slot as usize];
+        if v & LEAF != 0 {
+            let j = (v & !LEAF) as usize;
+            let ids = &src[lo as usize..hi as usize];
+            members.clear();
+            members.extend(ids.iter().map(|&i| samples[i as usize]));
+            nodes[j] = weld(&members);
+            if want_map {
+                for &i in ids {
+                    map[i as usize] = node_of_leaf[j];
+                }
+            }
+        } else {
+            stack.push((v, hi, slot + 2 * (v - lo)));
+            stack.push((lo, v, slot + 1));
+        }
+    }
+    drop(stack);
+    drop(members);
+    drop(node_of_leaf);
+    drop(src);
+    drop(slots);
     drop(samples);
+
+    // 2c: grow to the whole tree and move every leaf back to its node index: leaf `j` lands
+    // at index >= j, so walking from the end moves each leaf before its old place is
+    // overwritten.
     nodes.resize(total, Node::default());
     let mut j = leaves as usize;
     for pos in (0..total).rev() {
@@ -322,40 +317,6 @@ fn build_tree_impl(
     stats.depth = depth;
     stats.welded = n as u64 - leaves as u64;
     Ok((tree, stats, map))
-}
-
-/// Reorders `v` so that `v[i]` becomes the old `v[src[i]]` (`src` read through `idx`),
-/// following the permutation's cycles in place: no second copy of `v`, which is the point.
-/// The top bit of each index marks it done; `src` is consumed (and freed) for that.
-fn gather_in_place<T: Copy, S>(v: &mut [T], mut src: Vec<S>, idx: fn(&mut S) -> &mut u32) -> Result<(), BuildError> {
-    const DONE: u32 = 1 << 31;
-    let bad = || BuildError::Internal("layout permutation is not a permutation".into());
-    if src.len() != v.len() {
-        return Err(bad());
-    }
-    for start in 0..v.len() {
-        if *idx(&mut src[start]) & DONE != 0 {
-            continue;
-        }
-        let first = v[start];
-        let mut i = start;
-        loop {
-            let s = idx(&mut src[i]);
-            let from = *s as usize;
-            *s |= DONE;
-            if from == start {
-                v[i] = first;
-                break;
-            }
-            // An index already done or out of range would mean `src` repeats an entry.
-            if from >= v.len() {
-                return Err(bad());
-            }
-            v[i] = v[from];
-            i = from;
-        }
-    }
-    Ok(())
 }
 
 /// Fills every internal node from its children, bottom level first.
