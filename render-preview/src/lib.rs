@@ -127,11 +127,28 @@ impl Default for RenderOptions {
 }
 
 impl RenderOptions {
+    /// The frame the view presets are taken in: an explicit `up` vector keeps the presets
+    /// as documented (y-up frame) and only sets the camera's up; otherwise the axis, with
+    /// [`UpAxis::Auto`] replaced by `auto_up`.
+    fn up_frame(&self, auto_up: UpAxis) -> UpAxis {
+        match (self.up, self.up_axis) {
+            (Some(_), _) => UpAxis::Y,
+            (None, UpAxis::Auto) => auto_up,
+            (None, a) => a,
+        }
+    }
+
+    /// Whether framing needs the scene's guessed up axis (which reads part of the root
+    /// tree): only for [`UpAxis::Auto`] without an explicit up vector.
+    fn needs_auto_up(&self) -> bool {
+        self.up.is_none() && self.up_axis == UpAxis::Auto
+    }
+
     /// The camera for a scene whose root sphere is `bound` (`None` for an empty scene);
     /// `auto_up` replaces [`UpAxis::Auto`].
     pub fn camera(&self, bound: Option<([f64; 3], f64)>, auto_up: UpAxis) -> Camera {
         let (center, radius) = bound.unwrap_or(([0.0; 3], 1.0));
-        let up = if self.up_axis == UpAxis::Auto { auto_up } else { self.up_axis };
+        let up = self.up_frame(auto_up);
         let framed = Camera::framing(self.target.unwrap_or(center), radius, self.view, up, self.fov_y_deg, self.width, self.height);
         Camera { eye: self.eye.unwrap_or(framed.eye), up: self.up.unwrap_or(framed.up), ..framed }
     }
@@ -194,7 +211,8 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         return Err(Error::Invalid(format!("pixel error {} must be a positive number", opts.pixel_error)));
     }
     let bound = scene_bound(files);
-    let camera = opts.camera(bound, files.auto_up());
+    let auto_up = if opts.needs_auto_up() { files.auto_up() } else { UpAxis::Y };
+    let camera = opts.camera(bound, auto_up);
     // Near distance scaled to the scene so that close-ups keep depth precision.
     let near = bound.map_or(1e-6, |(_, r)| (r * 1e-5).max(1e-12));
     let view = View::new(&camera, near)?;
@@ -255,7 +273,8 @@ pub fn write_rgb_png(path: &Path, img: &image::RgbImage) -> Result<()> {
 /// The splats a render would rasterize (for benchmarks and tests).
 pub fn collect_splats(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Vec<Splat>> {
     let bound = scene_bound(files);
-    let camera = opts.camera(bound, files.auto_up());
+    let auto_up = if opts.needs_auto_up() { files.auto_up() } else { UpAxis::Y };
+    let camera = opts.camera(bound, auto_up);
     let near = bound.map_or(1e-6, |(_, r)| (r * 1e-5).max(1e-12));
     let view = View::new(&camera, near)?;
     let params = lod::LodParams {
@@ -268,4 +287,28 @@ pub fn collect_splats(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Ve
         lod_size: opts.lod_size,
     };
     Ok(files.collect(&view, &params)?.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Regression: an explicit up vector used to leave the preset rotated by the scene's
+    /// auto-detected axis, so `--view front --up 0,1,0` on a Z-tall model looked along the
+    /// up vector and failed ("up vector parallel").
+    #[test]
+    fn explicit_up_vector_keeps_the_presets_in_the_y_up_frame() {
+        let opts = RenderOptions { up: Some([0.0, 1.0, 0.0]), up_axis: UpAxis::Y, ..Default::default() };
+        assert!(!opts.needs_auto_up());
+        let cam = opts.camera(Some(([0.0; 3], 1.0)), UpAxis::Z);
+        assert!(cam.eye[2] > 1.0 && cam.eye[0].abs() < 1e-9 && cam.eye[1].abs() < 1e-9, "front view eye on +Z: {:?}", cam.eye);
+        assert_eq!(cam.up, [0.0, 1.0, 0.0]);
+        // A library caller that leaves the axis on Auto gets the same.
+        let lib = RenderOptions { up: Some([0.0, 1.0, 0.0]), ..Default::default() };
+        assert_eq!(lib.camera(Some(([0.0; 3], 1.0)), UpAxis::Z).eye, cam.eye);
+        // Without a vector, Auto follows the detected axis (z-up: the eye is not on +Z).
+        let auto = RenderOptions::default();
+        assert!(auto.needs_auto_up());
+        assert!(auto.camera(Some(([0.0; 3], 1.0)), UpAxis::Z).eye[2].abs() < 1e-9);
+    }
 }

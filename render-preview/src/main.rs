@@ -103,7 +103,8 @@ impl RenderArgs {
             },
             up_axis: match self.up {
                 Up::Axis(a) => a,
-                Up::Vector(_) => UpAxis::Auto,
+                // The explicit vector is the camera's up; presets stay in the y-up frame.
+                Up::Vector(_) => UpAxis::Y,
             },
             pixel_error: self.pixel_error,
             shading: self.shading,

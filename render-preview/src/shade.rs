@@ -69,13 +69,6 @@ pub fn apply(color: [u8; 4], k: f32) -> [u8; 4] {
     ]
 }
 
-/// Multiplies a colour by a push-down tint (255 = unchanged), per channel.
-#[inline]
-pub fn tint(color: [u8; 4], t: [u8; 4]) -> [u8; 4] {
-    let m = |c: u8, t: u8| ((c as u32 * t as u32 + 127) / 255) as u8;
-    [m(color[0], t[0]), m(color[1], t[1]), m(color[2], t[2]), m(color[3], t[3])]
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -93,6 +86,5 @@ mod tests {
         assert!((lambert([0.0, 0.0, 1.0], [0.0, 0.0, 1.0]) - 1.0).abs() < 1e-6);
         assert!((lambert([0.0, 0.0, -1.0], [0.0, 0.0, 1.0]) - 1.0).abs() < 1e-6);
         assert!((lambert([1.0, 0.0, 0.0], [0.0, 0.0, 1.0]) - AMBIENT).abs() < 1e-6);
-        assert_eq!(tint([200, 100, 50, 255], [255, 0, 255, 255]), [200, 0, 50, 255]);
     }
 }
