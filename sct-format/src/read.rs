@@ -426,8 +426,9 @@ pub(crate) fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits
     })
 }
 
-/// A problem of one graph node that does not stop [`parse_graph`]: the validator reports it
-/// (at the node's path when reachable) and goes on; the reader rejects the file.
+/// A problem of one graph node that does not stop [`parse_graph`] in [`OnProblem::Keep`]
+/// mode: the validator reports it (at the node's path when reachable) and goes on; the
+/// reader rejects the file at the first one.
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct GraphProblem {
     /// The graph node, `None` for the section as a whole.
@@ -438,27 +439,67 @@ pub(crate) struct GraphProblem {
     pub message: String,
 }
 
+impl GraphProblem {
+    fn into_error(self) -> Error {
+        let what = match self.node {
+            Some(i) => format!("graph node {i}: {}", self.message),
+            None => self.message,
+        };
+        Error::malformed(self.offset, what)
+    }
+}
+
+/// What [`parse_graph`] does with a [`GraphProblem`].
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum OnProblem {
+    /// Fail at the first one (the reader), also on an invalid instance transform. Failing
+    /// fast matters: a 4 GiB GRPH of bad group children would otherwise build one message
+    /// per child, ~25 times the input, only to report the first.
+    Fail,
+    /// Keep at most this many and count the rest (the validator, which keeps at most
+    /// [`crate::validate::MAX_ISSUES`] issues anyway).
+    Keep(usize),
+}
+
+/// The problems [`parse_graph`] kept, and how many more it found.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct GraphProblems {
+    pub list: Vec<GraphProblem>,
+    pub omitted: u64,
+}
+
 /// Parses the scene graph. Structural failures (truncation, unknown node kind, counts, root
 /// out of range) are errors; a bad reference (kept as `u32::MAX` so a group's leaf `j` still
 /// maps to child `j`), reserved flag bits, a malformed inline path or trailing bytes are
-/// collected as [`GraphProblem`]s. Transforms and inline bounds are returned as stored:
-/// callers check them (the reader rejects, the validator names each failing check).
-pub(crate) fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits) -> Result<(SceneGraph, Vec<GraphProblem>)> {
+/// [`GraphProblem`]s, handled as `on_problem` says. In [`OnProblem::Keep`] mode transforms
+/// and inline bounds are returned as stored for the caller to check (the validator names
+/// each failing check); in [`OnProblem::Fail`] mode an invalid instance transform is an
+/// error at the instance's offset.
+pub(crate) fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, on_problem: OnProblem) -> Result<(SceneGraph, GraphProblems)> {
     let mut c = Cursor::new(bytes, offset);
     let n = c.count(5, "graph node count")?;
     Limits::check("graph nodes", n as u64, limits.max_graph_nodes)?;
     let root = c.u32("graph root")?;
     let mut nodes = Vec::with_capacity(n);
-    let mut problems = Vec::new();
+    let mut problems = GraphProblems::default();
+    let mut report = |p: GraphProblem| -> Result<()> {
+        match on_problem {
+            OnProblem::Fail => return Err(p.into_error()),
+            OnProblem::Keep(cap) if problems.list.len() < cap => problems.list.push(p),
+            OnProblem::Keep(_) => problems.omitted = problems.omitted.saturating_add(1),
+        }
+        Ok(())
+    };
     for i in 0..n {
         let at = c.offset();
-        let mut problem = |message: String| problems.push(GraphProblem { node: Some(i as u32), offset: at, message });
-        let mut earlier = |r: u32, what: &str| {
+        let node = Some(i as u32);
+        let mut problem = |message: String| report(GraphProblem { node, offset: at, message });
+        let mut earlier = |r: u32, what: &str| -> Result<u32> {
             if r as usize >= i {
-                problem(format!("{what} {r} is not an earlier node (references must point backwards)"));
-                u32::MAX
+                problem(format!("{what} {r} is not an earlier node (references must point backwards)"))?;
+                Ok(u32::MAX)
             } else {
-                r
+                Ok(r)
             }
         };
         let node = match c.u8("graph node kind")? {
@@ -469,18 +510,23 @@ pub(crate) fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits) -> Result<
                 let mut children = Vec::with_capacity(k);
                 for _ in 0..k {
                     let r = c.u32("group child")?;
-                    children.push(earlier(r, "group child"));
+                    children.push(earlier(r, "group child")?);
                 }
                 GraphNode::Group { children, tree }
             }
             kind::INSTANCE => {
                 let r = c.u32("instance child")?;
-                let child = earlier(r, "instance child");
+                let child = earlier(r, "instance child")?;
                 let transform = read_similarity(&mut c)?;
                 let flags = c.u8("instance flags")?;
                 let tint = c.array::<4>("tint")?;
                 if flags & !7 != 0 {
-                    problem(format!("reserved instance flag bits set ({flags:#04x})"));
+                    problem(format!("reserved instance flag bits set ({flags:#04x})"))?;
+                }
+                if matches!(on_problem, OnProblem::Fail) && !transform.is_valid(1e-6) {
+                    // At the instance's own offset, not the section's, so the bad bytes
+                    // can be found.
+                    return Err(Error::malformed(at, format!("instance {i} transform is not finite, not unit or not positive: {transform:?}")));
                 }
                 let prop = |bit: u8| if flags & bit != 0 { Propagation::PushDown } else { Propagation::PullUp };
                 let attrs = InstanceAttrs { size: prop(1), color: prop(2), tint: (flags & 4 != 0).then_some(tint) };
@@ -491,7 +537,7 @@ pub(crate) fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits) -> Result<
                 let hash = c.array::<32>("inline hash")?;
                 let bound = crate::codec::raw::read_node(&c.array("inline bound")?);
                 if path.is_empty() || path.starts_with('/') || path.contains('\\') || path.contains('\0') {
-                    problem(format!("inline path {path:?} is not a relative '/'-separated path"));
+                    problem(format!("inline path {path:?} is not a relative '/'-separated path"))?;
                 }
                 GraphNode::Inline { path, hash, bound }
             }
@@ -500,7 +546,7 @@ pub(crate) fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits) -> Result<
         nodes.push(node);
     }
     if let Err(e) = c.finish("scene graph") {
-        problems.push(GraphProblem { node: None, offset: c.offset(), message: e.to_string() });
+        report(GraphProblem { node: None, offset: c.offset(), message: e.to_string() })?;
     }
     if n == 0 || root as usize >= n {
         return Err(Error::malformed(offset, format!("graph root {root} out of range ({n} nodes)")));
@@ -510,18 +556,7 @@ pub(crate) fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits) -> Result<
 
 /// [`parse_graph`] for the reader: any problem, or an invalid instance transform, is an error.
 fn parse_graph_strict(bytes: &[u8], offset: u64, limits: &Limits) -> Result<SceneGraph> {
-    let (graph, problems) = parse_graph(bytes, offset, limits)?;
-    if let Some(p) = problems.first() {
-        return Err(Error::malformed(p.offset, p.node.map_or_else(|| p.message.clone(), |i| format!("graph node {i}: {}", p.message))));
-    }
-    for (i, n) in graph.nodes.iter().enumerate() {
-        if let GraphNode::Instance { transform, .. } = n {
-            if !transform.is_valid(1e-6) {
-                return Err(Error::malformed(offset, format!("instance {i} transform is not finite, not unit or not positive: {transform:?}")));
-            }
-        }
-    }
-    Ok(graph)
+    parse_graph(bytes, offset, limits, OnProblem::Fail).map(|(g, _)| g)
 }
 
 fn check_graph_refs(g: &SceneGraph, trees: &[TreeIndex], offset: u64) -> Result<()> {
@@ -538,4 +573,71 @@ fn check_graph_refs(g: &SceneGraph, trees: &[TreeIndex], offset: u64) -> Result<
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raw::cursor::Put;
+
+    const AT: u64 = 1000;
+
+    /// A graph of a tree (node 0) and a group (node 1) whose `k` children all point forward.
+    fn bad_group(k: u64) -> Vec<u8> {
+        let mut b = Vec::new();
+        b.put_u64(2);
+        b.put_u32(1);
+        b.put_u8(kind::TREE);
+        b.put_u32(0);
+        b.put_u8(kind::GROUP);
+        b.put_u32(0);
+        b.put_u64(k);
+        (0..k).for_each(|_| b.put_u32(7));
+        b
+    }
+
+    /// The reader fails at the first bad child, naming it; it does not collect the others.
+    #[test]
+    fn strict_graph_fails_at_the_first_problem() {
+        let e = parse_graph(&bad_group(5000), AT, &Limits::default(), OnProblem::Fail).err();
+        match e {
+            Some(Error::Malformed { offset, what }) => {
+                assert_eq!(offset, AT + 12 + 5, "node 1 follows the 12-byte head and node 0");
+                assert!(what.starts_with("graph node 1: group child 7"), "{what}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    /// The validator's mode keeps at most its cap and counts the rest.
+    #[test]
+    fn lenient_graph_caps_and_counts_problems() {
+        let (g, p) = parse_graph(&bad_group(5000), AT, &Limits::default(), OnProblem::Keep(10)).unwrap();
+        assert_eq!((p.list.len(), p.omitted), (10, 4990));
+        assert!(matches!(&g.nodes[1], GraphNode::Group { children, .. } if children.len() == 5000));
+    }
+
+    /// A bad instance transform is reported at the instance's offset, not the section's.
+    #[test]
+    fn bad_transform_is_reported_at_the_instance() {
+        let mut b = Vec::new();
+        b.put_u64(2);
+        b.put_u32(1);
+        b.put_u8(kind::TREE);
+        b.put_u32(0);
+        b.put_u8(kind::INSTANCE);
+        b.put_u32(0);
+        for v in [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, -2.0] {
+            b.put_f64(v); // negative scale
+        }
+        b.put_u8(0);
+        b.extend_from_slice(&[255; 4]);
+        match parse_graph_strict(&b, AT, &Limits::default()) {
+            Err(Error::Malformed { offset, what }) => {
+                assert_eq!(offset, AT + 12 + 5, "{what}");
+                assert!(what.contains("instance 1 transform"), "{what}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
 }

@@ -169,7 +169,7 @@ impl SamplesFile {
     /// Checks the invariants the reader enforces, so a writer cannot produce a file its own
     /// reader refuses.
     pub fn check(&self) -> Result<()> {
-        check_tables(&self.meshes, &self.instances, &self.affine_instances, self.samples.len() as u64, 0).map_err(|e| match e {
+        check_tables(&self.meshes, &self.instances, &self.affine_instances, self.samples.len() as u64, &TableOffsets { mesh: 0, inst: 0, affi: 0 }).map_err(|e| match e {
             Error::Malformed { what, .. } => Error::Misuse(what),
             other => other,
         })
@@ -178,6 +178,11 @@ impl SamplesFile {
     /// Writes the file to `w`; returns the number of bytes written.
     pub fn write_to<W: Write>(&self, w: W) -> Result<u64> {
         self.check()?;
+        self.write_unchecked(w)
+    }
+
+    /// [`Self::write_to`] without [`Self::check`] (tests write files the reader must refuse).
+    fn write_unchecked<W: Write>(&self, w: W) -> Result<u64> {
         let genr = serde_json::to_vec(&self.generator).map_err(|e| Error::Misuse(format!("generator: {e}")))?;
         let mut mesh = Vec::new();
         mesh.put_u64(self.meshes.len() as u64);
@@ -231,6 +236,7 @@ impl SamplesFile {
         let samples = decode_samples(&bytes, e.offset, limits)?;
 
         let e = c.single(tags::MESH)?;
+        let mesh_offset = e.offset;
         let bytes = c.section_bytes(e, limits)?;
         let mut cur = Cursor::new(&bytes, e.offset);
         let n = cur.count(MESH_ENTRY_MIN, "mesh count")?;
@@ -254,13 +260,12 @@ impl SamplesFile {
             instances.push(SampleInstance { mesh, transform });
         }
         cur.finish("instance list")?;
-        let inst_offset = e.offset;
+        let mut offsets = TableOffsets { mesh: mesh_offset, inst: e.offset, affi: e.offset };
 
         let mut affine_instances = Vec::new();
-        let mut affi_offset = inst_offset;
         if c.sections.iter().any(|s| s.tag == AFFI) {
             let e = c.single(AFFI)?;
-            affi_offset = e.offset;
+            offsets.affi = e.offset;
             let bytes = c.section_bytes(e, limits)?;
             let mut cur = Cursor::new(&bytes, e.offset);
             let n = cur.count(AFFI_ENTRY_BYTES, "affine instance count")?;
@@ -275,7 +280,7 @@ impl SamplesFile {
             }
             cur.finish("affine instance list")?;
         }
-        check_tables(&meshes, &instances, &affine_instances, samples.len() as u64, affi_offset)?;
+        check_tables(&meshes, &instances, &affine_instances, samples.len() as u64, &offsets)?;
         Ok(SamplesFile { generator, meshes, instances, affine_instances, samples })
     }
 
@@ -292,7 +297,17 @@ impl SamplesFile {
     }
 }
 
-fn check_tables(meshes: &[MeshEntry], instances: &[SampleInstance], affine: &[AffineInstance], samples: u64, offset: u64) -> Result<()> {
+/// Offsets of the sections [`check_tables`] checks, so each error points at the table that
+/// holds the bad entry (the MESH and INST errors used to point at AFFI).
+struct TableOffsets {
+    mesh: u64,
+    inst: u64,
+    /// AFFI's, or INST's when the file has no AFFI (no affine error can arise then).
+    affi: u64,
+}
+
+fn check_tables(meshes: &[MeshEntry], instances: &[SampleInstance], affine: &[AffineInstance], samples: u64, at: &TableOffsets) -> Result<()> {
+    let offset = at.mesh;
     let mut next = 0u64;
     for (i, m) in meshes.iter().enumerate() {
         if m.first != next {
@@ -304,6 +319,7 @@ fn check_tables(meshes: &[MeshEntry], instances: &[SampleInstance], affine: &[Af
         return Err(Error::malformed(offset, format!("meshes cover {next} samples, the file has {samples}")));
     }
     let mut used = vec![false; meshes.len()];
+    let offset = at.inst;
     for (i, inst) in instances.iter().enumerate() {
         let slot = used
             .get_mut(inst.mesh as usize)
@@ -317,6 +333,7 @@ fn check_tables(meshes: &[MeshEntry], instances: &[SampleInstance], affine: &[Af
         }
     }
     for (i, inst) in affine.iter().enumerate() {
+        let offset = at.affi;
         let slot = used.get_mut(inst.mesh as usize).ok_or_else(|| {
             Error::malformed(offset, format!("affine instance {i} names mesh {}, there are {}", inst.mesh, meshes.len()))
         })?;
@@ -326,7 +343,8 @@ fn check_tables(meshes: &[MeshEntry], instances: &[SampleInstance], affine: &[Af
         }
     }
     if let Some(m) = used.iter().position(|u| !u) {
-        return Err(Error::malformed(offset, format!("mesh {m} has no instance")));
+        // The missing entry belongs in the instance list.
+        return Err(Error::malformed(at.inst, format!("mesh {m} has no instance")));
     }
     Ok(())
 }
@@ -421,6 +439,37 @@ mod tests {
         f.affine_instances.push(stretched());
         f.affine_instances.push(AffineInstance { mesh: 1, ..stretched() });
         f
+    }
+
+    /// Table errors point at the table holding the bad entry, also when AFFI is present.
+    #[test]
+    fn table_errors_point_at_their_section() {
+        let offset_of = |bytes: &[u8], tag: [u8; 4]| {
+            let known = [tags::GENR, tags::MESH, tags::INST, tags::SMPL, AFFI];
+            let c = Container::parse(bytes, SAMPLES_MAGIC, "SCT samples", &known, &Limits::default()).unwrap();
+            c.sections.iter().find(|e| e.tag == tag).map(|e| e.offset).unwrap()
+        };
+        let error_offset = |f: &SamplesFile| {
+            let mut bytes = Vec::new();
+            f.write_unchecked(&mut bytes).unwrap();
+            match SamplesFile::read(&bytes, &Limits::default()) {
+                Err(Error::Malformed { offset, .. }) => (bytes, offset),
+                other => panic!("{:?}", other.map(|_| ())),
+            }
+        };
+        let mut f = file_affine();
+        f.instances[0].mesh = 99;
+        let (bytes, at) = error_offset(&f);
+        assert_eq!(at, offset_of(&bytes, tags::INST));
+        assert_ne!(at, offset_of(&bytes, AFFI));
+        let mut f = file_affine();
+        f.meshes[1].first = 101;
+        let (bytes, at) = error_offset(&f);
+        assert_eq!(at, offset_of(&bytes, tags::MESH));
+        let mut f = file_affine();
+        f.affine_instances[0].mesh = 99;
+        let (bytes, at) = error_offset(&f);
+        assert_eq!(at, offset_of(&bytes, AFFI));
     }
 
     #[test]

@@ -317,17 +317,22 @@ fn transform_problems(t: &Similarity) -> Vec<Problem> {
 }
 
 /// Parses the graph with the reader's parser, keeping per-node problems (bad references,
-/// flags, inline paths, transforms, inline bounds) to report at each node's path.
-fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, issues: &mut Vec<Problem>) -> Option<Graph> {
-    let (graph, problems) = match crate::read::parse_graph(bytes, offset, limits) {
+/// flags, inline paths, transforms, inline bounds) to report at each node's path. At most
+/// `room` problems are kept (each is reported once, reachable or not, so no more can be
+/// listed); the rest are added to `omitted`, so a hostile graph cannot make validation
+/// hold one message per node before [`MAX_ISSUES`] applies.
+fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, room: usize, issues: &mut Vec<Problem>, omitted: &mut u64) -> Option<Graph> {
+    let (graph, problems) = match crate::read::parse_graph(bytes, offset, limits, crate::read::OnProblem::Keep(room)) {
         Ok(g) => g,
         Err(e) => {
             issues.push((classify(&e, CheckId::Graph), e.to_string()));
             return None;
         }
     };
+    *omitted = omitted.saturating_add(problems.omitted);
+    let mut kept = problems.list.len();
     let mut node_problems: HashMap<u32, Vec<Problem>> = HashMap::new();
-    for p in problems {
+    for p in problems.list {
         match p.node {
             Some(i) => node_problems.entry(i).or_default().push((CheckId::Graph, p.message)),
             None => issues.push((CheckId::Graph, p.message)),
@@ -341,8 +346,13 @@ fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, issues: &mut Vec<Prob
             }
             _ => continue,
         };
-        if !probs.is_empty() {
-            node_problems.entry(i as u32).or_default().extend(probs);
+        for p in probs {
+            if kept < room {
+                kept += 1;
+                node_problems.entry(i as u32).or_default().push(p);
+            } else {
+                *omitted = omitted.saturating_add(1);
+            }
         }
     }
     Some(Graph { graph, node_problems })
@@ -676,7 +686,10 @@ impl<'o> Validator<'o> {
                 }
                 Ok(b) => {
                     let mut probs = Vec::new();
-                    let g = parse_graph(&b, e.offset, &limits, &mut probs);
+                    let room = self.max_issues.saturating_sub(self.report.issues.len());
+                    let mut omitted = 0;
+                    let g = parse_graph(&b, e.offset, &limits, room, &mut probs, &mut omitted);
+                    self.report.issues_omitted = self.report.issues_omitted.saturating_add(omitted);
                     for (k, m) in probs {
                         self.issue("graph", k, label, m);
                     }
@@ -928,6 +941,13 @@ impl<'o> Validator<'o> {
     }
 }
 
+/// Blocks decoded per batch of the deep check. Fixed, not derived from the thread count:
+/// the batch size decides the order levels are interleaved in, hence the order issues are
+/// found in, which of them survive [`MAX_ISSUES`], and how far a tree with a failing block
+/// got, and the report must be the same on 1 and N threads. 32 keeps 16 threads busy with
+/// two blocks each while holding only a couple of batches of nodes per level.
+const WAVEFRONT_BATCH: usize = 32;
+
 /// The decoded internal nodes of one level that the next level has not consumed yet.
 #[derive(Default)]
 struct Front {
@@ -973,9 +993,7 @@ impl<'a> Wavefront<'a> {
             })
             .collect();
         let bits = (0..idx.levels.len()).map(|_| LevelBits::default()).collect();
-        // Enough blocks per batch to keep every thread busy; the result does not depend on it.
-        let batch = (2 * rayon::current_num_threads()).clamp(2, 32);
-        Wavefront { idx, limits, batch, fronts, bits, pending: Vec::new(), room, omitted: 0, nodes: 0, blocks: 0 }
+        Wavefront { idx, limits, batch: WAVEFRONT_BATCH, fronts, bits, pending: Vec::new(), room, omitted: 0, nodes: 0, blocks: 0 }
     }
 
     /// Keeps level `d`'s issues while there is room, counts the rest.
@@ -1144,6 +1162,72 @@ mod tests {
         assert_eq!((r.issues.len(), r.issues_omitted), (15, 25));
         assert_eq!(r.issues[..], full.issues[..15]);
         assert!(!r.is_valid());
+    }
+
+    /// Runs a deep validation of `bytes` on a pool of `threads` threads, keeping at most
+    /// `cap` issues.
+    fn deep_on(threads: usize, bytes: &[u8], cap: usize) -> Report {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let opts = deep();
+            let mut v = Validator::new(&opts);
+            v.max_issues = cap;
+            v.file(bytes, None, "root", "");
+            v.finish()
+        })
+    }
+
+    fn same_report(a: &Report, b: &Report) {
+        assert_eq!(a.issues, b.issues);
+        assert_eq!((a.nodes, a.blocks, a.issues_omitted), (b.nodes, b.blocks, b.issues_omitted));
+    }
+
+    /// The order issues are found in, hence which ones survive the cap, and how far a failed
+    /// tree got, must not depend on the thread count (the batch size used to).
+    #[test]
+    fn report_does_not_depend_on_threads() {
+        let mut t = build(600);
+        // Issues on every level: areas that do not add up at every internal node.
+        for (i, n) in t.nodes_mut().iter_mut().enumerate() {
+            n.area += (i % 7) as f32 * 0.125;
+        }
+        let bytes = bytes_of(t, Profile::Raw);
+        for cap in [usize::MAX, 40] {
+            let one = deep_on(1, &bytes, cap);
+            assert!(one.issues.len() >= 40, "{}", one.issues.len());
+            same_report(&one, &deep_on(3, &bytes, cap));
+        }
+        // A corrupt block deep in the tree: the nodes checked before the failure must agree.
+        let mut broken = bytes.clone();
+        let n = broken.len();
+        broken[n * 3 / 4] ^= 0x55;
+        same_report(&deep_on(1, &broken, usize::MAX), &deep_on(3, &broken, usize::MAX));
+    }
+
+    /// Graph problems (reader problems and transform checks alike) stop being kept at the
+    /// room left under the cap, and are counted instead.
+    #[test]
+    fn graph_problems_are_capped() {
+        use crate::raw::cursor::Put;
+        let n = 50u64;
+        let mut b = Vec::new();
+        b.put_u64(n + 1);
+        b.put_u32(0);
+        b.put_u8(crate::write::kind::TREE);
+        b.put_u32(0);
+        for i in 0..n {
+            b.put_u8(crate::write::kind::INSTANCE);
+            b.put_u32(if i % 2 == 0 { 0 } else { 999 }); // every other one a bad reference too
+            for v in [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, -1.0] {
+                b.put_f64(v);
+            }
+            b.put_u8(0);
+            b.extend_from_slice(&[255; 4]);
+        }
+        let (mut issues, mut omitted) = (Vec::new(), 0);
+        let g = parse_graph(&b, 0, &Limits::default(), 10, &mut issues, &mut omitted).unwrap();
+        let kept: usize = g.node_problems.values().map(Vec::len).sum();
+        assert_eq!((kept + issues.len(), omitted), (10, n + n / 2 - 10));
     }
 
     #[test]

@@ -95,9 +95,12 @@ pub fn oct_encode(n: [f32; 3]) -> u16 {
 
 /// [`oct_encode`] and the code's decoded vector (`oct_decode` of it, computed anyway).
 ///
-/// Candidates are ranked by the cosine (f64 dot product with the normalised input) rather
-/// than the atan2 angle: the same order up to ties within ~1e-16, at a fraction of the cost
-/// (this runs once per encoded node).
+/// Candidates are ranked by their cosine with the input rather than the atan2 angle, at a
+/// fraction of the cost (this runs once per encoded node). Nothing is normalised: for the
+/// input `n` and each candidate's unnormalised surface point `w`, cos² ∝ (n·w)² / |w|² is
+/// compared cross-multiplied in f64 (no square root or division), which orders like the
+/// cosine while every n·w > 0; otherwise n·w / |w| is compared. The order matches the
+/// angle's except between candidates within rounding (~1e-16 relative) of each other.
 pub fn oct_encode_decoded(n: [f32; 3]) -> (u16, [f32; 3]) {
     let p = oct_project(n);
     let (fu, fv) = (super::rounding::floor_f32(p[0]), super::rounding::floor_f32(p[1]));
