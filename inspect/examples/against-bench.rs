@@ -1,7 +1,7 @@
 //! Benchmark of `--against`: phase timings (mesh load + points, leaf decoding + index,
 //! queries) over several runs, medians printed.
 //!
-//! `cargo run --release -p inspect --bin against-bench -- FILE.sct MESH [POINTS] [RUNS]`
+//! `cargo run --release -p inspect --example against-bench -- FILE.sct MESH [POINTS] [RUNS]`
 
 use std::path::PathBuf;
 

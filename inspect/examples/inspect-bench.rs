@@ -1,6 +1,6 @@
 //! Benchmark of quick and deep validation on a synthetic N-node file (issue 5 §6).
 //!
-//! `cargo run --release -p inspect --bin inspect-bench -- [NODES] [raw|canopy|default] [DIR]`
+//! `cargo run --release -p inspect --example inspect-bench -- [NODES] [raw|canopy|default] [DIR]`
 
 use std::path::PathBuf;
 use std::time::Instant;

@@ -39,7 +39,16 @@ pub struct AgainstOptions {
     pub min_coverage: f64,
     /// Limits for every SCT file opened.
     pub limits: Limits,
+    /// Most graph nodes the traversal may reach, a shared node counted once per path to it
+    /// (each reached tree is one use). Default [`MAX_USES`].
+    pub max_uses: u64,
 }
+
+/// Default [`AgainstOptions::max_uses`]. Uses are not deduplicated (each is a placement), so
+/// a DAG of shared groups or instances `d` deep reaches `2^d` of them: a file of a few
+/// hundred bytes would otherwise hang or exhaust memory. 10^7 uses take ~0.5 GB (the use
+/// list plus the sphere tree over their bounds), far beyond real scenes' instance counts.
+pub const MAX_USES: u64 = 10_000_000;
 
 /// Default number of surface points.
 pub const DEFAULT_POINTS: usize = 100_000;
@@ -51,7 +60,7 @@ pub const DEFAULT_MIN_COVERAGE: f64 = 0.999;
 
 impl Default for AgainstOptions {
     fn default() -> Self {
-        AgainstOptions { points: DEFAULT_POINTS, seed: DEFAULT_SEED, min_coverage: DEFAULT_MIN_COVERAGE, limits: Limits::default() }
+        AgainstOptions { points: DEFAULT_POINTS, seed: DEFAULT_SEED, min_coverage: DEFAULT_MIN_COVERAGE, limits: Limits::default(), max_uses: MAX_USES }
     }
 }
 
@@ -79,7 +88,7 @@ pub struct CoverageReport {
     pub seed: u64,
     /// Points inside some leaf sphere.
     pub covered: u64,
-    /// `covered / points` (1 when there are no points).
+    /// `covered / points` (there is always at least one point).
     pub fraction: f64,
     /// The threshold.
     pub min_coverage: f64,
@@ -387,6 +396,10 @@ fn mesh_points(mesh: &Path, opts: &AgainstOptions) -> Result<Vec<[f64; 3]>, Insp
 
 /// Checks how much of `mesh`'s surface the leaves of the SCT file at `file` cover.
 pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Result<CoverageReport, InspectError> {
+    if opts.points == 0 {
+        // No point is trivially covered: the check would pass whatever the file holds.
+        return Err(InspectError::Usage("--points must be at least 1".into()));
+    }
     let t0 = std::time::Instant::now();
     let points = mesh_points(mesh, opts)?;
     let t1 = std::time::Instant::now();
@@ -396,7 +409,12 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
     let mut by_key: HashMap<(PathBuf, usize), usize> = HashMap::new();
     let mut uses: Vec<Use> = Vec::new();
     let mut errors = Vec::new();
+    let mut reached_count = 0u64;
     for item in Traversal::open(file, topts)? {
+        // Every item counts (also errors and group nodes), so a DAG whose leaves are broken
+        // or empty is bounded too, not only one that yields uses.
+        reached_count = reached_count.saturating_add(1);
+        sct_format::Limits::check("graph nodes reached by the coverage traversal (shared nodes once per path)", reached_count, opts.max_uses)?;
         let reached = match item {
             Ok(r) => r,
             Err(e) => {

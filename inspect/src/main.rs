@@ -52,11 +52,13 @@ struct Cli {
     #[arg(long, value_name = "N", default_value_t = 3, requires = "dump")]
     levels: usize,
     /// Coverage of a source mesh (OBJ, glTF/GLB, PLY): the fraction of random surface points
-    /// inside some leaf sphere, leaves in world space (instances and inlines applied).
+    /// inside some leaf sphere, leaves in world space (instances and inlines applied). Points
+    /// are drawn on every triangle, including surfaces the voxelizer drops by alpha (glTF MASK
+    /// below the cutoff, fully transparent BLEND): such models cover less than 100 %.
     #[arg(long, value_name = "MESH", conflicts_with_all = ["dump", "export_ply"])]
     against: Option<PathBuf>,
-    /// Surface points tested by --against.
-    #[arg(long, value_name = "N", default_value_t = DEFAULT_POINTS, requires = "against")]
+    /// Surface points tested by --against (at least 1).
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_POINTS, requires = "against", value_parser = positive)]
     points: usize,
     /// Seed of the --against points (same seed, same points).
     #[arg(long, value_name = "S", default_value_t = DEFAULT_SEED, requires = "against")]
@@ -80,6 +82,14 @@ fn fraction(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
         _ => Err(format!("{s:?} is not a fraction in [0, 1]")),
+    }
+}
+
+/// `--points`: 0 points would pass vacuously (fraction 1 of nothing), so it is a usage error.
+fn positive(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(v) if v > 0 => Ok(v),
+        _ => Err(format!("{s:?} is not a positive number of points")),
     }
 }
 
@@ -110,7 +120,7 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
         Ok(mut s) => {
             s.validation = validation;
             if let Some(mesh) = &cli.against {
-                let opts = AgainstOptions { points: cli.points, seed: cli.seed, min_coverage: cli.min_coverage, limits: limits.clone() };
+                let opts = AgainstOptions { points: cli.points, seed: cli.seed, min_coverage: cli.min_coverage, limits: limits.clone(), ..Default::default() };
                 s.coverage = Some(coverage_against(&cli.file, mesh, &opts)?);
             }
             if cli.json {

@@ -202,7 +202,44 @@ fn mesh_errors_have_their_exit_status() {
     let unknown = d.path().join("mesh.xyz");
     std::fs::write(&unknown, b"1 2 3\n").unwrap();
     assert_eq!(against(&sct, &unknown, &[]).0.status.code(), Some(1));
-    // Threshold outside [0, 1], or --against with --dump: usage, 2.
+    // Threshold outside [0, 1], no points, or --against with --dump: usage, 2.
     assert_eq!(against(&sct, &fuze_obj(), &["--min-coverage", "99"]).0.status.code(), Some(2));
-    assert_eq!(against(&sct, &fuze_obj(), &["--dump"]).0.status.code(), Some(2));
+    let (o, _) = against(&sct, &fuze_obj(), &["--points", "0"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--points"), "{}", String::from_utf8_lossy(&o.stderr));
+    // A valid --dump value, so only the conflicts_with rule can refuse it.
+    let (o, _) = against(&sct, &fuze_obj(), &["--dump", "root"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("cannot be used with"), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// The library refuses 0 points too (it would report fraction 1 of nothing).
+#[test]
+fn zero_points_is_a_usage_error() {
+    let d = tmp();
+    let sct = build_fuze(d.path(), Profile::Raw);
+    let opts = inspect::AgainstOptions { points: 0, ..Default::default() };
+    let Err(e) = inspect::coverage_against(&sct, &fuze_obj(), &opts) else { panic!("0 points accepted") };
+    assert_eq!(e.exit_code(), 2, "{e}");
+}
+
+/// A DAG of shared groups reaches 2^depth tree uses from a file of a few hundred bytes: the
+/// check must stop at its limit with an input error (exit 1), not hang or run out of memory.
+#[test]
+fn shared_group_dag_stops_at_the_use_limit() {
+    use sct_format::{geometry::parent_of, Node, SceneTree};
+    let d = tmp();
+    let leaf = Node { center: [0.0; 3], radius: 1.0, normal: [0.0, 0.0, 1.0], cone: 0.0, area: 1.0, color: [9, 9, 9, 255] };
+    let geo = SceneTree::from_bfs(vec![leaf], vec![false]).unwrap();
+    let pair = SceneTree::from_bfs(vec![parent_of(&leaf, &leaf), leaf, leaf], vec![true, false, false]).unwrap();
+    let depth = 40u32;
+    let mut nodes = vec![GraphNode::Tree { tree: 0 }];
+    nodes.extend((0..depth).map(|i| GraphNode::Group { children: vec![i, i], tree: 1 }));
+    let sct = d.path().join("dag.sct");
+    write(&sct, SceneGraph { nodes, root: depth }, vec![geo, pair], Profile::Raw);
+    assert!(std::fs::metadata(&sct).unwrap().len() < 4096);
+    let opts = inspect::AgainstOptions { points: 10, max_uses: 1000, ..Default::default() };
+    let Err(e) = inspect::coverage_against(&sct, &fuze_obj(), &opts) else { panic!("no limit") };
+    assert_eq!(e.exit_code(), 1, "{e}");
+    assert!(e.to_string().contains("coverage traversal"), "{e}");
 }

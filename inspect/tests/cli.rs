@@ -96,3 +96,20 @@ fn help_has_examples() {
     let s = stdout(&o);
     assert!(s.contains("Examples:") && s.contains("--deep") && s.contains("--dump"));
 }
+
+/// `cargo install` ships every `[[bin]]`: the benchmarks are examples, so sct-inspect is the
+/// only binary.
+#[test]
+fn only_sct_inspect_is_a_binary() {
+    let toml = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("Cargo.toml")).unwrap();
+    assert_eq!(toml.matches("[[bin]]").count(), 1, "{toml}");
+    assert!(!Path::new(env!("CARGO_MANIFEST_DIR")).join("src/bin").exists());
+}
+
+/// `--against` does not apply the voxelizer's alpha rule: `--help` says so.
+#[test]
+fn help_states_the_alpha_limitation_of_against() {
+    let o = run(&["--help"]);
+    let s = stdout(&o);
+    assert!(s.contains("drops by alpha") && s.contains("less than 100 %"), "{s}");
+}
