@@ -243,3 +243,23 @@ fn shared_group_dag_stops_at_the_use_limit() {
     assert_eq!(e.exit_code(), 1, "{e}");
     assert!(e.to_string().contains("coverage traversal"), "{e}");
 }
+
+/// A missing inline shared along 2^12 paths: one error per path, but only the first
+/// `MAX_ERRORS` are listed, then a count of the rest.
+#[test]
+fn errors_of_a_shared_missing_inline_are_capped() {
+    use sct_format::{geometry::parent_of, Node, SceneTree};
+    let d = tmp();
+    let leaf = Node { center: [0.0; 3], radius: 1.0, normal: [0.0, 0.0, 1.0], cone: 0.0, area: 1.0, color: [9, 9, 9, 255] };
+    let pair = SceneTree::from_bfs(vec![parent_of(&leaf, &leaf), leaf, leaf], vec![true, false, false]).unwrap();
+    let depth = 12u32;
+    let mut nodes = vec![GraphNode::Inline { path: "missing.sct".into(), hash: [0; 32], bound: leaf }];
+    nodes.extend((0..depth).map(|i| GraphNode::Group { children: vec![i, i], tree: 0 }));
+    let sct = d.path().join("dag.sct");
+    write(&sct, SceneGraph { nodes, root: depth }, vec![pair], Profile::Raw);
+    let opts = inspect::AgainstOptions { points: 10, ..Default::default() };
+    let r = inspect::coverage_against(&sct, &fuze_obj(), &opts).unwrap();
+    let max = inspect::coverage::MAX_ERRORS;
+    assert_eq!(r.errors.len(), max + 1);
+    assert_eq!(r.errors[max], format!("... and {} more errors, not listed", (1 << depth) - max));
+}
