@@ -34,7 +34,7 @@ fn vec3(r: f32) -> impl Strategy<Value = [f32; 3]> {
 }
 
 prop_compose! {
-    fn parent()(c in vec3(100.0), r in 1e-3f32..100.0, n in vec3(1.0), cone in 0f32..3.14159,
+    fn parent()(c in vec3(100.0), r in 1e-3f32..100.0, n in vec3(1.0), cone in 0f32..std::f32::consts::PI,
                 area in 1e-3f32..1e3, col in any::<[u8; 4]>()) -> Node {
         Node { center: c, radius: r, normal: unit(n), cone, area, color: [col[0], col[1], col[2], 255] }
     }
@@ -96,8 +96,8 @@ fn check(profile: Profile, alpha: bool, ps: &[Node], kids: &[(Node, bool)]) -> R
         let e = angle(c.normal, d.normal);
         prop_assert!(e.to_degrees() <= canopy::MAX_NORMAL_ERROR_DEG, "normal error {}", e.to_degrees());
         prop_assert!(e + c.cone as f64 <= d.cone as f64 + 1e-9 || d.cone == std::f32::consts::PI, "cone not contained");
-        for j in 0..4 {
-            prop_assert!((c.color[j] as i32 - d.color[j] as i32).unsigned_abs() <= cmax[j] as u32, "colour {j}");
+        for (j, (&a, &b)) in c.color.iter().zip(&d.color).enumerate() {
+            prop_assert!((a as i32 - b as i32).unsigned_abs() <= cmax[j] as u32, "colour {j}");
         }
         if profile == Profile::Canopy {
             prop_assert_eq!(c.area, d.area);

@@ -40,8 +40,8 @@ fn every_non_nasty_model_voxelizes() {
             assert_eq!(s.map(|s| s.stats.triangles_read), Ok(1000), "{name}");
         }
         let scene = r.unwrap_or_else(|e| panic!("{name}: {e}"));
-        if scene.points.is_some() {
-            let n = voxelize::sample::sample_points(scene.points.as_ref().unwrap());
+        if let Some(points) = &scene.points {
+            let n = voxelize::sample::sample_points(points);
             assert!(!n.is_empty() && n.iter().all(|n| n.is_finite() && n.radius > 0.0), "{name}");
             continue;
         }
