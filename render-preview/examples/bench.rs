@@ -59,6 +59,16 @@ fn raster_throughput(path: &std::path::Path, opts: &RenderOptions) -> anyhow::Re
     let mut files = render_preview::SceneFiles::open(path, &opts.limits)?;
     let splats = render_preview::collect_splats(&mut files, opts)?;
     bbox_stats(&splats);
+    // The view's own splats once, as a preview draws them (per-frame overheads show here).
+    let mut once = Vec::with_capacity(21);
+    for _ in 0..21 {
+        let mut f = Frame::new(w as usize, h as usize, [0, 0, 0, 255]);
+        let t = Instant::now();
+        raster::rasterize(&mut f, &splats);
+        once.push(t.elapsed().as_secs_f64());
+    }
+    once.sort_by(f64::total_cmp);
+    println!("raster once: {} splats, median {:.2} ms (best {:.2} ms)", splats.len(), once[10] * 1e3, once[0] * 1e3);
     let mut all = Vec::with_capacity(splats.len() * 8);
     while all.len() < 4_000_000 && !splats.is_empty() {
         all.extend_from_slice(&splats);
