@@ -330,7 +330,9 @@ fn draw_quad(q: &[Splat; 4], base: u32, cand: &mut [Cand], touched: &mut [bool],
     };
     let (h00, h10, h01, h11) = (hits(&fx, &fy0), hits(&fx1, &fy0), hits(&fx, &fy1), hits(&fx1, &fy1));
     let (wl, hl) = (w as u32 - 1, h as u32 - 1);
-    for (l, s) in q.iter().enumerate() {
+    // `0..4` rather than `enumerate`: the lane index is then known to be in range.
+    for l in 0..4 {
+        let s = &q[l];
         let index = base + l as u32;
         let [x0, x1, y0, y1] = s.bounds.map(i32::from);
         let (ex, ey) = (x1 - x0, y1 - y0);
