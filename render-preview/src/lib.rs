@@ -204,12 +204,9 @@ pub fn scene_bound(files: &SceneFiles) -> Option<([f64; 3], f64)> {
     files.root_bound().map(|n| (n.center.map(f64::from), n.radius as f64))
 }
 
-/// Renders an open scene.
-pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> {
-    let t0 = Instant::now();
-    if !(opts.pixel_error.is_finite() && opts.pixel_error > 0.0) {
-        return Err(Error::Invalid(format!("pixel error {} must be a positive number", opts.pixel_error)));
-    }
+/// The camera, near distance, view and refinement parameters of a render of `files` with
+/// `opts` (shared by [`render`] and [`collect_splats`]).
+fn setup(files: &SceneFiles, opts: &RenderOptions) -> Result<(Camera, f64, View, lod::LodParams)> {
     let bound = scene_bound(files);
     let auto_up = if opts.needs_auto_up() { files.auto_up() } else { UpAxis::Y };
     let camera = opts.camera(bound, auto_up);
@@ -225,6 +222,16 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         area_cover: AREA_COVER,
         lod_size: opts.lod_size,
     };
+    Ok((camera, near, view, params))
+}
+
+/// Renders an open scene.
+pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> {
+    let t0 = Instant::now();
+    if !(opts.pixel_error.is_finite() && opts.pixel_error > 0.0) {
+        return Err(Error::Invalid(format!("pixel error {} must be a positive number", opts.pixel_error)));
+    }
+    let (camera, near, view, params) = setup(files, opts)?;
     let (splats, lod) = files.collect(&view, &params)?;
     let t1 = Instant::now();
     let [r, g, b] = opts.background;
@@ -272,20 +279,7 @@ pub fn write_rgb_png(path: &Path, img: &image::RgbImage) -> Result<()> {
 
 /// The splats a render would rasterize (for benchmarks and tests).
 pub fn collect_splats(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Vec<Splat>> {
-    let bound = scene_bound(files);
-    let auto_up = if opts.needs_auto_up() { files.auto_up() } else { UpAxis::Y };
-    let camera = opts.camera(bound, auto_up);
-    let near = bound.map_or(1e-6, |(_, r)| (r * 1e-5).max(1e-12));
-    let view = View::new(&camera, near)?;
-    let params = lod::LodParams {
-        pixel_error: opts.pixel_error,
-        shading: opts.shading,
-        ellipses: opts.splat == SplatShape::Ellipse,
-        backface: opts.backface_culling,
-        max_radius: 2.0 * opts.width.max(opts.height) as f32,
-        area_cover: AREA_COVER,
-        lod_size: opts.lod_size,
-    };
+    let (_, _, view, params) = setup(files, opts)?;
     Ok(files.collect(&view, &params)?.0)
 }
 
