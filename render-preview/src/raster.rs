@@ -531,15 +531,19 @@ mod tests {
         }
     }
 
-    #[test]
-    fn matches_the_plain_drawing_on_every_path() {
-        let mut s = 777u32;
-        let mut rnd = || {
+    /// A small deterministic generator of floats in [0, 1] (xorshift32).
+    fn xorshift(mut s: u32) -> impl FnMut() -> f32 {
+        move || {
             s ^= s << 13;
             s ^= s >> 17;
             s ^= s << 5;
             s as f32 / u32::MAX as f32
-        };
+        }
+    }
+
+    #[test]
+    fn matches_the_plain_drawing_on_every_path() {
+        let mut rnd = xorshift(777);
         // Mostly sub-2-pixel splats (the fast path), some large, thin, translucent, off the
         // edges, with tied and special depths, over a frame that already holds some depth.
         let mut splats = Vec::new();
@@ -577,13 +581,7 @@ mod tests {
     #[test]
     fn splats_across_tiles_and_clipping_are_deterministic() {
         let mut splats = Vec::new();
-        let mut s = 12345u32;
-        let mut rnd = || {
-            s ^= s << 13;
-            s ^= s >> 17;
-            s ^= s << 5;
-            s as f32 / u32::MAX as f32
-        };
+        let mut rnd = xorshift(12345);
         for i in 0..50_000 {
             let c = [(i % 251) as u8, (i % 13) as u8, 7, 255];
             splats.push(Splat::disc(rnd() * 120.0 - 10.0, rnd() * 90.0 - 10.0, (rnd() * 8.0).floor(), rnd() * 4.0, c));

@@ -33,6 +33,25 @@ impl SectionOut {
         SectionOut { tag, required: true, raw_len: data.len() as u64, stored: data, compressed: false }
     }
 
+    /// Its section-table entry when stored at `offset` (flags, lengths, CRC-32).
+    pub fn entry(&self, offset: u64) -> SectionEntry {
+        let mut flags = 0;
+        if self.required {
+            flags |= SectionEntry::REQUIRED;
+        }
+        if self.compressed {
+            flags |= SectionEntry::ZSTD;
+        }
+        SectionEntry {
+            tag: self.tag,
+            flags,
+            offset,
+            stored_len: self.stored.len() as u64,
+            raw_len: self.raw_len,
+            crc: crc32fast::hash(&self.stored),
+        }
+    }
+
     /// A section stored as one zstd frame.
     pub fn zstd(tag: [u8; 4], data: &[u8], level: i32) -> Result<Self> {
         let stored = zstd::bulk::compress(data, level)?;
@@ -48,22 +67,7 @@ pub fn write_container<W: Write>(magic: [u8; 8], sections: &[SectionOut], mut w:
     let mut table = Vec::with_capacity(table_len);
     let mut offsets = Vec::with_capacity(sections.len());
     for s in sections {
-        let mut flags = 0;
-        if s.required {
-            flags |= SectionEntry::REQUIRED;
-        }
-        if s.compressed {
-            flags |= SectionEntry::ZSTD;
-        }
-        SectionEntry {
-            tag: s.tag,
-            flags,
-            offset,
-            stored_len: s.stored.len() as u64,
-            raw_len: s.raw_len,
-            crc: crc32fast::hash(&s.stored),
-        }
-        .write(&mut table);
+        s.entry(offset).write(&mut table);
         offsets.push(offset);
         offset += s.stored.len() as u64;
     }

@@ -291,6 +291,22 @@ struct Pending {
     bound: Option<Node>,
 }
 
+impl Pending {
+    /// What the traversal yields on arriving at this node's scene tree.
+    fn reached(&self, tree: u32, kind: ReachedKind) -> Reached {
+        Reached {
+            path: self.path.clone(),
+            file: self.file.clone(),
+            file_path: self.chain.path.clone(),
+            graph_node: self.node,
+            tree: tree as usize,
+            state: self.state,
+            kind,
+            inline_depth: self.chain.depth,
+        }
+    }
+}
+
 /// Options of a traversal.
 #[derive(Clone, Debug)]
 pub struct TraverseOptions {
@@ -460,29 +476,9 @@ impl Iterator for Traversal {
                 return Some(Err(TraverseError { path: p.path, file: p.chain.path.clone(), graph_node: p.node, kind }));
             };
             match node {
-                GraphNode::Tree { tree } => {
-                    return Some(Ok(Reached {
-                        path: p.path.clone(),
-                        file: p.file.clone(),
-                        file_path: p.chain.path.clone(),
-                        graph_node: p.node,
-                        tree: tree as usize,
-                        state: p.state,
-                        kind: ReachedKind::Tree,
-                        inline_depth: p.chain.depth,
-                    }))
-                }
+                GraphNode::Tree { tree } => return Some(Ok(p.reached(tree, ReachedKind::Tree))),
                 GraphNode::Group { children, tree } => {
-                    let r = Reached {
-                        path: p.path.clone(),
-                        file: p.file.clone(),
-                        file_path: p.chain.path.clone(),
-                        graph_node: p.node,
-                        tree: tree as usize,
-                        state: p.state,
-                        kind: ReachedKind::Group { children },
-                        inline_depth: p.chain.depth,
-                    };
+                    let r = p.reached(tree, ReachedKind::Group { children });
                     self.deferred = Some(p);
                     return Some(Ok(r));
                 }

@@ -173,19 +173,8 @@ fn stream_scene<W: Write + Seek>(scene: &Scene, opts: &WriteOptions, w: &mut W) 
     let mut offset = (FILE_HEADER_LEN + table_len) as u64;
     let mut entries = Vec::with_capacity(section_count);
     for s in &small {
-        let mut flags = SectionEntry::REQUIRED;
-        if s.compressed {
-            flags |= SectionEntry::ZSTD;
-        }
         w.write_all(&s.stored)?;
-        entries.push(SectionEntry {
-            tag: s.tag,
-            flags,
-            offset,
-            stored_len: s.stored.len() as u64,
-            raw_len: s.raw_len,
-            crc: crc32fast::hash(&s.stored),
-        });
+        entries.push(s.entry(offset));
         offset += s.stored.len() as u64;
     }
     let mut tree_stats = Vec::with_capacity(scene.trees.len());
