@@ -20,7 +20,7 @@ use std::time::Instant;
 use sct_format::{Limits, Profile, SctReader};
 use voxelize::args::SamplingArgs;
 
-use crate::convert::{convert_meshes, is_mesh_path};
+use crate::convert::{convert_meshes, is_mesh_path, BatchTag};
 use crate::error::BuildError;
 use crate::pipeline::Config;
 use crate::tree::{BuildOptions, Weld};
@@ -283,9 +283,10 @@ fn slash(p: &Path) -> String {
 }
 
 /// Whether `output` was made by this tool version with `key` from sources that are
-/// unchanged. Any doubt (unreadable, invalid, other parameters, a source gone or changed)
-/// means "convert again".
-pub fn is_up_to_date(output: &Path, key: &str) -> bool {
+/// unchanged; relative source paths are relative to the library `root` (as
+/// [`convert_meshes`] records them in batch mode). Any doubt (unreadable, invalid, other
+/// parameters, a source gone or changed) means "convert again".
+pub fn is_up_to_date(output: &Path, key: &str, root: &Path) -> bool {
     let Ok(reader) = SctReader::open(output, &Limits::default()) else {
         return false;
     };
@@ -295,7 +296,7 @@ pub fn is_up_to_date(output: &Path, key: &str) -> bool {
         return false;
     }
     !g.sources.is_empty()
-        && g.sources.iter().all(|s| sct_format::atomic::hash_file(Path::new(&s.path)).is_ok_and(|h| h == s.blake3))
+        && g.sources.iter().all(|s| sct_format::atomic::hash_file(&root.join(&s.path)).is_ok_and(|h| h == s.blake3))
 }
 
 /// Removes temporary files (`.NAME.PID.tmp`, see `sct_format::atomic`) that an interrupted
@@ -425,7 +426,7 @@ fn run_one(opts: &BatchOptions, key: &str, rel: &Path, out_rel: &Path) -> (JobRe
     let input = opts.input_dir.join(rel);
     let output = opts.output_dir.join(out_rel);
     let removed = remove_stale_temp_files(&output);
-    if !opts.force && is_up_to_date(&output, key) {
+    if !opts.force && is_up_to_date(&output, key, &opts.input_dir) {
         let bytes = std::fs::metadata(&output).map(|m| m.len()).unwrap_or(0);
         let job = JobResult {
             input: slash(rel),
@@ -454,7 +455,7 @@ fn run_one(opts: &BatchOptions, key: &str, rel: &Path, out_rel: &Path) -> (JobRe
         compression_level: opts.compression_level,
         build: opts.build,
     };
-    let job = match convert_meshes(&[input], &opts.sampling, &cfg, Some(key), &mut |_| {}) {
+    let job = match convert_meshes(&[input], &opts.sampling, &cfg, Some(BatchTag { key, root: &opts.input_dir }), &mut |_| {}) {
         Ok(rep) => JobResult {
             input: slash(rel),
             output: slash(out_rel),

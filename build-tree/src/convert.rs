@@ -51,14 +51,26 @@ pub struct ConvertReport {
     pub build: Report,
 }
 
+/// Batch bookkeeping recorded in a conversion's provenance.
+#[derive(Clone, Copy, Debug)]
+pub struct BatchTag<'a> {
+    /// Hash of everything besides the sources that determines the output
+    /// ([`crate::batch::job_key`]).
+    pub key: &'a str,
+    /// The library root: sources below it are recorded relative to it, so the up-to-date
+    /// check does not depend on the directory the batch is run from.
+    pub root: &'a Path,
+}
+
 /// Samples `inputs` in one grid with `sampling`'s options and builds `cfg.output` from the
-/// samples in memory (`cfg.samples` is ignored). `job_key`, when given, is recorded in the
-/// provenance (batch mode uses it to recognise up-to-date outputs).
+/// samples in memory (`cfg.samples` is ignored). `batch`, when given, records the job key in
+/// the provenance and the sources relative to the library root (batch mode uses both to
+/// recognise up-to-date outputs).
 pub fn convert_meshes(
     inputs: &[PathBuf],
     sampling: &SamplingArgs,
     cfg: &Config,
-    job_key: Option<&str>,
+    batch: Option<BatchTag<'_>>,
     phase: &mut dyn FnMut(&str),
 ) -> Result<ConvertReport, ConvertError> {
     let t0 = Instant::now();
@@ -71,8 +83,15 @@ pub fn convert_meshes(
     };
     let (samples, summary) = voxelize::sample_in_memory(&opts, &|_, _| {})?;
     let mut generator = samples.generator.clone();
-    if let (Some(key), Some(map)) = (job_key, generator.parameters.as_object_mut()) {
-        map.insert("job_key".into(), serde_json::Value::String(key.to_string()));
+    if let Some(tag) = batch {
+        if let Some(map) = generator.parameters.as_object_mut() {
+            map.insert("job_key".into(), serde_json::Value::String(tag.key.to_string()));
+        }
+        for s in &mut generator.sources {
+            if let Ok(rel) = Path::new(&s.path).strip_prefix(tag.root) {
+                s.path = rel.components().map(|c| c.as_os_str().to_string_lossy()).collect::<Vec<_>>().join("/");
+            }
+        }
     }
     let build = run_samples(cfg, samples, Upstream::Sampled(generator), t0, phase)?;
     Ok(ConvertReport { sampling: summary, build })

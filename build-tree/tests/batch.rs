@@ -113,6 +113,35 @@ fn batch_converts_mirrors_skips_up_to_date_and_reports_failures() {
     assert_eq!(jobs_by_status(&rep4, "converted").len(), converted.len());
 }
 
+/// Regression: the up-to-date check used to resolve the recorded source paths from the
+/// current directory, so a batch run from another directory converted everything again.
+#[test]
+fn up_to_date_check_does_not_depend_on_the_working_directory() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (lib, out) = (dir.path().join("lib"), dir.path().join("out"));
+    copy_dir(&models().join("nasty/obj-concave-ngons-wallhole"), &lib.join("wall"));
+    // First run from the temp dir with relative paths, second from elsewhere with absolute ones.
+    let first = Command::new(env!("CARGO_BIN_EXE_sct-build-tree"))
+        .current_dir(dir.path())
+        .args(["lib", "-o", "out", "--json"])
+        .output()
+        .expect("run");
+    assert!(first.status.success(), "{}", String::from_utf8_lossy(&first.stderr));
+    assert_eq!(jobs_by_status(&json(&first), "converted").len(), 1);
+    // Provenance names the sources relative to the library root (portable, not cwd-bound).
+    let sct = out.join("wall").read_dir().expect("out").map(|e| e.expect("entry").path()).find(|p| p.extension().is_some_and(|e| e == "sct")).expect("output");
+    let g = SctReader::open(&sct, &Limits::default()).expect("open").generator().clone();
+    assert!(g.sources.iter().any(|s| s.path.starts_with("wall/") && s.path.ends_with(".obj")), "{:?}", g.sources);
+    assert!(g.sources.iter().all(|s| !s.path.starts_with("lib")), "{:?}", g.sources);
+    let second = Command::new(env!("CARGO_BIN_EXE_sct-build-tree"))
+        .current_dir(lib.join("wall"))
+        .args([lib.as_os_str(), "-o".as_ref(), out.as_os_str(), "--json".as_ref()])
+        .output()
+        .expect("run");
+    assert!(second.status.success(), "{}", String::from_utf8_lossy(&second.stderr));
+    assert_eq!(jobs_by_status(&json(&second), "up-to-date").len(), 1, "{}", String::from_utf8_lossy(&second.stdout));
+}
+
 #[test]
 fn shards_partition_the_library() {
     let dir = tempfile::tempdir().expect("tempdir");

@@ -1,6 +1,6 @@
 //! The whole job of `sct-voxelize`: load inputs into one scene, sample, write atomically.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use sct_format::samples::{AffineInstance, MeshEntry, SampleInstance, SamplesFile};
@@ -181,6 +181,26 @@ pub fn into_samples_file(sampled: Vec<SampledMesh>, points: Vec<sct_format::Node
     SamplesFile { generator, meshes, instances, affine_instances, samples }
 }
 
+/// BLAKE3 of a source, streamed (no second copy of a big GLB in memory). A resource that
+/// vanished since it was loaded is an error: provenance that leaves it out would let batch
+/// mode call the output up to date forever.
+fn hash_source(f: &Path) -> Result<String, Error> {
+    sct_format::atomic::hash_file(f).map_err(|e| {
+        let source = match e {
+            sct_format::Error::Io { source, .. } => source,
+            other => std::io::Error::other(other.to_string()),
+        };
+        Error::Load(LoadError::Io { path: f.to_path_buf(), source })
+    })
+}
+
+/// Whether `f` was modified after `started` (and not dated in the future, which says
+/// nothing about this run: archives can carry such dates).
+fn changed_since(f: &Path, started: std::time::SystemTime) -> bool {
+    let now = std::time::SystemTime::now();
+    std::fs::metadata(f).and_then(|m| m.modified()).is_ok_and(|t| t > started && t <= now)
+}
+
 fn method_name(m: Method) -> &'static str {
     match m {
         Method::Voxel => "voxel",
@@ -217,6 +237,21 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
             return Err(Error::Usage(format!("--voxel-size must be a positive number, got {h}")));
         }
     }
+    // The inputs are hashed before they are read and the resources they name (MTL,
+    // textures, buffers) are checked for changes made while we ran: a hash taken after the
+    // load could describe bytes the samples were not made from, and batch mode would then
+    // call a stale output up to date forever.
+    let started = std::time::SystemTime::now();
+    let mut hashes = std::collections::HashMap::new();
+    for f in &opts.inputs {
+        // A missing or oversized input is left to the loader, which names the problem.
+        let fits = std::fs::metadata(f).is_ok_and(|m| m.is_file() && m.len() <= opts.load.max_file_bytes);
+        if fits && !hashes.contains_key(f) {
+            if let Ok(h) = sct_format::atomic::hash_file(f) {
+                hashes.insert(f.clone(), h);
+            }
+        }
+    }
     let scene = load_all(&opts.inputs, &opts.load)?;
     let t_load = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
@@ -238,16 +273,17 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
         if !seen.insert(f.clone()) {
             continue;
         }
-        // Streamed (no second copy of a big GLB in memory). A resource that vanished since
-        // it was loaded is an error: provenance that leaves it out would let batch mode
-        // call the output up to date forever.
-        let blake3 = sct_format::atomic::hash_file(f).map_err(|e| {
-            let source = match e {
-                sct_format::Error::Io { source, .. } => source,
-                other => std::io::Error::other(other.to_string()),
-            };
-            Error::Load(LoadError::Io { path: f.clone(), source })
-        })?;
+        let blake3 = match hashes.get(f) {
+            Some(h) => h.clone(),
+            None => {
+                let h = hash_source(f)?;
+                if changed_since(f, started) {
+                    let msg = "changed while it was being read; run again";
+                    return Err(Error::Load(LoadError::Io { path: f.clone(), source: std::io::Error::other(msg) }));
+                }
+                h
+            }
+        };
         sources.push(SourceRef { path: f.display().to_string(), blake3 });
     }
     let s = &opts.sample;
@@ -317,4 +353,26 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
         warnings,
     };
     Ok((file, summary))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::{Duration, SystemTime};
+
+    #[test]
+    fn changes_during_a_run_are_seen_but_future_dates_are_not() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let f = dir.path().join("texture.png");
+        std::fs::write(&f, b"x").expect("write");
+        let file = std::fs::File::options().write(true).open(&f).expect("open");
+        let started = SystemTime::now() - Duration::from_secs(10);
+        file.set_modified(started - Duration::from_secs(60)).expect("set mtime");
+        assert!(!changed_since(&f, started), "modified before the run");
+        file.set_modified(started + Duration::from_secs(5)).expect("set mtime");
+        assert!(changed_since(&f, started), "modified during the run");
+        file.set_modified(SystemTime::now() + Duration::from_secs(3600)).expect("set mtime");
+        assert!(!changed_since(&f, started), "a future date says nothing about this run");
+        assert!(!changed_since(&dir.path().join("missing"), started));
+    }
 }
