@@ -158,8 +158,6 @@ impl SctReader {
         let generator = parse_generator(&c.section_bytes(genr, limits)?, genr.offset, limits)?;
         read += genr.stored_len;
         let grph = c.single(tags::GRPH)?;
-        let graph = parse_graph_strict(&c.section_bytes(grph, limits)?, grph.offset, limits)?;
-        read += grph.stored_len;
         let mut trees = Vec::new();
         for e in c.sections_with(tags::TREE) {
             let t = parse_tree_index(c.stored(e)?, e, limits)?;
@@ -169,7 +167,10 @@ impl SctReader {
             read += (TREE_HEADER_LEN + t.levels.len() * LEVEL_ENTRY_LEN + t.blocks.len() * BLOCK_ENTRY_LEN) as u64;
             trees.push(t);
         }
-        check_graph_refs(&graph, &trees, grph.offset)?;
+        // After the tree indices, so that a bad tree reference is reported at its node.
+        let leaves: Vec<u64> = trees.iter().map(|t| t.header.leaf_count).collect();
+        let graph = parse_graph(&c.section_bytes(grph, limits)?, grph.offset, limits, OnProblem::Fail, Some(&leaves))?.0;
+        read += grph.stored_len;
         let (header, sections, skipped) = (c.header.clone(), c.sections.clone(), c.skipped.clone());
         Ok(SctReader { data, path, limits: limits.clone(), header, sections, skipped, generator, graph, trees, bytes_read: AtomicU64::new(read) })
     }
@@ -475,7 +476,16 @@ pub(crate) struct GraphProblems {
 /// and inline bounds are returned as stored for the caller to check (the validator names
 /// each failing check); in [`OnProblem::Fail`] mode an invalid instance transform is an
 /// error at the instance's offset.
-pub(crate) fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, on_problem: OnProblem) -> Result<(SceneGraph, GraphProblems)> {
+///
+/// With `tree_leaves` (the leaf count of each tree in the file), tree references are checked
+/// too: they must name an existing tree, and a group's tree must have one leaf per child.
+pub(crate) fn parse_graph(
+    bytes: &[u8],
+    offset: u64,
+    limits: &Limits,
+    on_problem: OnProblem,
+    tree_leaves: Option<&[u64]>,
+) -> Result<(SceneGraph, GraphProblems)> {
     let mut c = Cursor::new(bytes, offset);
     let n = c.count(5, "graph node count")?;
     Limits::check("graph nodes", n as u64, limits.max_graph_nodes)?;
@@ -543,6 +553,15 @@ pub(crate) fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, on_problem
             }
             k => return Err(Error::malformed(at, format!("graph node {i} has unknown kind {k}"))),
         };
+        if let (Some(leaves), GraphNode::Tree { tree } | GraphNode::Group { tree, .. }) = (tree_leaves, &node) {
+            match (leaves.get(*tree as usize), &node) {
+                (None, _) => problem(format!("graph node {i} refers to tree {tree}, the file has {}", leaves.len()))?,
+                (Some(&l), GraphNode::Group { children, .. }) if l != children.len() as u64 => {
+                    problem(format!("group {i} has {} children, its tree {tree} has {l} leaves", children.len()))?
+                }
+                _ => {}
+            }
+        }
         nodes.push(node);
     }
     if let Err(e) = c.finish("scene graph") {
@@ -552,27 +571,6 @@ pub(crate) fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, on_problem
         return Err(Error::malformed(offset, format!("graph root {root} out of range ({n} nodes)")));
     }
     Ok((SceneGraph { nodes, root }, problems))
-}
-
-/// [`parse_graph`] for the reader: any problem, or an invalid instance transform, is an error.
-fn parse_graph_strict(bytes: &[u8], offset: u64, limits: &Limits) -> Result<SceneGraph> {
-    parse_graph(bytes, offset, limits, OnProblem::Fail).map(|(g, _)| g)
-}
-
-fn check_graph_refs(g: &SceneGraph, trees: &[TreeIndex], offset: u64) -> Result<()> {
-    for (i, n) in g.nodes.iter().enumerate() {
-        let t = match n {
-            GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => *tree,
-            _ => continue,
-        };
-        let tree = trees.get(t as usize).ok_or_else(|| Error::malformed(offset, format!("graph node {i} refers to tree {t}, the file has {}", trees.len())))?;
-        if let GraphNode::Group { children, .. } = n {
-            if tree.header.leaf_count != children.len() as u64 {
-                return Err(Error::malformed(offset, format!("group {i} has {} children, its tree {} leaves", children.len(), tree.header.leaf_count)));
-            }
-        }
-    }
-    Ok(())
 }
 
 #[cfg(test)]
@@ -599,7 +597,7 @@ mod tests {
     /// The reader fails at the first bad child, naming it; it does not collect the others.
     #[test]
     fn strict_graph_fails_at_the_first_problem() {
-        let e = parse_graph(&bad_group(5000), AT, &Limits::default(), OnProblem::Fail).err();
+        let e = parse_graph(&bad_group(5000), AT, &Limits::default(), OnProblem::Fail, None).err();
         match e {
             Some(Error::Malformed { offset, what }) => {
                 assert_eq!(offset, AT + 12 + 5, "node 1 follows the 12-byte head and node 0");
@@ -612,7 +610,7 @@ mod tests {
     /// The validator's mode keeps at most its cap and counts the rest.
     #[test]
     fn lenient_graph_caps_and_counts_problems() {
-        let (g, p) = parse_graph(&bad_group(5000), AT, &Limits::default(), OnProblem::Keep(10)).unwrap();
+        let (g, p) = parse_graph(&bad_group(5000), AT, &Limits::default(), OnProblem::Keep(10), None).unwrap();
         assert_eq!((p.list.len(), p.omitted), (10, 4990));
         assert!(matches!(&g.nodes[1], GraphNode::Group { children, .. } if children.len() == 5000));
     }
@@ -632,12 +630,43 @@ mod tests {
         }
         b.put_u8(0);
         b.extend_from_slice(&[255; 4]);
-        match parse_graph_strict(&b, AT, &Limits::default()) {
+        match parse_graph(&b, AT, &Limits::default(), OnProblem::Fail, None).map(|(g, _)| g) {
             Err(Error::Malformed { offset, what }) => {
                 assert_eq!(offset, AT + 12 + 5, "{what}");
                 assert!(what.contains("instance 1 transform"), "{what}");
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    /// Regression: bad tree references used to be reported at the GRPH section's offset.
+    #[test]
+    fn bad_tree_references_are_reported_at_their_node() {
+        // Tree 0 has 4 leaves, the group (node 1) has 2 children.
+        let mut b = Vec::new();
+        b.put_u64(2);
+        b.put_u32(1);
+        b.put_u8(kind::TREE);
+        b.put_u32(0);
+        b.put_u8(kind::GROUP);
+        b.put_u32(0);
+        b.put_u64(2);
+        b.put_u32(0);
+        b.put_u32(0);
+        match parse_graph(&b, AT, &Limits::default(), OnProblem::Fail, Some(&[4])) {
+            Err(Error::Malformed { offset, what }) => {
+                assert_eq!(offset, AT + 12 + 5, "{what}");
+                assert!(what.contains("group 1 has 2 children, its tree 0 has 4 leaves"), "{what}");
+            }
+            other => panic!("{other:?}"),
+        }
+        match parse_graph(&b, AT, &Limits::default(), OnProblem::Fail, Some(&[])) {
+            Err(Error::Malformed { offset, what }) => {
+                assert_eq!(offset, AT + 12, "node 0 follows the 12-byte head: {what}");
+                assert!(what.contains("refers to tree 0, the file has 0"), "{what}");
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(parse_graph(&b, AT, &Limits::default(), OnProblem::Fail, Some(&[2])).is_ok());
     }
 }

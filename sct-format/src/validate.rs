@@ -322,7 +322,7 @@ fn transform_problems(t: &Similarity) -> Vec<Problem> {
 /// listed); the rest are added to `omitted`, so a hostile graph cannot make validation
 /// hold one message per node before [`MAX_ISSUES`] applies.
 fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, room: usize, issues: &mut Vec<Problem>, omitted: &mut u64) -> Option<Graph> {
-    let (graph, problems) = match crate::read::parse_graph(bytes, offset, limits, crate::read::OnProblem::Keep(room)) {
+    let (graph, problems) = match crate::read::parse_graph(bytes, offset, limits, crate::read::OnProblem::Keep(room), None) {
         Ok(g) => g,
         Err(e) => {
             issues.push((classify(&e, CheckId::Graph), e.to_string()));
