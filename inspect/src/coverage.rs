@@ -344,36 +344,14 @@ fn decode_leaves(file: &SctReader, t: usize) -> Result<Vec<([f32; 4], u32)>, sct
         leaves.push(sphere(&idx.header.root, 0));
         return Ok(leaves);
     }
-    let mut parents = vec![idx.header.root];
-    for d in 1..idx.levels.len() {
-        let blocks: Vec<usize> = idx.level_blocks(d).collect();
-        let mut next = Vec::new();
-        // A few blocks at a time: decoded nodes are held only until their leaves are taken.
-        for chunk in blocks.chunks(2 * rayon::current_num_threads().max(1)) {
-            let decoded: Vec<Result<sct_format::read::DecodedBlock, sct_format::Error>> = chunk
-                .par_iter()
-                .map(|&b| {
-                    let e = &idx.blocks[b];
-                    let lo = (e.first_node / 2) as usize;
-                    let ps = parents
-                        .get(lo..lo + e.node_count as usize / 2)
-                        .ok_or_else(|| sct_format::Error::malformed(idx.section.offset + e.offset, "block refers to parents that do not exist"))?;
-                    file.decode_block(t, b, ps)
-                })
-                .collect();
-            for blk in decoded {
-                let blk = blk?;
-                for (n, &f) in blk.nodes.iter().zip(&blk.internal) {
-                    if f {
-                        next.push(*n);
-                    } else {
-                        leaves.push(sphere(n, leaves.len()));
-                    }
-                }
+    file.walk_tree(t, |_, blk| {
+        for (n, &f) in blk.nodes.iter().zip(&blk.internal) {
+            if !f {
+                leaves.push(sphere(n, leaves.len()));
             }
         }
-        parents = next;
-    }
+        Ok(())
+    })?;
     Ok(leaves)
 }
 

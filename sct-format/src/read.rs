@@ -255,6 +255,16 @@ impl SctReader {
     pub fn read_tree(&self, t: usize) -> Result<SceneTree> {
         self.read_tree_levels(t, usize::MAX)
     }
+
+    /// Decodes tree `t` level by level without building a [`SceneTree`]: every block of
+    /// levels 1 and deeper goes to `visit(block, decoded)` in breadth-first block order (the
+    /// root is [`TreeIndex::header`]`.root`). Only one level of parents is held, so a caller
+    /// keeping a part of each block (its leaves, say) needs far less memory than
+    /// [`SctReader::read_tree`]. Blocks are decoded in parallel a few at a time.
+    pub fn walk_tree(&self, t: usize, visit: impl FnMut(usize, DecodedBlock) -> Result<()>) -> Result<()> {
+        let tree = self.trees.get(t).ok_or_else(|| Error::Misuse(format!("no tree {t}")))?;
+        walk_levels(tree, usize::MAX, |b, ps| self.decode_block(t, b, ps), visit)
+    }
 }
 
 /// Decodes block `b` of `tree` from the whole file's bytes `data` (see
@@ -303,7 +313,7 @@ pub(crate) fn decode_block_in(data: &[u8], tree: &TreeIndex, b: usize, parents: 
 }
 
 /// The first `max_levels` levels of `tree`, each block decoded by `decode(block, parents)`.
-pub(crate) fn read_levels(tree: &TreeIndex, max_levels: usize, mut decode: impl FnMut(usize, &[Node]) -> Result<DecodedBlock>) -> Result<SceneTree> {
+pub(crate) fn read_levels(tree: &TreeIndex, max_levels: usize, decode: impl Fn(usize, &[Node]) -> Result<DecodedBlock> + Sync) -> Result<SceneTree> {
     let levels = tree.levels.len().min(max_levels);
     if levels == 0 {
         return SceneTree::from_bfs(Vec::new(), Vec::new());
@@ -313,23 +323,53 @@ pub(crate) fn read_levels(tree: &TreeIndex, max_levels: usize, mut decode: impl 
     let mut internal = Vec::with_capacity(total as usize);
     nodes.push(tree.header.root);
     internal.push(tree.header.root_internal == 1);
-    let mut parents: Vec<Node> = if internal[0] { vec![tree.header.root] } else { Vec::new() };
+    walk_levels(tree, levels, decode, |_, blk| {
+        nodes.extend_from_slice(&blk.nodes);
+        internal.extend_from_slice(&blk.internal);
+        Ok(())
+    })?;
+    SceneTree::from_bfs(nodes, internal).map_err(|e| Error::malformed(tree.section.offset, format!("tree structure: {e}")))
+}
+
+/// Decodes levels `1..max_levels` of `tree` breadth-first and hands each decoded block to
+/// `visit(block, decoded)` in block order (the root, level 0, is in the tree header). Blocks
+/// are decoded a few at a time in parallel (`decode(block, parents)`); only the previous
+/// level's internal nodes are kept, as the parents of the next level, so a caller that keeps
+/// less than every node (the leaves, say) holds less than the whole tree.
+pub(crate) fn walk_levels(
+    tree: &TreeIndex,
+    max_levels: usize,
+    decode: impl Fn(usize, &[Node]) -> Result<DecodedBlock> + Sync,
+    mut visit: impl FnMut(usize, DecodedBlock) -> Result<()>,
+) -> Result<()> {
+    use rayon::prelude::*;
+    let levels = tree.levels.len().min(max_levels);
+    let mut parents: Vec<Node> = if tree.header.root_internal == 1 { vec![tree.header.root] } else { Vec::new() };
+    let batch = 2 * rayon::current_num_threads().max(1);
     for d in 1..levels {
         let mut next = Vec::new();
-        for b in tree.level_blocks(d) {
-            let e = &tree.blocks[b];
-            let lo = (e.first_node / 2) as usize;
-            let ps = parents
-                .get(lo..lo + e.node_count as usize / 2)
-                .ok_or_else(|| Error::malformed(tree.section.offset + e.offset, "block refers to parents that do not exist"))?;
-            let blk = decode(b, ps)?;
-            next.extend(blk.nodes.iter().zip(&blk.internal).filter(|(_, &f)| f).map(|(n, _)| *n));
-            nodes.extend_from_slice(&blk.nodes);
-            internal.extend_from_slice(&blk.internal);
+        let blocks: Vec<usize> = tree.level_blocks(d).collect();
+        for chunk in blocks.chunks(batch) {
+            let decoded: Vec<Result<DecodedBlock>> = chunk
+                .par_iter()
+                .map(|&b| {
+                    let e = &tree.blocks[b];
+                    let lo = (e.first_node / 2) as usize;
+                    let ps = parents
+                        .get(lo..lo + e.node_count as usize / 2)
+                        .ok_or_else(|| Error::malformed(tree.section.offset + e.offset, "block refers to parents that do not exist"))?;
+                    decode(b, ps)
+                })
+                .collect();
+            for (&b, blk) in chunk.iter().zip(decoded) {
+                let blk = blk?;
+                next.extend(blk.nodes.iter().zip(&blk.internal).filter(|(_, &f)| f).map(|(n, _)| *n));
+                visit(b, blk)?;
+            }
         }
         parents = next;
     }
-    SceneTree::from_bfs(nodes, internal).map_err(|e| Error::malformed(tree.section.offset, format!("tree structure: {e}")))
+    Ok(())
 }
 
 /// Parses and checks a tree's index (header, level table, block table), so decoding can
