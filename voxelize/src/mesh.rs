@@ -393,7 +393,7 @@ pub fn linear_to_srgb8(c: f32) -> u8 {
 /// [`Srgb8::get`] to encode many values without re-checking the lazy initialisation.
 pub struct Srgb8 {
     mid: [f32; 255],
-    start: Vec<u8>,
+    start: [u8; 4097],
 }
 
 impl Srgb8 {
@@ -402,7 +402,7 @@ impl Srgb8 {
         static T: std::sync::OnceLock<Srgb8> = std::sync::OnceLock::new();
         T.get_or_init(|| {
             let mid: [f32; 255] = std::array::from_fn(|i| srgb_to_linear((i as f32 + 0.5) / 255.0));
-            let start = (0..=4096).map(|j| mid.partition_point(|&m| m < j as f32 / 4096.0) as u8).collect();
+            let start = std::array::from_fn(|j| mid.partition_point(|&m| m < j as f32 / 4096.0) as u8);
             Srgb8 { mid, start }
         })
     }
@@ -412,13 +412,14 @@ impl Srgb8 {
     /// of c's 1/4096 cell, and at most a step or two of the midpoint list finishes it exactly.
     #[inline]
     pub fn encode(&self, c: f32) -> u8 {
-        if !(c > 0.0) || !c.is_finite() {
-            return 0; // also NaN and infinities, as the exact encoder did
+        // One integer test for the common case 0 < c < 1 (positive floats order like their
+        // bits; 0x3F80_0000 is 1.0).
+        if c.to_bits().wrapping_sub(1) >= 0x3F80_0000 - 1 {
+            // c ≤ 0 (or −0), c ≥ 1, NaN or an infinity: NaN and infinities give 0, as the
+            // exact encoder did.
+            return if c >= 1.0 && c != f32::INFINITY { 255 } else { 0 };
         }
-        if c >= 1.0 {
-            return 255;
-        }
-        let mut code = self.start[((c * 4096.0) as usize).min(4096)] as usize;
+        let mut code = self.start[((c * 4096.0) as u32 as usize).min(4096)] as usize;
         while code < 255 && self.mid[code] < c {
             code += 1;
         }
@@ -657,5 +658,10 @@ mod tests {
         }
         assert!(checked > 1_000_000);
         assert_eq!((linear_to_srgb8(f32::NAN), linear_to_srgb8(-1.0), linear_to_srgb8(2.0)), (0, 0, 255));
+        // The edges of the integer range test of the fast path.
+        for v in [-0.0, f32::from_bits(1), f32::MIN_POSITIVE, 1.0f32.next_down(), 1.0, f32::MAX, f32::INFINITY, f32::NEG_INFINITY, -f32::NAN] {
+            let want = if v.is_finite() { mid.partition_point(|&t| t < v) as u8 } else { 0 };
+            assert_eq!(linear_to_srgb8(v), want, "at {v:e}");
+        }
     }
 }

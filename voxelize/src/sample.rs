@@ -389,6 +389,9 @@ impl KeyPack {
 
 const MAXV: usize = 10;
 
+/// Every voxel x index (no slab restriction).
+const ALL_X: (i64, i64) = (i64::MIN, i64::MAX);
+
 /// A convex polygon in the projection plane (coordinates along axes a, b).
 #[derive(Clone, Copy)]
 struct Poly2 {
@@ -643,10 +646,8 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
     }
     let radius = (0.5 * 3f64.sqrt() * h) as f32;
     let h2 = h * h;
-    let xshift = kp.bits[1] + kp.bits[2];
     struct Bufs {
         recs: Vec<Rec>,
-        scratch: Vec<Rec>,
         items: Vec<(u64, u64)>,
         tmp: Vec<(u64, u64)>,
     }
@@ -654,7 +655,7 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
         .par_iter()
         .zip(slab_x.par_iter())
         .map_init(
-            || Bufs { recs: Vec::new(), scratch: Vec::new(), items: Vec::new(), tmp: Vec::new() },
+            || Bufs { recs: Vec::new(), items: Vec::new(), tmp: Vec::new() },
             |bufs, (list, &(x0, x1))| {
                 bufs.recs.clear();
                 let mut dropped = 0u64;
@@ -663,26 +664,17 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
                     let p = &pp[pi as usize];
                     let t = p.tri(ti as usize);
                     let mat = p.mat.view();
-                    if opts.method == Method::Voxel && opts.area == AreaMode::Exact {
-                        dropped += voxel_triangle(&t, &mat, AreaMode::Exact, kp, (x0, x1), &mut bufs.recs);
-                        continue;
-                    }
-                    // Per-triangle areas (EQ 17, scan-line) need the whole triangle: sample
-                    // it whole and keep this slab's voxels; its drops count in its first slab.
-                    bufs.scratch.clear();
-                    let d = match opts.method {
-                        Method::Scanline => scanline_triangle(&t, &mat, kp, &mut bufs.scratch),
-                        _ => voxel_triangle(&t, &mat, opts.area, kp, (i64::MIN, i64::MAX), &mut bufs.scratch),
+                    dropped += match (opts.method, opts.area) {
+                        (Method::Voxel, AreaMode::Exact) => voxel_triangle(&t, &mat, AreaMode::Exact, kp, (x0, x1), ALL_X, &mut bufs.recs),
+                        // Per-triangle areas (EQ 17, scan-line) need the whole triangle's sample
+                        // count: walk it whole, but shade and keep only this slab's voxels
+                        // (each voxel, hence each alpha drop, belongs to one slab).
+                        (Method::Scanline, _) => scanline_triangle(&t, &mat, kp, (x0, x1), &mut bufs.recs),
+                        _ => voxel_triangle(&t, &mat, opts.area, kp, ALL_X, (x0, x1), &mut bufs.recs),
                     };
-                    if xr[gi as usize].0 < x0 {
-                        // Not this triangle's first slab.
-                    } else {
-                        dropped += d;
-                    }
-                    let (px0, px1) = ((x0 - kp.lo[0]) as u64, (x1 - kp.lo[0]) as u64);
-                    bufs.recs.extend(bufs.scratch.iter().filter(|r| (px0..=px1).contains(&r.key.checked_shr(xshift).unwrap_or(0))));
                 }
-                progress(list.len() as u64);
+                // Progress counts a triangle once, in its first slab.
+                progress(list.iter().filter(|&&gi| xr[gi as usize].0 >= x0).count() as u64);
                 let before = bufs.recs.len() as u64;
                 bufs.items.clear();
                 bufs.items.extend(bufs.recs.iter().enumerate().map(|(i, r)| (r.key, i as u64)));
@@ -705,6 +697,15 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
 fn merge_sorted(items: &[(u64, u64)], recs: &[Rec], kp: &KeyPack, r: f32, h: f64, h2: f64, merge: bool) -> Vec<Node> {
     let center = |key: u64| kp.unpack(key).map(|v| ((v as f64 + 0.5) * h) as f32);
     let mut out = Vec::with_capacity(if merge { items.len() * 4 / 5 } else { items.len() });
+    // Neighbouring voxels mostly carry the same colour (always for untextured meshes without
+    // vertex colours): encode a colour once for a run of equal ones.
+    let mut memo = ([f32::NAN; 4], [0u8; 4]);
+    let mut enc = |c: [f32; 4]| -> [u8; 4] {
+        if c != memo.0 {
+            memo = (c, srgb8(c));
+        }
+        memo.1
+    };
     let mut i = 0;
     while i < items.len() {
         let key = items[i].0;
@@ -712,7 +713,7 @@ fn merge_sorted(items: &[(u64, u64)], recs: &[Rec], kp: &KeyPack, r: f32, h: f64
         let j = i + 1;
         if !merge || j == items.len() || items[j].0 != key {
             // The common case: nothing to merge.
-            out.push(Node { center: center(key), radius: r, normal: first.normal, cone: 0.0, area: (f64::from(first.area) * h2) as f32, color: srgb8(first.color) });
+            out.push(Node { center: center(key), radius: r, normal: first.normal, cone: 0.0, area: (f64::from(first.area) * h2) as f32, color: enc(first.color) });
             i = j;
             continue;
         }
@@ -734,36 +735,41 @@ fn merge_sorted(items: &[(u64, u64)], recs: &[Rec], kp: &KeyPack, r: f32, h: f64
         }
         let l = norm(nn);
         let normal = if l > 1e-9 * wsum { nn.map(|x| (x / l) as f32) } else { first.normal };
-        out.push(Node { center: center(key), radius: r, normal, cone: 0.0, area: (a * h2) as f32, color: srgb8(c.map(|x| (x / wsum) as f32)) });
+        out.push(Node { center: center(key), radius: r, normal, cone: 0.0, area: (a * h2) as f32, color: enc(c.map(|x| (x / wsum) as f32)) });
         i = j;
     }
     out
 }
 
 /// Stable LSD radix sort of `items` by the low `bits` bits of their key (the bucket fixed the
-/// rest), 11 bits per pass; passes where every key has the same digit are skipped.
+/// rest), 11 bits per pass; passes where every key has the same digit are skipped. The digit
+/// histograms of all passes are counted in one read of the data.
 fn radix_sort_low(items: &mut [(u64, u64)], tmp: &mut Vec<(u64, u64)>, bits: u32) {
     type Item = (u64, u64);
-    if items.len() <= 64 {
+    if items.len() <= 64 || items.len() > u32::MAX as usize {
         items.sort_by_key(|x| x.0); // stable
         return;
     }
     const D: u32 = 11;
+    const B: usize = 1 << D;
+    let passes = bits.min(64).div_ceil(D) as usize;
+    // Digit p: bits p·D .. min((p+1)·D, bits) of the key.
+    let mask = |p: usize| -> u64 { (1u64 << D.min(bits - p as u32 * D)) - 1 };
+    let mut counts = vec![[0u32; B]; passes];
+    for x in items.iter() {
+        for (p, c) in counts.iter_mut().enumerate() {
+            c[((x.0 >> (p as u32 * D)) & mask(p)) as usize] += 1;
+        }
+    }
     tmp.clear();
     tmp.resize(items.len(), (0, 0));
     let mut in_items = true; // where the current data lives
-    let mut sh = 0;
-    while sh < bits {
-        let mask = (1u64 << D.min(bits - sh)) - 1;
-        let (src, dst): (&[Item], &mut [Item]) = if in_items { (items, tmp) } else { (tmp, items) };
-        let mut count = vec![0usize; 1 << D];
-        for x in src {
-            count[((x.0 >> sh) & mask) as usize] += 1;
-        }
-        sh += D;
-        if count.contains(&src.len()) {
+    for (p, count) in counts.iter_mut().enumerate() {
+        if count.contains(&(items.len() as u32)) {
             continue;
         }
+        let (sh, mask) = (p as u32 * D, mask(p));
+        let (src, dst): (&[Item], &mut [Item]) = if in_items { (items, tmp) } else { (tmp, items) };
         let mut pos = 0;
         for c in count.iter_mut() {
             let n = *c;
@@ -771,8 +777,8 @@ fn radix_sort_low(items: &mut [(u64, u64)], tmp: &mut Vec<(u64, u64)>, bits: u32
             pos += n;
         }
         for x in src {
-            let d = ((x.0 >> (sh - D)) & mask) as usize;
-            dst[count[d]] = *x;
+            let d = ((x.0 >> sh) & mask) as usize;
+            dst[count[d] as usize] = *x;
             count[d] += 1;
         }
         in_items = !in_items;
@@ -945,8 +951,12 @@ fn push_rec(out: &mut Vec<Rec>, key: u64, area: f64, col: [f32; 4], n: [f32; 3],
 /// most of them for triangles larger than a voxel — skip clipping: their piece is the unit
 /// square. Only pieces crossing a depth boundary are split by depth lines.
 ///
-/// Only voxels whose x index lies in `xr` (inclusive) are emitted (the caller's slab).
-fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i64, i64), out: &mut Vec<Rec>) -> u64 {
+/// Only voxels whose x index lies in `xr` (inclusive) are emitted (the caller's slab), and
+/// the triangle is cut to that band first. `keep` restricts output the same way without the
+/// cut: voxels outside it (x index clamped to the key range) are counted, not shaded or
+/// emitted, so EQ 17 areas still divide by the whole triangle's count.
+#[allow(clippy::too_many_arguments)]
+fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i64, i64), keep: (i64, i64), out: &mut Vec<Rec>) -> u64 {
     let (fnrm, d, a, b) = face_axes(t);
     let tri_area_grid = 0.5 * norm(fnrm);
     // Projected area → surface area; depth = d0 + ga·x + gb·y.
@@ -979,12 +989,17 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i6
     };
     let start = out.len();
     let mut dropped = 0;
+    let mut skipped = 0u64;
     let mut emit = |out: &mut Vec<Rec>, ia: i64, ib: i64, k: i64, area2: f64, cen: [f64; 2]| {
-        let (c, n) = shade(t, bary2(cen), mat);
         let mut key = [0i64; 3];
         key[a] = ia;
         key[b] = ib;
         key[d] = k;
+        if !(keep.0..=keep.1).contains(&key[0].clamp(kp.lo[0], kp.hi[0])) {
+            skipped += 1;
+            return;
+        }
+        let (c, n) = shade(t, bary2(cen), mat);
         match c {
             Some(c) => push_rec(out, kp.pack(key), area2 * ascale, c, n, fnrm),
             None => dropped += 1,
@@ -1102,7 +1117,7 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i6
     }
     let made = out.len() - start;
     if area_mode == AreaMode::Eq17 && made > 0 {
-        let each = (tri_area_grid / (made as u64 + dropped) as f64) as f32;
+        let each = (tri_area_grid / (made as u64 + dropped + skipped) as f64) as f32;
         for r in &mut out[start..] {
             r.area = each;
         }
@@ -1110,23 +1125,30 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i6
     dropped
 }
 
-/// The thesis' scan-line: one sample per column centre inside the projected triangle.
-fn scanline_triangle(t: &Tri, mat: &Mat, kp: &KeyPack, out: &mut Vec<Rec>) -> u64 {
+/// The thesis' scan-line: one sample per column centre inside the projected triangle. Only
+/// voxels whose x index (clamped to the key range) lies in `keep` are shaded and emitted; the
+/// others count in the triangle's EQ 17 area.
+fn scanline_triangle(t: &Tri, mat: &Mat, kp: &KeyPack, keep: (i64, i64), out: &mut Vec<Rec>) -> u64 {
     let (fnrm, d, a, b) = face_axes(t);
     let start = out.len();
     let mut dropped = 0;
+    let mut skipped = 0u64;
     let (pa, pb) = (t.p.map(|p| p[a]), t.p.map(|p| p[b]));
     let lo_a = pa.iter().fold(f64::INFINITY, |m, &v| m.min(v));
     let hi_a = pa.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v));
     let lo_b = pb.iter().fold(f64::INFINITY, |m, &v| m.min(v));
     let hi_b = pb.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v));
     let depth = |w: [f64; 3]| w[0] * t.p[0][d] + w[1] * t.p[1][d] + w[2] * t.p[2][d];
-    let emit = |out: &mut Vec<Rec>, dropped: &mut u64, ia: i64, ib: i64, w: [f64; 3]| {
-        let (c, n) = shade(t, w, mat);
+    let emit = |out: &mut Vec<Rec>, dropped: &mut u64, skipped: &mut u64, ia: i64, ib: i64, w: [f64; 3]| {
         let mut key = [0i64; 3];
         key[a] = ia;
         key[b] = ib;
         key[d] = depth(w).floor() as i64;
+        if !(keep.0..=keep.1).contains(&key[0].clamp(kp.lo[0], kp.hi[0])) {
+            *skipped += 1;
+            return;
+        }
+        let (c, n) = shade(t, w, mat);
         match c {
             Some(c) => push_rec(out, kp.pack(key), 0.0, c, n, fnrm),
             None => *dropped += 1,
@@ -1140,18 +1162,18 @@ fn scanline_triangle(t: &Tri, mat: &Mat, kp: &KeyPack, out: &mut Vec<Rec>) -> u6
             let w2 = ((pa[1] - pa[0]) * (cb - pb[0]) - (ca - pa[0]) * (pb[1] - pb[0])) / det;
             let w0 = 1.0 - w1 - w2;
             if w0 >= 0.0 && w1 >= 0.0 && w2 >= 0.0 {
-                emit(out, &mut dropped, ia, ib, [w0, w1, w2]);
+                emit(out, &mut dropped, &mut skipped, ia, ib, [w0, w1, w2]);
             }
         }
     }
-    if out.len() == start && dropped == 0 {
+    if out.len() == start && dropped == 0 && skipped == 0 {
         let w = [1.0 / 3.0; 3];
         let cen: [f64; 3] = std::array::from_fn(|k| (t.p[0][k] + t.p[1][k] + t.p[2][k]) / 3.0);
-        emit(out, &mut dropped, cen[a].floor() as i64, cen[b].floor() as i64, w);
+        emit(out, &mut dropped, &mut skipped, cen[a].floor() as i64, cen[b].floor() as i64, w);
     }
     let made = out.len() - start;
     if made > 0 {
-        let each = (0.5 * norm(fnrm) / (made as u64 + dropped) as f64) as f32;
+        let each = (0.5 * norm(fnrm) / (made as u64 + dropped + skipped) as f64) as f32;
         for r in &mut out[start..] {
             r.area = each;
         }
@@ -1414,8 +1436,10 @@ mod tests {
     fn radix_sort_is_a_stable_sort() {
         let mut rng = SplitMix(3);
         let mut tmp = Vec::new();
-        for (n, bits) in [(10, 5), (1000, 3), (5000, 40), (70_000, 23)] {
-            let mut v: Vec<(u64, u64)> = (0..n as u64).map(|i| (rng.next_u64() >> (64 - bits), i)).collect();
+        for (n, bits) in [(10, 5), (1000, 3), (5000, 40), (70_000, 23), (3000, 64), (4000, 33), (4000, 22)] {
+            // Bits above `bits` are equal (the bucket's), and ignored.
+            let high = if bits < 64 { 0x5au64 << bits } else { 0 };
+            let mut v: Vec<(u64, u64)> = (0..n as u64).map(|i| ((rng.next_u64() >> (64 - bits)) | high, i)).collect();
             let mut want = v.clone();
             want.sort_by_key(|x| x.0);
             radix_sort_low(&mut v, &mut tmp, bits);
