@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use sct_format::graph::{Generator, SourceRef};
 use sct_format::samples::{MeshEntry, SampleInstance, SamplesFile};
-use sct_format::write::{write_scene_file, Scene, WriteOptions};
+use sct_format::write::{write_scene_file_owned, Scene, WriteOptions};
 use sct_format::{Limits, Profile};
 
 use crate::error::BuildError;
@@ -115,15 +115,16 @@ pub fn run(cfg: &Config, phase: &mut dyn FnMut(&str)) -> Result<Report, BuildErr
         sct_format::Error::Io { .. } => BuildError::Io(e.to_string()),
         other => BuildError::Input(format!("{}: {other}", cfg.samples.display())),
     })?;
-    let upstream = Upstream::SamplesFile(source(&cfg.samples)?);
+    let upstream = Upstream::SamplesFile(source(&cfg.samples)?, Box::new(samples.generator.clone()));
     run_samples(cfg, samples, upstream, t0, phase)
 }
 
 /// Where the samples of a build came from (recorded in the generator's provenance).
 #[derive(Clone, Debug)]
 pub enum Upstream {
-    /// A samples file on disk (path and hash).
-    SamplesFile(SourceRef),
+    /// A samples file on disk (path and hash) and its own generator record (the sampling
+    /// step: tool, parameters, the meshes it read).
+    SamplesFile(SourceRef, Box<Generator>),
     /// Sampled in this process from meshes (one-step conversion): the voxelizer's own
     /// generator record, whose sources are the meshes and resources it read.
     Sampled(Generator),
@@ -194,7 +195,8 @@ pub fn run_samples(
     let scene = Scene { generator, graph: composed.graph, trees: composed.trees };
     drop(samples);
     let wopts = WriteOptions { profile: cfg.profile, compression_level: cfg.compression_level, ..Default::default() };
-    let ws = write_scene_file(&cfg.output, &scene, &wopts).map_err(|e| match e {
+    // Consumed: the trees' nodes are freed as their blocks are written.
+    let ws = write_scene_file_owned(&cfg.output, scene, &wopts).map_err(|e| match e {
         sct_format::Error::Io { .. } => BuildError::Io(e.to_string()),
         other => BuildError::Format(other),
     })?;
@@ -277,7 +279,10 @@ fn container_figures(rep: &mut Report, trees: &[sct_format::write::TreeStats]) {
 
 fn generator(cfg: &Config, upstream: &Upstream, inlines: &[(String, String)]) -> Result<Generator, BuildError> {
     let (mut sources, sampling) = match upstream {
-        Upstream::SamplesFile(s) => (vec![s.clone()], serde_json::Value::Null),
+        Upstream::SamplesFile(s, g) => (
+            vec![s.clone()],
+            serde_json::json!({ "tool": g.tool, "version": g.version, "parameters": g.parameters, "sources": g.sources }),
+        ),
         Upstream::None => (Vec::new(), serde_json::Value::Null),
         Upstream::Sampled(g) => (
             g.sources.clone(),
@@ -300,7 +305,8 @@ fn generator(cfg: &Config, upstream: &Upstream, inlines: &[(String, String)]) ->
         "depth_slack": cfg.build.depth_slack,
         "splitter": "centre of largest extent",
     });
-    // Only one-step builds carry the sampling step (a samples file has its own GENR).
+    // The sampling step: the voxelizer's record (a two-step build also keeps the samples
+    // file's sources here, so the meshes stay known behind the samples file).
     if let (false, Some(map)) = (sampling.is_null(), parameters.as_object_mut()) {
         map.insert("sampling".into(), sampling);
     }

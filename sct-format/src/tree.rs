@@ -96,6 +96,11 @@ impl SceneTree {
         &mut self.nodes
     }
 
+    /// The nodes and "has children" flags, breadth first (what [`SceneTree::from_bfs`] takes).
+    pub fn into_parts(self) -> (Vec<Node>, Vec<bool>) {
+        (self.nodes, self.internal)
+    }
+
     /// "Has children" flag of every node.
     pub fn internal_flags(&self) -> &[bool] {
         &self.internal

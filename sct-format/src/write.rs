@@ -147,7 +147,28 @@ pub fn write_scene<W: Write>(scene: &Scene, opts: &WriteOptions, w: W) -> Result
 /// end (file header, section table, each tree's index) are reserved as zeros and written by
 /// seeking back. So no whole encoded tree is ever held in memory.
 pub fn write_scene_file(path: &Path, scene: &Scene, opts: &WriteOptions) -> Result<WriteStats> {
-    crate::atomic::write_atomic(path, |w| stream_scene(scene, opts, w).map_err(|e| with_path(e, path)))
+    check_graph(scene)?;
+    let trees = scene.trees.iter().map(TreeInput::borrowed);
+    crate::atomic::write_atomic(path, |w| {
+        stream_scene(&scene.generator, &scene.graph, trees, opts, w).map_err(|e| with_path(e, path))
+    })
+}
+
+/// [`write_scene_file`] consuming the scene: every tree's nodes are released block by block
+/// as they are written, so the memory held falls while the file grows (a builder that hands
+/// its finished tree to the writer peaks at about the tree, not the tree plus the writer's
+/// decoded parents). Same bytes as [`write_scene_file`].
+pub fn write_scene_file_owned(path: &Path, scene: Scene, opts: &WriteOptions) -> Result<WriteStats> {
+    check_graph(&scene)?;
+    let Scene { generator, graph, trees } = scene;
+    let block_nodes = block_nodes(opts);
+    let trees = trees.into_iter().map(move |t| TreeInput::owned(t, block_nodes));
+    crate::atomic::write_atomic(path, |w| stream_scene(&generator, &graph, trees, opts, w).map_err(|e| with_path(e, path)))
+}
+
+/// Most nodes per block as used (even, at least 2).
+fn block_nodes(opts: &WriteOptions) -> usize {
+    (opts.block_nodes.max(2) & !1) as usize
 }
 
 /// Gives an I/O error from the streaming writer the output's name (the temporary file is
@@ -161,11 +182,17 @@ fn with_path(e: Error, path: &Path) -> Error {
 
 /// The streaming writer behind [`write_scene_file`]. Mirrors [`write_container`]'s layout
 /// (header, section table, sections in order), which needs every section in memory.
-fn stream_scene<W: Write + Seek>(scene: &Scene, opts: &WriteOptions, w: &mut W) -> Result<WriteStats> {
-    check_graph(scene)?;
-    let genr = serde_json::to_vec(&scene.generator).map_err(|e| Error::Misuse(format!("generator: {e}")))?;
-    let small = [SectionOut::plain(tags::GENR, genr), SectionOut::zstd(tags::GRPH, &encode_graph(&scene.graph), 3)?];
-    let section_count = small.len() + scene.trees.len();
+/// The graph must have been checked ([`check_graph`]).
+fn stream_scene<'a, W: Write + Seek>(
+    generator: &Generator,
+    graph: &SceneGraph,
+    trees: impl ExactSizeIterator<Item = TreeInput<'a>>,
+    opts: &WriteOptions,
+    w: &mut W,
+) -> Result<WriteStats> {
+    let genr = serde_json::to_vec(generator).map_err(|e| Error::Misuse(format!("generator: {e}")))?;
+    let small = [SectionOut::plain(tags::GENR, genr), SectionOut::zstd(tags::GRPH, &encode_graph(graph), 3)?];
+    let section_count = small.len() + trees.len();
     let table_len = section_count * SECTION_ENTRY_LEN;
     let start = w.stream_position()?;
     // Header and table are filled in last; everything after them is written once, in order.
@@ -177,9 +204,9 @@ fn stream_scene<W: Write + Seek>(scene: &Scene, opts: &WriteOptions, w: &mut W) 
         entries.push(s.entry(offset));
         offset += s.stored.len() as u64;
     }
-    let mut tree_stats = Vec::with_capacity(scene.trees.len());
-    for tree in &scene.trees {
-        let index_len = tree_index_len(tree, (opts.block_nodes.max(2) & !1) as usize);
+    let mut tree_stats = Vec::with_capacity(section_count);
+    for tree in trees {
+        let index_len = tree.index_len(block_nodes(opts));
         w.write_all(&vec![0u8; index_len])?;
         let st = stream_tree(tree, opts, &mut |b| w.write_all(b).map_err(Error::from))?;
         let end = start + offset + st.stats.section_bytes;
@@ -453,12 +480,87 @@ fn encode_block(
 /// while only this many stored blocks (not a whole level) wait in memory to be written.
 const BLOCKS_IN_FLIGHT_PER_THREAD: usize = 2;
 
-/// Bytes of a tree's index (header, level table, block table): known before any block is
-/// encoded, so a streaming writer can reserve it and fill it in afterwards.
-fn tree_index_len(tree: &SceneTree, block_nodes: usize) -> usize {
-    let levels = tree.level_count();
-    let block_count: usize = (1..levels).map(|d| tree.level(d).len().div_ceil(block_nodes)).sum();
-    TREE_HEADER_LEN + levels * LEVEL_ENTRY_LEN + block_count * BLOCK_ENTRY_LEN
+/// A tree as the streaming writer consumes it: its shape, and its nodes either borrowed or
+/// owned as one vector per block, which is dropped once the block is encoded.
+struct TreeInput<'a> {
+    flags: std::borrow::Cow<'a, [bool]>,
+    /// Node index range of every level.
+    levels: Vec<std::ops::Range<usize>>,
+    leaves: usize,
+    root: Option<Node>,
+    alpha: bool,
+    nodes: NodeSource<'a>,
+}
+
+/// Where [`stream_tree`] gets each block's nodes.
+enum NodeSource<'a> {
+    /// All nodes, breadth first.
+    Borrowed(&'a [Node]),
+    /// The nodes of every block, in file order (blocks of level 1 first).
+    Owned(std::collections::VecDeque<Vec<Node>>),
+}
+
+impl<'a> TreeInput<'a> {
+    fn shape(tree: &SceneTree) -> (Vec<std::ops::Range<usize>>, usize, Option<Node>, bool) {
+        let levels = (0..tree.level_count()).map(|d| tree.level(d)).collect();
+        let alpha = tree.nodes().iter().any(|n| n.color[3] != 255);
+        (levels, tree.leaf_count(), tree.nodes().first().copied(), alpha)
+    }
+
+    fn borrowed(tree: &'a SceneTree) -> Self {
+        let (levels, leaves, root, alpha) = Self::shape(tree);
+        TreeInput { flags: tree.internal_flags().into(), levels, leaves, root, alpha, nodes: NodeSource::Borrowed(tree.nodes()) }
+    }
+
+    /// Splits the tree's nodes into one vector per block, from the last block back, giving
+    /// the emptied tail of the big vector back to the allocator as it goes, so the split
+    /// itself needs only about one block more than the tree.
+    fn owned(tree: SceneTree, block_nodes: usize) -> Self {
+        let (levels, leaves, root, alpha) = Self::shape(&tree);
+        let (mut nodes, flags) = tree.into_parts();
+        let mut blocks = std::collections::VecDeque::new();
+        // Shrinking costs a realloc (for a large vector an mremap that frees the pages);
+        // once per this many bytes of surplus capacity.
+        const SHRINK_BYTES: usize = 4 << 20;
+        for r in levels.iter().skip(1).rev() {
+            let starts: Vec<usize> = (r.start..r.end).step_by(block_nodes).collect();
+            for &s in starts.iter().rev() {
+                blocks.push_front(nodes.split_off(s));
+                if (nodes.capacity() - nodes.len()) * std::mem::size_of::<Node>() >= SHRINK_BYTES {
+                    nodes.shrink_to_fit();
+                }
+            }
+        }
+        drop(nodes);
+        TreeInput { flags: flags.into(), levels, leaves, root, alpha, nodes: NodeSource::Owned(blocks) }
+    }
+
+    fn len(&self) -> usize {
+        self.levels.last().map_or(0, |r| r.end)
+    }
+
+    /// Bytes of the tree's index (header, level table, block table): known before any
+    /// block is encoded, so a streaming writer can reserve it and fill it in afterwards.
+    fn index_len(&self, block_nodes: usize) -> usize {
+        let block_count: usize = self.levels.iter().skip(1).map(|r| r.len().div_ceil(block_nodes)).sum();
+        TREE_HEADER_LEN + self.levels.len() * LEVEL_ENTRY_LEN + block_count * BLOCK_ENTRY_LEN
+    }
+}
+
+impl<'a> NodeSource<'a> {
+    /// Nodes `range` (breadth-first indices) of one block; blocks are asked for in file order.
+    fn block(&mut self, range: std::ops::Range<usize>) -> Result<std::borrow::Cow<'a, [Node]>> {
+        match self {
+            NodeSource::Borrowed(all) => {
+                let all: &'a [Node] = all;
+                all.get(range.clone()).map(Into::into).ok_or_else(|| Error::Misuse(format!("nodes {range:?} out of range (bug)")))
+            }
+            NodeSource::Owned(blocks) => match blocks.pop_front() {
+                Some(b) if b.len() == range.len() => Ok(b.into()),
+                _ => Err(Error::Misuse(format!("no block of nodes {range:?} (bug)"))),
+            },
+        }
+    }
 }
 
 /// Decoded internal nodes of one level in the order the next level consumes them, as one
@@ -517,16 +619,16 @@ struct StreamedTree {
 /// batch at a time and levels in order, so memory holds at most one batch of stored blocks
 /// besides the tree, and of decoded nodes with children, the part of one level not yet used
 /// as parents and the part of the next already written (see [`ParentQueue`]).
-fn stream_tree(tree: &SceneTree, opts: &WriteOptions, sink: &mut dyn FnMut(&[u8]) -> Result<()>) -> Result<StreamedTree> {
+fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut dyn FnMut(&[u8]) -> Result<()>) -> Result<StreamedTree> {
     let profile = opts.profile;
-    let params = CodecParams { alpha: tree.nodes().iter().any(|n| n.color[3] != 255) };
-    let block_nodes = (opts.block_nodes.max(2) & !1) as usize;
-    let levels = tree.level_count();
+    let params = CodecParams { alpha: tree.alpha };
+    let block_nodes = block_nodes(opts);
+    let levels = tree.levels.len();
+    let node_count = tree.len();
     let mut level_table = vec![LevelEntry::default(); levels];
-    let mut stats = TreeStats { nodes: tree.len() as u64, leaves: tree.leaf_count() as u64, levels: levels as u32, ..Default::default() };
-    let nodes = tree.nodes();
-    let flags = tree.internal_flags();
-    let index_len = tree_index_len(tree, block_nodes);
+    let mut stats = TreeStats { nodes: node_count as u64, leaves: tree.leaves as u64, levels: levels as u32, ..Default::default() };
+    let flags: &[bool] = &tree.flags;
+    let index_len = tree.index_len(block_nodes);
     let block_count = (index_len - TREE_HEADER_LEN - levels * LEVEL_ENTRY_LEN) / BLOCK_ENTRY_LEN;
     let batch = rayon::current_num_threads().max(1) * BLOCKS_IN_FLIGHT_PER_THREAD;
     // Block offsets are relative to the section start, which the index occupies.
@@ -538,21 +640,21 @@ fn stream_tree(tree: &SceneTree, opts: &WriteOptions, sink: &mut dyn FnMut(&[u8]
     let mut parents = ParentQueue::default();
     // The parents of one batch, contiguous as the codec wants them.
     let mut batch_parents: Vec<Node> = Vec::new();
-    if levels > 0 {
+    if let (true, Some(root)) = (levels > 0, tree.root) {
         level_table[0] = LevelEntry { node_count: 1, first_block: 0, block_count: 0 };
         if flags[0] {
-            parents.segments.push_back(vec![nodes[0]]);
+            parents.segments.push_back(vec![root]);
         }
         stats.blocks_per_level.push(0);
     }
     for (d, entry) in level_table.iter_mut().enumerate().skip(1) {
-        let range = tree.level(d);
-        let level_nodes = &nodes[range.clone()];
-        let level_flags = &flags[range];
+        let range = tree.levels[d].clone();
+        let level_len = range.len();
+        let level_flags = &flags[range.clone()];
         let chunks: Vec<(usize, usize)> =
-            (0..level_nodes.len()).step_by(block_nodes).map(|s| (s, (s + block_nodes).min(level_nodes.len()))).collect();
+            (0..level_len).step_by(block_nodes).map(|s| (s, (s + block_nodes).min(level_len))).collect();
         let internal: Vec<usize> = chunks.iter().map(|&(s, e)| level_flags[s..e].iter().filter(|&&f| f).count()).collect();
-        entry.node_count = level_nodes.len() as u64;
+        entry.node_count = level_len as u64;
         entry.first_block = blocks.len() as u32;
         entry.block_count = chunks.len() as u32;
         stats.blocks_per_level.push(chunks.len() as u32);
@@ -572,13 +674,18 @@ fn stream_tree(tree: &SceneTree, opts: &WriteOptions, sink: &mut dyn FnMut(&[u8]
                 rest = tail;
             }
             let p0 = first / 2;
+            // This batch's nodes; owned ones are freed when the batch is encoded.
+            let batch_nodes =
+                batch_chunks.iter().map(|&(s, e)| tree.nodes.block(range.start + s..range.start + e)).collect::<Result<Vec<_>>>()?;
             let encoded: Vec<Result<EncodedBlock>> = batch_chunks
                 .par_iter()
+                .zip(batch_nodes.par_iter())
                 .zip(parts.into_par_iter())
-                .map(|(&(s, e), part)| {
-                    encode_block(opts, params, &batch_parents[s / 2 - p0..e / 2 - p0], &level_nodes[s..e], &level_flags[s..e], part)
+                .map(|((&(s, e), level_nodes), part)| {
+                    encode_block(opts, params, &batch_parents[s / 2 - p0..e / 2 - p0], level_nodes, &level_flags[s..e], part)
                 })
                 .collect();
+            drop(batch_nodes);
             next_parents.segments.push_back(segment);
             for ((&(s, e), r), &k) in batch_chunks.iter().zip(encoded).zip(batch_internal) {
                 let b = r?;
@@ -617,10 +724,10 @@ fn stream_tree(tree: &SceneTree, opts: &WriteOptions, sink: &mut dyn FnMut(&[u8]
         flags: params.alpha as u8,
         root_internal: flags.first().copied().unwrap_or(false) as u8,
         level_count: levels as u32,
-        node_count: tree.len() as u64,
-        leaf_count: tree.leaf_count() as u64,
+        node_count: node_count as u64,
+        leaf_count: tree.leaves as u64,
         block_count: blocks.len() as u32,
-        root: nodes.first().copied().unwrap_or_default(),
+        root: tree.root.unwrap_or_default(),
     }
     .write(&mut index);
     level_table.iter().for_each(|l| l.write(&mut index));
@@ -643,7 +750,8 @@ fn stream_tree(tree: &SceneTree, opts: &WriteOptions, sink: &mut dyn FnMut(&[u8]
 /// Encodes one tree as a `TREE` section body, in memory (see [`stream_tree`] for the order
 /// of work; [`write_scene_file`] streams the same bytes to the file instead).
 pub fn encode_tree(tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, TreeStats)> {
-    let index_len = tree_index_len(tree, (opts.block_nodes.max(2) & !1) as usize);
+    let tree = TreeInput::borrowed(tree);
+    let index_len = tree.index_len(block_nodes(opts));
     let mut out = vec![0u8; index_len];
     let st = stream_tree(tree, opts, &mut |b| {
         out.extend_from_slice(b);
@@ -710,8 +818,12 @@ mod tests {
     fn file_writer_streams_the_same_bytes() {
         let scene = Scene {
             generator: Generator::default(),
-            graph: SceneGraph { nodes: vec![GraphNode::Tree { tree: 0 }, GraphNode::Tree { tree: 1 }], root: 1 },
-            trees: vec![perfect_tree(11), perfect_tree(7)],
+            graph: SceneGraph {
+                nodes: vec![GraphNode::Tree { tree: 0 }, GraphNode::Tree { tree: 1 }, GraphNode::Tree { tree: 2 }],
+                root: 1,
+            },
+            // A single-node tree too: no blocks at all.
+            trees: vec![perfect_tree(11), perfect_tree(7), perfect_tree(0)],
         };
         let path = std::env::temp_dir().join(format!("sct-write-stream-{}.sct", std::process::id()));
         for profile in [Profile::Raw, Profile::Canopy, Profile::Default] {
@@ -723,6 +835,11 @@ mod tests {
             let file = std::fs::read(&path).expect("read back");
             assert!(file == mem, "{profile:?}: streamed file differs");
             assert_eq!(st_file, st_mem, "{profile:?}");
+            // The consuming writer (nodes split into per-block vectors, freed as written).
+            let st_owned = write_scene_file_owned(&path, scene.clone(), &opts).expect("write owned");
+            let owned = std::fs::read(&path).expect("read back");
+            assert!(owned == mem, "{profile:?}: consuming writer's file differs");
+            assert_eq!(st_owned, st_mem, "{profile:?}");
         }
         let _ = std::fs::remove_file(&path);
     }
