@@ -207,6 +207,12 @@ fn one_step_conversion_equals_voxelize_then_build() {
     let g = a.generator();
     assert!(g.sources.iter().any(|s| s.path.ends_with("wallhole.obj")), "{:?}", g.sources);
     assert_eq!(g.parameters["sampling"]["tool"], "sct-voxelize");
+    // The two-step file names the samples file and keeps the voxelizer's record, meshes included.
+    let g2 = b.generator();
+    assert!(g2.sources.iter().any(|s| s.path.ends_with("two.samples")), "{:?}", g2.sources);
+    assert_eq!(g2.parameters["sampling"]["tool"], "sct-voxelize");
+    let upstream = g2.parameters["sampling"]["sources"].as_array().expect("sampling sources");
+    assert!(upstream.iter().any(|s| s["path"].as_str().is_some_and(|p| p.ends_with("wallhole.obj"))), "{upstream:?}");
 }
 
 #[test]

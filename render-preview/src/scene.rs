@@ -326,10 +326,16 @@ fn tighter_bound(reader: &SctReader, tree: usize) -> Option<Node> {
 /// convention of scans and most OBJ/PLY files). A heuristic: `--up z` overrides it.
 pub(crate) fn auto_up(reader: &SctReader, world_box: Option<([f32; 3], [f32; 3])>) -> UpAxis {
     const TALL: f32 = 1.5;
-    let gltf = reader.generator().sources.iter().any(|s| {
-        let p = s.path.to_ascii_lowercase();
+    let is_gltf = |p: &str| {
+        let p = p.to_ascii_lowercase();
         p.ends_with(".gltf") || p.ends_with(".glb")
-    });
+    };
+    let g = reader.generator();
+    // A two-step build's sources are its samples file; the meshes are in the sampling
+    // step's record (`parameters.sampling.sources`).
+    let upstream = g.parameters.get("sampling").and_then(|s| s.get("sources")).and_then(|s| s.as_array());
+    let gltf = g.sources.iter().any(|s| is_gltf(&s.path))
+        || upstream.is_some_and(|v| v.iter().filter_map(|s| s.get("path")?.as_str()).any(is_gltf));
     if gltf {
         return UpAxis::Y;
     }

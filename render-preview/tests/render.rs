@@ -343,13 +343,14 @@ fn z_up_models_stand_upright_by_default() {
             p[2] *= 3.0;
         }
     }
-    let write = |name: &str, sources: Vec<sct_format::SourceRef>| {
+    let write_with = |name: &str, sources: Vec<sct_format::SourceRef>, parameters: serde_json::Value| {
         let tree = synth::build_tree(synth::sample_mesh(&mesh, 0.1)).unwrap();
         let path = dir.path().join(name);
-        let scene = Scene::single_tree(Generator { sources, ..Generator::default() }, tree);
+        let scene = Scene::single_tree(Generator { sources, parameters, ..Generator::default() }, tree);
         write_scene_file(&path, &scene, &WriteOptions::default()).unwrap();
         path
     };
+    let write = |name: &str, sources| write_with(name, sources, serde_json::Value::Null);
     let tall = write("tall.sct", Vec::new());
     let opts = small(120, 120);
     let (w, h) = extent(&render_file(&tall, &opts).unwrap().frame);
@@ -361,6 +362,12 @@ fn z_up_models_stand_upright_by_default() {
     let gl = write("gl.sct", src);
     let (w, h) = extent(&render_file(&gl, &opts).unwrap().frame);
     assert!(w.abs_diff(h) <= 2, "glTF source: Y up: {w}x{h}");
+    // A two-step build names its samples file; the glTF is in the sampling step's sources.
+    let src = vec![sct_format::SourceRef { path: "model.samples".into(), blake3: String::new() }];
+    let sampling = serde_json::json!({ "sampling": { "tool": "sct-voxelize", "sources": [{ "path": "model.gltf", "blake3": "" }] } });
+    let two = write_with("two.sct", src, sampling);
+    let (w, h) = extent(&render_file(&two, &opts).unwrap().frame);
+    assert!(w.abs_diff(h) <= 2, "glTF behind a samples file: Y up: {w}x{h}");
 }
 
 #[test]
