@@ -405,18 +405,38 @@ impl Poly2 {
         v[..4].copy_from_slice(&[[x, y], [x + 1.0, y], [x + 1.0, y + 1.0], [x, y + 1.0]]);
         Poly2 { v, n: 4 }
     }
+    /// An empty polygon (a buffer for the `_into` clips).
+    fn empty() -> Poly2 {
+        Poly2 { v: [[0.0; 2]; MAXV], n: 0 }
+    }
     /// Keeps `x[axis] ∈ [lo, hi]`.
     fn clip_axis(&self, axis: usize, lo: f64, hi: f64) -> Poly2 {
-        self.clip_half(|p| p[axis] - lo, Some((axis, lo))).clip_half(|p| hi - p[axis], Some((axis, hi)))
+        let (mut tmp, mut out) = (Poly2::empty(), Poly2::empty());
+        self.clip_axis_into(axis, lo, hi, &mut tmp, &mut out);
+        out
+    }
+    /// [`Poly2::clip_axis`] into `out` (`tmp` holds the half-way polygon): the hot loops
+    /// reuse two buffers instead of zeroing and copying fresh polygons.
+    #[inline]
+    fn clip_axis_into(&self, axis: usize, lo: f64, hi: f64, tmp: &mut Poly2, out: &mut Poly2) {
+        self.clip_half_into(|p| p[axis] - lo, Some((axis, lo)), tmp);
+        tmp.clip_half_into(|p| hi - p[axis], Some((axis, hi)), out);
     }
     /// Keeps the side `f(p) >= 0` of a line (`f` affine). `exact` = (axis, value) for
     /// axis-aligned lines: intersections get that coordinate exactly, so neighbouring clips
     /// agree bit for bit.
     #[inline]
     fn clip_half(&self, f: impl Fn(&[f64; 2]) -> f64, exact: Option<(usize, f64)>) -> Poly2 {
-        let mut out = Poly2 { v: [[0.0; 2]; MAXV], n: 0 };
+        let mut out = Poly2::empty();
+        self.clip_half_into(f, exact, &mut out);
+        out
+    }
+    /// [`Poly2::clip_half`] into `out` (its old vertices are overwritten).
+    #[inline]
+    fn clip_half_into(&self, f: impl Fn(&[f64; 2]) -> f64, exact: Option<(usize, f64)>, out: &mut Poly2) {
+        out.n = 0;
         if self.n == 0 {
-            return out;
+            return;
         }
         let mut prev = self.v[self.n - 1];
         let mut fp = f(&prev);
@@ -439,7 +459,6 @@ impl Poly2 {
             prev = cur;
             fp = fc;
         }
-        out
     }
     /// (area, centroid) of the polygon (shoelace, relative to the first vertex for precision).
     fn area_centroid(&self) -> (f64, [f64; 2]) {
@@ -1030,9 +1049,11 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i6
     }
     let half = 0.5 * (ga.abs() + gb.abs());
     const EPS: f64 = 1e-9;
+    // Reused polygon buffers: strip, column piece, lower depth part, and clip temporaries.
+    let (mut strip, mut col, mut lower, mut tmp) = (Poly2::empty(), Poly2::empty(), Poly2::empty(), Poly2::empty());
     for ia in lo_a..=hi_a {
         let (x0, x1) = (ia as f64, ia as f64 + 1.0);
-        let strip = tri.clip_axis(0, x0, x1);
+        tri.clip_axis_into(0, x0, x1, &mut tmp, &mut strip);
         if strip.n < 3 {
             continue;
         }
@@ -1058,18 +1079,18 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i6
         for ib in blo..=bhi {
             let y = ib as f64;
             let interior = y >= first_in && y <= last_in;
-            let (piece, area2, cen, dmin, dmax) = if interior {
+            let (area2, cen, dmin, dmax) = if interior {
                 let cen = [x0 + 0.5, y + 0.5];
                 let dc = depth(&cen);
-                (None, 1.0, cen, dc - half, dc + half)
+                (1.0, cen, dc - half, dc + half)
             } else {
-                let col = strip.clip_axis(1, y, y + 1.0);
+                strip.clip_axis_into(1, y, y + 1.0, &mut tmp, &mut col);
                 if col.n < 3 {
                     continue;
                 }
                 let (ar, cen) = col.area_centroid();
                 let (dmin, dmax) = col.range(depth);
-                (Some(col), ar, cen, dmin, dmax)
+                (ar, cen, dmin, dmax)
             };
             let kmin = floor_i64(dmin);
             let mut kmax = floor_i64(dmax);
@@ -1082,13 +1103,16 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i6
                 }
                 continue;
             }
-            let poly = piece.unwrap_or_else(|| Poly2::square(x0, y));
+            if interior {
+                col = Poly2::square(x0, y);
+            }
+            let poly = &col;
             if kmax == kmin + 1 {
                 // One depth face crosses the piece (the common steep case): one clip gives the
                 // lower part; the upper part is the remainder (area and centroid by
                 // difference), so the two areas still add up to the piece's exactly.
                 let kf = kmax as f64;
-                let lower = poly.clip_half(|p| kf - depth(p), None);
+                poly.clip_half_into(|p| kf - depth(p), None, &mut lower);
                 let (al, cl) = if lower.n >= 3 { lower.area_centroid() } else { (0.0, cen) };
                 let au = area2 - al;
                 let cu = if au > 0.0 { [(area2 * cen[0] - al * cl[0]) / au, (area2 * cen[1] - al * cl[1]) / au] } else { cen };
@@ -1104,7 +1128,9 @@ fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i6
             let (kmin, kmax) = if d == 0 { (kmin.max(xr.0), kmax.min(xr.1)) } else { (kmin, kmax) };
             for k in kmin..=kmax {
                 let kf = k as f64;
-                let sub = poly.clip_half(|p| depth(p) - kf, None).clip_half(|p| kf + 1.0 - depth(p), None);
+                poly.clip_half_into(|p| depth(p) - kf, None, &mut tmp);
+                tmp.clip_half_into(|p| kf + 1.0 - depth(p), None, &mut lower);
+                let sub = &lower;
                 if sub.n < 3 {
                     continue;
                 }
