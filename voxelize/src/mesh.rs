@@ -521,7 +521,7 @@ pub fn is_degenerate(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> bool {
 /// smooth) and whose normal is within `crease_deg` of this face's (thesis §5.2.2:
 /// "mean vertex surface normals ... with thresholding for discontinuities").
 pub fn corner_normals(p: &Primitive, crease_deg: f32) -> Vec<[[f32; 3]; 3]> {
-    use std::collections::HashMap;
+    use rayon::prelude::*;
     let face: Vec<[f64; 3]> = p
         .triangles
         .iter()
@@ -530,27 +530,59 @@ pub fn corner_normals(p: &Primitive, crease_deg: f32) -> Vec<[[f32; 3]; 3]> {
             cross(sub(b, a), sub(c, a)) // length = 2 × area: area weighting for free
         })
         .collect();
-    let mut by_pos: HashMap<[u32; 3], Vec<u32>> = HashMap::new();
+    let face_len: Vec<f64> = face.iter().map(|&f| norm(f)).collect();
+    // Vertices at bit-identical positions share a class (sorting, not hashing: no SipHash per
+    // corner). Out-of-range indices get no class and no neighbours.
+    let nv = p.positions.len();
+    let mut order: Vec<u32> = (0..nv as u32).collect();
+    order.sort_unstable_by_key(|&i| p.positions[i as usize].map(f32::to_bits));
+    let mut class_of = vec![0u32; nv];
+    let mut classes = 0u32;
+    for (k, &i) in order.iter().enumerate() {
+        let bits = |j: u32| p.positions[j as usize].map(f32::to_bits);
+        if k > 0 && bits(order[k - 1]) != bits(i) {
+            classes += 1;
+        }
+        class_of[i as usize] = classes;
+    }
+    let classes = if nv == 0 { 0 } else { classes as usize + 1 };
+    // Triangles around each class, in triangle then corner order (a triangle listed once per
+    // corner at that position), as compressed rows.
+    let class = |i: u32| class_of.get(i as usize).map(|&c| c as usize);
+    let mut first = vec![0u32; classes + 1];
+    for t in &p.triangles {
+        for &i in t {
+            if let Some(c) = class(i) {
+                first[c + 1] += 1;
+            }
+        }
+    }
+    for c in 0..classes {
+        first[c + 1] += first[c];
+    }
+    let mut fill = first.clone();
+    let mut around = vec![0u32; first[classes] as usize];
     for (ti, t) in p.triangles.iter().enumerate() {
         for &i in t {
-            let key = p.positions[i as usize].map(f32::to_bits);
-            by_pos.entry(key).or_default().push(ti as u32);
+            if let Some(c) = class(i) {
+                around[fill[c] as usize] = ti as u32;
+                fill[c] += 1;
+            }
         }
     }
     let cos_crease = f64::from(crease_deg.to_radians().cos());
     p.triangles
-        .iter()
+        .par_iter()
         .enumerate()
         .map(|(ti, t)| {
             let nf = face[ti];
-            let lf = norm(nf);
+            let lf = face_len[ti];
             t.map(|i| {
-                let key = p.positions[i as usize].map(f32::to_bits);
                 let mut acc = [0.0; 3];
-                if let Some(list) = by_pos.get(&key) {
-                    for &o in list {
+                if let Some(c) = class(i) {
+                    for &o in &around[first[c] as usize..first[c + 1] as usize] {
                         let no = face[o as usize];
-                        let lo = norm(no);
+                        let lo = face_len[o as usize];
                         if o as usize == ti || dot(nf, no) >= cos_crease * lf * lo {
                             acc = [acc[0] + no[0], acc[1] + no[1], acc[2] + no[2]];
                         }
@@ -637,6 +669,83 @@ mod tests {
             assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
         }
         assert_eq!((floor_i64(-1e300), floor_i64(1e300), floor_i64(f64::NAN)), (i64::MIN, i64::MAX, 0));
+    }
+
+    /// The class-and-rows corner normals equal the straightforward hash-map version bit for
+    /// bit (same neighbours, same summation order), with duplicated vertices at one position,
+    /// a triangle with two corners at one position, and a crease.
+    #[test]
+    fn corner_normals_match_hash_map_reference() {
+        fn reference(p: &Primitive, crease_deg: f32) -> Vec<[[f32; 3]; 3]> {
+            use std::collections::HashMap;
+            let face: Vec<[f64; 3]> = p
+                .triangles
+                .iter()
+                .map(|t| {
+                    let [a, b, c] = t.map(|i| p.positions[i as usize].map(f64::from));
+                    cross(sub(b, a), sub(c, a))
+                })
+                .collect();
+            let mut by_pos: HashMap<[u32; 3], Vec<u32>> = HashMap::new();
+            for (ti, t) in p.triangles.iter().enumerate() {
+                for &i in t {
+                    by_pos.entry(p.positions[i as usize].map(f32::to_bits)).or_default().push(ti as u32);
+                }
+            }
+            let cos_crease = f64::from(crease_deg.to_radians().cos());
+            p.triangles
+                .iter()
+                .enumerate()
+                .map(|(ti, t)| {
+                    let (nf, lf) = (face[ti], norm(face[ti]));
+                    t.map(|i| {
+                        let mut acc = [0.0; 3];
+                        for &o in &by_pos[&p.positions[i as usize].map(f32::to_bits)] {
+                            let no = face[o as usize];
+                            if o as usize == ti || dot(nf, no) >= cos_crease * lf * norm(no) {
+                                acc = [acc[0] + no[0], acc[1] + no[1], acc[2] + no[2]];
+                            }
+                        }
+                        let l = norm(acc);
+                        if l > 0.0 {
+                            acc.map(|v| (v / l) as f32)
+                        } else if lf > 0.0 {
+                            nf.map(|v| (v / lf) as f32)
+                        } else {
+                            [0.0, 0.0, 1.0]
+                        }
+                    })
+                })
+                .collect()
+        }
+        // A bumpy grid whose vertices are duplicated per triangle (as OBJ splits by UV), plus
+        // a fold (crease) and a triangle with two corners at one position.
+        let n = 12u32;
+        let h = |x: u32, y: u32| ((x * 7 + y * 13) % 5) as f32 * 0.05 + if x > n / 2 { (x - n / 2) as f32 * 0.6 } else { 0.0 };
+        let mut positions = Vec::new();
+        let mut triangles = Vec::new();
+        for y in 0..n {
+            for x in 0..n {
+                for [a, b, c] in [[(x, y), (x + 1, y), (x + 1, y + 1)], [(x, y), (x + 1, y + 1), (x, y + 1)]] {
+                    let base = positions.len() as u32;
+                    for (px, py) in [a, b, c] {
+                        positions.push([px as f32 * 0.3, py as f32 * 0.3, h(px, py)]);
+                    }
+                    triangles.push([base, base + 1, base + 2]);
+                }
+            }
+        }
+        let base = positions.len() as u32;
+        positions.extend([[0.0, 0.0, h(0, 0)], [0.0, 0.0, h(0, 0)], [0.3, 0.0, h(1, 0)]]);
+        triangles.push([base, base + 1, base + 2]);
+        let p = Primitive { positions, triangles, ..Default::default() };
+        for crease in [0.0, 30.0, 60.0, 180.0] {
+            let (got, want) = (corner_normals(&p, crease), reference(&p, crease));
+            assert_eq!(got.len(), want.len());
+            for (g, w) in got.iter().zip(&want) {
+                assert_eq!(g.map(|n| n.map(f32::to_bits)), w.map(|n| n.map(f32::to_bits)), "crease {crease}");
+            }
+        }
     }
 
     /// The table-driven encoder equals a binary search over the midpoints everywhere.
