@@ -185,3 +185,28 @@ fn owned_borrowed_and_mapped_builds_agree() {
         assert_eq!(used.iter().filter(|&&u| u).count() as u64, sa.leaves);
     }
 }
+
+/// Welded groups of every size from 1 to 150 (ranges that start and end on either side of
+/// 64-item words): each leaf is the weld of exactly its group (area sums to the group's),
+/// and the map sends every sample to its group's leaf. Guards the layout's range ends.
+#[test]
+fn welded_groups_across_word_boundaries() {
+    let mut s = Vec::new();
+    for g in 1..=150usize {
+        let c = [g as f32, (g * g % 7) as f32, 0.5];
+        s.extend((0..g).map(|k| Node { center: c, radius: 0.1, normal: [0.0, 0.0, 1.0], area: 1.0 + k as f32, ..Default::default() }));
+    }
+    let (t, st, map) = build_tree_with_map(&s, &BuildOptions { weld: Weld::Absolute(0.0), ..Default::default() }).unwrap();
+    check_tree(&t);
+    assert_eq!(st.leaves, 150);
+    let mut at = 0;
+    for g in 1..=150usize {
+        let leaf = map[at] as usize;
+        assert!(map[at..at + g].iter().all(|&m| m as usize == leaf), "group {g}");
+        assert!(t.children(leaf).is_none());
+        let area: f32 = (0..g).map(|k| 1.0 + k as f32).sum();
+        assert_eq!(t.nodes()[leaf].area, area, "group {g}");
+        assert_eq!(t.nodes()[leaf].center, s[at].center);
+        at += g;
+    }
+}

@@ -15,15 +15,18 @@ pub struct SceneTree {
     internal: Vec<bool>,
     /// `level_starts[d]` is the index of the first node of level `d`; one extra entry at the end.
     level_starts: Vec<usize>,
-    /// Index of the first child of each node, `u32::MAX` for leaves and for nodes whose
-    /// children are not loaded.
-    first_child: Vec<u32>,
+    /// Rank directory of `internal`: bit `i % 64` of word `i / 64` is `internal[i]`, and
+    /// `rank[i / 64]` counts the internal nodes before word `i / 64`. The `k`-th internal node
+    /// (breadth first, from 0) has its children at `2k + 1` and `2k + 2`, so this is all the
+    /// child addressing needs: 0.19 bytes per node instead of a 4-byte index.
+    bits: Vec<u64>,
+    rank: Vec<u32>,
 }
 
 impl Default for SceneTree {
     /// The empty tree (same as `from_bfs(vec![], vec![])`).
     fn default() -> Self {
-        SceneTree { nodes: Vec::new(), internal: Vec::new(), level_starts: vec![0], first_child: Vec::new() }
+        SceneTree { nodes: Vec::new(), internal: Vec::new(), level_starts: vec![0], bits: Vec::new(), rank: Vec::new() }
     }
 }
 
@@ -48,9 +51,8 @@ impl SceneTree {
             return Err(Error::Misuse("too many nodes for one tree (max 2^32 - 2)".into()));
         }
         let mut level_starts = vec![0usize];
-        let mut first_child = vec![NO_CHILD; nodes.len()];
         if nodes.is_empty() {
-            return Ok(SceneTree { nodes, internal, level_starts, first_child });
+            return Ok(SceneTree { nodes, internal, level_starts, bits: Vec::new(), rank: Vec::new() });
         }
         let (mut start, mut end) = (0usize, 1usize);
         loop {
@@ -73,17 +75,33 @@ impl SceneTree {
                     nodes.len() - end
                 )));
             }
-            let mut child = end;
-            for i in start..end {
-                if internal[i] {
-                    first_child[i] = child as u32;
-                    child += 2;
-                }
-            }
             start = end;
             end = next_end;
         }
-        Ok(SceneTree { nodes, internal, level_starts, first_child })
+        let bits: Vec<u64> =
+            internal.chunks(64).map(|w| w.iter().enumerate().fold(0u64, |b, (k, &f)| b | (f as u64) << k)).collect();
+        let rank: Vec<u32> = bits
+            .iter()
+            .scan(0u32, |acc, &w| {
+                let before = *acc;
+                *acc += w.count_ones();
+                Some(before)
+            })
+            .collect();
+        Ok(SceneTree { nodes, internal, level_starts, bits, rank })
+    }
+
+    /// Breadth-first index of the first child node `i` has in the full tree (whether loaded
+    /// or not), if it is internal.
+    #[inline]
+    fn first_child(&self, i: usize) -> Option<usize> {
+        let (w, b) = (i / 64, i % 64);
+        let word = *self.bits.get(w)?;
+        if word >> b & 1 == 0 {
+            return None;
+        }
+        let k = self.rank[w] as usize + (word & ((1u64 << b) - 1)).count_ones() as usize;
+        Some(2 * k + 1)
     }
 
     /// All nodes, breadth first.
@@ -128,8 +146,8 @@ impl SceneTree {
 
     /// The two children of node `i`, if it has children and they are loaded.
     pub fn children(&self, i: usize) -> Option<[usize; 2]> {
-        match self.first_child.get(i) {
-            Some(&c) if c != NO_CHILD => Some([c as usize, c as usize + 1]),
+        match self.first_child(i) {
+            Some(c) if c + 1 < self.nodes.len() => Some([c, c + 1]),
             _ => None,
         }
     }
@@ -148,10 +166,15 @@ impl SceneTree {
     /// Parent of every node (`NO_CHILD` for the root), computed in one pass.
     pub fn parents(&self) -> Vec<u32> {
         let mut p = vec![NO_CHILD; self.nodes.len()];
-        for (i, &c) in self.first_child.iter().enumerate() {
-            if c != NO_CHILD {
-                p[c as usize] = i as u32;
-                p[c as usize + 1] = i as u32;
+        let mut c = 1usize;
+        for (i, &f) in self.internal.iter().enumerate() {
+            if f {
+                if c + 1 >= p.len() {
+                    break;
+                }
+                p[c] = i as u32;
+                p[c + 1] = i as u32;
+                c += 2;
             }
         }
         p
@@ -188,6 +211,51 @@ mod tests {
         assert_eq!(t.children(2), None);
         assert_eq!(t.parents(), vec![NO_CHILD, 0, 0, 1, 1]);
         assert_eq!(t.leaves().collect::<Vec<_>>(), vec![2, 3, 4]);
+    }
+
+    /// Children by rank must match the level-by-level assignment, across rank-word
+    /// boundaries (trees of more than 64 nodes) and in truncated trees.
+    #[test]
+    fn children_by_rank_match_level_walk() {
+        // A lopsided tree: at each level every fifth node is a leaf.
+        let mut internal = vec![true];
+        let (mut width, mut levels) = (1usize, 0);
+        while levels < 9 {
+            let parents = internal[internal.len() - width..].iter().filter(|&&b| b).count();
+            width = 2 * parents;
+            internal.extend((0..width).map(|i| levels < 8 && i % 5 != 4));
+            levels += 1;
+        }
+        let t = SceneTree::from_bfs(vec![n(); internal.len()], internal.clone()).unwrap();
+        assert!(t.len() > 200, "{}", t.len());
+        // Expected first children, assigned level by level.
+        let mut expect = vec![None; t.len()];
+        for d in 0..t.level_count() - 1 {
+            let mut c = t.level(d + 1).start;
+            for i in t.level(d) {
+                if internal[i] {
+                    expect[i] = Some([c, c + 1]);
+                    c += 2;
+                }
+            }
+        }
+        let got: Vec<_> = (0..t.len()).map(|i| t.children(i)).collect();
+        assert_eq!(got, expect);
+        let parents = t.parents();
+        for (i, c) in expect.iter().enumerate() {
+            if let Some([a, b]) = c {
+                assert_eq!((parents[*a], parents[*b]), (i as u32, i as u32));
+            }
+        }
+        // Truncated to its first levels: the bottom level's internal nodes have no children.
+        let cut = t.level(5).end;
+        let tt = SceneTree::from_bfs(vec![n(); cut], internal[..cut].to_vec()).unwrap();
+        for i in 0..cut {
+            let want = if i < t.level(4).end { expect[i] } else { None };
+            assert_eq!(tt.children(i), want, "node {i}");
+        }
+        assert!(tt.parents()[t.level(4).start..cut].iter().all(|&p| p != NO_CHILD));
+        assert_eq!(t.children(t.len()), None);
     }
 
     #[test]
