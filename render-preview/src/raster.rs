@@ -159,12 +159,9 @@ const KEEP_BYTES: usize = 256 << 20;
 #[inline(always)]
 fn depth_key(z: f32) -> u32 {
     // `+ 0.0` turns −0 into +0 (and is not folded away for that reason).
+    // Negative depths flip all bits, others the sign bit (branch-free).
     let b = (z + 0.0).to_bits();
-    if b >> 31 == 1 {
-        !b
-    } else {
-        b | 0x8000_0000
-    }
+    b ^ (((b as i32) >> 31) as u32 | 0x8000_0000)
 }
 
 #[inline(always)]
@@ -276,20 +273,25 @@ fn rasterize_part(frame: &mut Frame, splats: &[Splat]) {
     }
 }
 
+/// Splats drawn as one batch by [`draw_batch`].
+const BATCH: usize = 64;
+
 /// Draws the splats of one chunk (`base`: index of its first splat) into a worker's layer.
 #[inline(never)]
 fn draw_chunk(splats: &[Splat], base: u32, cand: &mut [Cand], touched: &mut [bool], w: usize, h: usize) {
-    let quads = splats.chunks_exact(4);
-    let rest = quads.remainder();
-    // Rows drawn by `draw_quad`, marked in `touched` once per chunk rather than per splat.
-    let mut rows = (usize::MAX, 0);
-    for (g, quad) in quads.enumerate() {
-        if let Ok(quad) = <&[Splat; 4]>::try_from(quad) {
-            draw_quad(quad, base + 4 * g as u32, cand, touched, w, h, &mut rows);
+    let batches = splats.chunks_exact(BATCH);
+    let rest = batches.remainder();
+    // First rows of the batches' boxes: a superset of the rows `draw_batch` writes itself
+    // (rows `y0` and `y0 + 1` of a box), marked in `touched` once per chunk.
+    let (mut lo, mut hi) = (i32::MAX, i32::MIN);
+    for (g, batch) in batches.enumerate() {
+        if let Ok(batch) = <&[Splat; BATCH]>::try_from(batch) {
+            draw_batch(batch, base + (g * BATCH) as u32, cand, touched, w, h, (&mut lo, &mut hi));
         }
     }
-    if rows.0 <= rows.1 {
-        for t in touched.iter_mut().take(rows.1 / BAND + 1).skip(rows.0 / BAND) {
+    if lo <= hi {
+        let (lo, hi) = (lo.clamp(0, h as i32 - 1) as usize, (hi + 1).clamp(0, h as i32 - 1) as usize);
+        for t in touched.iter_mut().take(hi / BAND + 1).skip(lo / BAND) {
             *t = true;
         }
     }
@@ -305,59 +307,75 @@ fn key(z: f32, index: u32) -> Cand {
     !(((depth_key(z) as u64) << 32) | index as u64)
 }
 
-/// Draws four consecutive splats (`base`: index of the first); `rows` grows to the rows
-/// drawn in the fast path.
+/// Draws a batch of consecutive splats (`base`: index of the first); `rows` takes the
+/// minimum and maximum of their boxes' first rows.
 ///
 /// Boxes of at most 2×2 pixel centres away from the right and bottom edges are all of a
-/// preview's splats but a few. Their four centres are tested for four splats at once, each
-/// splat in its own SIMD lane (plain arrays the compiler vectorises), and without branches:
-/// whether a splat hits a centre is a coin toss the branch predictor loses, so the
-/// candidates of pixels that fail are rewritten unchanged. The arithmetic is that of
-/// [`draw_any`], which draws the other splats, so both draw the same pixels.
+/// preview's splats but a few. The four centre tests, masks and keys of all the batch's
+/// splats are computed first, in a loop the compiler vectorises (four splats a step, one
+/// per lane), and without branches: whether a splat hits a centre is a coin toss
+/// the branch predictor loses, so the candidates of pixels that fail are rewritten
+/// unchanged. The arithmetic is that of [`draw_any`], which draws the other splats, so
+/// both draw the same pixels.
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn draw_quad(q: &[Splat; 4], base: u32, cand: &mut [Cand], touched: &mut [bool], w: usize, h: usize, rows: &mut (usize, usize)) {
-    let lanes = |f: fn(&Splat) -> f32| -> [f32; 4] { [f(&q[0]), f(&q[1]), f(&q[2]), f(&q[3])] };
-    let (sx, sy, ux, uy, ia, ib) = (lanes(|s| s.x), lanes(|s| s.y), lanes(|s| s.ux), lanes(|s| s.uy), lanes(|s| s.inv_a2), lanes(|s| s.inv_b2));
-    let fx: [f32; 4] = std::array::from_fn(|l| q[l].bounds[0] as f32 + 0.5 - sx[l]);
-    let fx1: [f32; 4] = std::array::from_fn(|l| fx[l] + 1.0);
-    let fy0: [f32; 4] = std::array::from_fn(|l| q[l].bounds[2] as f32 + 0.5 - sy[l]);
-    let fy1: [f32; 4] = std::array::from_fn(|l| (q[l].bounds[2] as i32 + 1) as f32 + 0.5 - sy[l]);
-    let hits = |dx: &[f32; 4], dy: &[f32; 4]| -> [u32; 4] {
-        std::array::from_fn(|l| {
-            let (a, b) = (dx[l] * ux[l] + dy[l] * uy[l], dy[l] * ux[l] - dx[l] * uy[l]);
-            (a * a * ia[l] + b * b * ib[l] <= 1.0) as u32
-        })
-    };
-    let (h00, h10, h01, h11) = (hits(&fx, &fy0), hits(&fx1, &fy0), hits(&fx, &fy1), hits(&fx1, &fy1));
+fn draw_batch(q: &[Splat; BATCH], base: u32, cand: &mut [Cand], touched: &mut [bool], w: usize, h: usize, rows: (&mut i32, &mut i32)) {
+    // Per splat: the four centres' masks (all ones or zero), whether the fast path draws
+    // it, and the high half of its candidate.
+    let mut m = [[0u32; BATCH]; 4];
+    let mut ok = [0u32; BATCH];
+    let mut nk = [0u32; BATCH];
     let (wl, hl) = (w as u32 - 1, h as u32 - 1);
-    // `0..4` rather than `enumerate`: the lane index is then known to be in range.
-    for l in 0..4 {
-        let s = &q[l];
-        let index = base + l as u32;
-        let [x0, x1, y0, y1] = s.bounds.map(i32::from);
-        let (ex, ey) = (x1 - x0, y1 - y0);
-        // One branch for all conditions (`&`, not `&&`); a negative coordinate fails the
-        // unsigned comparison. NaN and +inf depths never pass a depth test; `draw_any`
-        // drops them.
-        if !((ex <= 1) & (ey <= 1) & ((x0 as u32) < wl) & ((y0 as u32) < hl) & (s.color[3] == 255) & (s.z < f32::INFINITY)) {
-            draw_any(s, index, cand, touched, w, h);
-            continue;
-        }
-        let key = key(s.z, index);
+    let (mut lo, mut hi) = (*rows.0, *rows.1);
+    for k in 0..BATCH {
+        let (x0, y0, ex, ey) = ((q[k].bounds[0] as i32), (q[k].bounds[2] as i32), (q[k].bounds[1] as i32) - (q[k].bounds[0] as i32), (q[k].bounds[3] as i32) - (q[k].bounds[2] as i32));
+        let fx = x0 as f32 + 0.5 - q[k].x;
+        let fx1 = fx + 1.0;
+        let fy = y0 as f32 + 0.5 - q[k].y;
+        let fy1 = (y0 + 1) as f32 + 0.5 - q[k].y;
+        let (ux, uy, ia, ib) = (q[k].ux, q[k].uy, q[k].inv_a2, q[k].inv_b2);
+        let hit = |dx: f32, dy: f32| {
+            let (a, b) = (dx * ux + dy * uy, dy * ux - dx * uy);
+            0u32.wrapping_sub((a * a * ia + b * b * ib <= 1.0) as u32)
+        };
         // Centres (0,0), (1,0), (0,1), (1,1) inside the box; none for an empty box.
-        let (c0, c1, r0, r1) = ((ex >= 0) as u32, (ex >= 1) as u32, (ey >= 0) as u32, (ey >= 1) as u32);
-        let pick = |hit: u32| key & 0u64.wrapping_sub(hit as u64);
-        let (x, y) = (x0 as usize, y0 as usize);
-        let i = y * w + x;
-        // One slice from the pixel to the one below its right neighbour.
-        if let Some(r) = cand.get_mut(i..i + w + 2) {
-            let n = r.len();
-            r[0] = r[0].max(pick(h00[l] & c0 & r0));
-            r[1] = r[1].max(pick(h10[l] & c1 & r0));
-            r[n - 2] = r[n - 2].max(pick(h01[l] & c0 & r1));
-            r[n - 1] = r[n - 1].max(pick(h11[l] & c1 & r1));
+        let (c0, c1, r0, r1) = (!(ex >> 31) as u32, !((ex - 1) >> 31) as u32, !(ey >> 31) as u32, !((ey - 1) >> 31) as u32);
+        m[0][k] = hit(fx, fy) & c0 & r0;
+        m[1][k] = hit(fx1, fy) & c1 & r0;
+        m[2][k] = hit(fx, fy1) & c0 & r1;
+        m[3][k] = hit(fx1, fy1) & c1 & r1;
+        // A negative coordinate fails the unsigned comparison. NaN and +inf depths never
+        // pass a depth test; `draw_any` drops them.
+        ok[k] = ((ex <= 1) & (ey <= 1) & ((x0 as u32) < wl) & ((y0 as u32) < hl) & ((q[k].color[3] as i32) == 255) & (q[k].z < f32::INFINITY)) as u32;
+        nk[k] = !depth_key(q[k].z);
+        lo = lo.min(y0);
+        hi = hi.max(y0);
+    }
+    (*rows.0, *rows.1) = (lo, hi);
+    for k in 0..BATCH {
+        let index = base + k as u32;
+        if ok[k] != 0 {
+            let key = ((nk[k] as u64) << 32) | !index as u64;
+            let pick = |m: u32| key & (m as i32 as i64 as u64);
+            put_quad(cand, (q[k].bounds[2] as i32) as usize * w + (q[k].bounds[0] as i32) as usize, w, [pick(m[0][k]), pick(m[1][k]), pick(m[2][k]), pick(m[3][k])]);
+        } else {
+            draw_any(&q[k], index, cand, touched, w, h);
         }
-        *rows = (rows.0.min(y), rows.1.max(y + 1));
+    }
+}
+
+/// Offers candidates `k` to the 2×2 pixels from `i` (row width `w`), in the order (0,0),
+/// (1,0), (0,1), (1,1); zero candidates leave a pixel as it was.
+#[inline(always)]
+fn put_quad(cand: &mut [Cand], i: usize, w: usize, k: [Cand; 4]) {
+    // One slice from the pixel to the one below its right neighbour.
+    if let Some((a, r)) = cand.get_mut(i..i + w + 2).and_then(|r| r.split_first_chunk_mut::<2>()) {
+        if let Some((_, b)) = r.split_last_chunk_mut::<2>() {
+            a[0] = a[0].max(k[0]);
+            a[1] = a[1].max(k[1]);
+            b[0] = b[0].max(k[2]);
+            b[1] = b[1].max(k[3]);
+        }
     }
 }
 
