@@ -7,6 +7,7 @@
 //! similarity, `AFFI` (affine instances, flagged required so that a reader that predates it
 //! refuses the file instead of silently dropping those placements).
 
+use std::borrow::Cow;
 use std::io::Write;
 use std::path::Path;
 
@@ -223,6 +224,16 @@ impl SamplesFile {
 
     /// Parses a samples file from bytes.
     pub fn read(data: &[u8], limits: &Limits) -> Result<Self> {
+        let (mut file, smpl, offset, at) = Self::read_tables(data, limits)?;
+        file.samples = decode_samples(&smpl, offset, limits)?;
+        file.check_tables(&at)?;
+        Ok(file)
+    }
+
+    /// Everything but the samples, which come back as the `SMPL` section's bytes (after the
+    /// CRC check and decompression) with the section's offset, and the offsets the table
+    /// checks report.
+    fn read_tables<'a>(data: &'a [u8], limits: &Limits) -> Result<(Self, Cow<'a, [u8]>, u64, TableOffsets)> {
         let known = [tags::GENR, tags::MESH, tags::INST, tags::SMPL, AFFI];
         let c = Container::parse(data, SAMPLES_MAGIC, "SCT samples", &known, limits)?;
         if c.sections.first().map(|e| e.tag) != Some(tags::GENR) {
@@ -232,8 +243,8 @@ impl SamplesFile {
         let generator = parse_generator(&c.section_bytes(genr, limits)?, genr.offset, limits)?;
 
         let e = c.single(tags::SMPL)?;
-        let bytes = c.section_bytes(e, limits)?;
-        let samples = decode_samples(&bytes, e.offset, limits)?;
+        let smpl = c.section_bytes(e, limits)?;
+        let smpl_offset = e.offset;
 
         let e = c.single(tags::MESH)?;
         let mesh_offset = e.offset;
@@ -280,14 +291,31 @@ impl SamplesFile {
             }
             cur.finish("affine instance list")?;
         }
-        check_tables(&meshes, &instances, &affine_instances, samples.len() as u64, &offsets)?;
-        Ok(SamplesFile { generator, meshes, instances, affine_instances, samples })
+        // The tables are checked against the sample count once the samples are decoded.
+        let file = SamplesFile { generator, meshes, instances, affine_instances, samples: Vec::new() };
+        Ok((file, smpl, smpl_offset, offsets))
     }
 
-    /// Reads a samples file from disk.
+    /// The table checks that need the samples (see [`check_tables`]).
+    fn check_tables(&self, at: &TableOffsets) -> Result<()> {
+        check_tables(&self.meshes, &self.instances, &self.affine_instances, self.samples.len() as u64, at)
+    }
+
+    /// Reads a samples file from disk. The file's bytes are freed before the samples are
+    /// decoded from the (decompressed) column section, so the peak is columns + samples
+    /// (76 bytes a sample), not file + columns + samples (92).
     pub fn read_file(path: &Path, limits: &Limits) -> Result<Self> {
         let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-        Self::read(&data, limits)
+        let (mut file, smpl, offset, at) = Self::read_tables(&data, limits)?;
+        file.samples = match smpl {
+            Cow::Borrowed(b) => decode_samples(b, offset, limits)?,
+            Cow::Owned(columns) => {
+                drop(data);
+                decode_samples(&columns, offset, limits)?
+            }
+        };
+        file.check_tables(&at)?;
+        Ok(file)
     }
 
     /// Samples of mesh `m`.
@@ -575,6 +603,19 @@ mod tests {
         let n = f.write_to(&mut bytes).unwrap();
         assert_eq!(n as usize, bytes.len());
         assert_eq!(SamplesFile::read(&bytes, &Limits::default()).unwrap(), f);
+        // From disk (file bytes freed before the samples are decoded): same result, and a
+        // mesh table that needs more samples than stored is still refused there.
+        let path = std::env::temp_dir().join(format!("sct-samples-rt-{}.samples", std::process::id()));
+        f.write_file(&path).unwrap();
+        assert_eq!(SamplesFile::read_file(&path, &Limits::default()).unwrap(), f);
+        let mut bad = f.clone();
+        bad.meshes[0].count += 1;
+        let mut bytes = Vec::new();
+        bad.write_unchecked(&mut bytes).unwrap();
+        std::fs::write(&path, &bytes).unwrap();
+        assert!(SamplesFile::read_file(&path, &Limits::default()).is_err());
+        assert!(SamplesFile::read(&bytes, &Limits::default()).is_err());
+        let _ = std::fs::remove_file(&path);
     }
 
     #[test]
