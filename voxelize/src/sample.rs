@@ -773,22 +773,25 @@ fn radix_sort_low(items: &mut [(u64, u64)], tmp: &mut Vec<(u64, u64)>, bits: u32
     const B: usize = 1 << D;
     let passes = bits.min(64).div_ceil(D) as usize;
     // Digit p: bits p·D .. min((p+1)·D, bits) of the key.
-    let mask = |p: usize| -> u64 { (1u64 << D.min(bits - p as u32 * D)) - 1 };
+    let masks: Vec<(u32, u64)> = (0..passes).map(|p| (p as u32 * D, (1u64 << D.min(bits - p as u32 * D)) - 1)).collect();
     let mut counts = vec![[0u32; B]; passes];
     for x in items.iter() {
-        for (p, c) in counts.iter_mut().enumerate() {
-            c[((x.0 >> (p as u32 * D)) & mask(p)) as usize] += 1;
+        for (c, &(sh, mask)) in counts.iter_mut().zip(&masks) {
+            c[((x.0 >> sh) & mask) as usize] += 1;
         }
     }
-    tmp.clear();
-    tmp.resize(items.len(), (0, 0));
+    // The scratch buffer is reused across calls: grown (zeroed) only when too short.
+    if tmp.len() < items.len() {
+        tmp.resize(items.len(), (0, 0));
+    }
+    let tmp = &mut tmp[..items.len()];
     let mut in_items = true; // where the current data lives
     for (p, count) in counts.iter_mut().enumerate() {
         if count.contains(&(items.len() as u32)) {
             continue;
         }
-        let (sh, mask) = (p as u32 * D, mask(p));
-        let (src, dst): (&[Item], &mut [Item]) = if in_items { (items, tmp) } else { (tmp, items) };
+        let (sh, mask) = masks[p];
+        let (src, dst): (&[Item], &mut [Item]) = if in_items { (items, &mut *tmp) } else { (&*tmp, items) };
         let mut pos = 0;
         for c in count.iter_mut() {
             let n = *c;
@@ -976,7 +979,29 @@ fn push_rec(out: &mut Vec<Rec>, key: u64, area: f64, col: [f32; 4], n: [f32; 3],
 /// emitted, so EQ 17 areas still divide by the whole triangle's count.
 #[allow(clippy::too_many_arguments)]
 fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i64, i64), keep: (i64, i64), out: &mut Vec<Rec>) -> u64 {
-    let (fnrm, d, a, b) = face_axes(t);
+    let (fnrm, d, _, _) = face_axes(t);
+    // One copy per depth axis: the axis indices become constants (key assembly, the slab
+    // tests), the arithmetic is the same.
+    match d {
+        0 => voxel_triangle_axis::<0>(t, fnrm, mat, area_mode, kp, xr, keep, out),
+        1 => voxel_triangle_axis::<1>(t, fnrm, mat, area_mode, kp, xr, keep, out),
+        _ => voxel_triangle_axis::<2>(t, fnrm, mat, area_mode, kp, xr, keep, out),
+    }
+}
+
+/// [`voxel_triangle`] with depth axis `D` (`fnrm` = the face normal of [`face_axes`]).
+#[allow(clippy::too_many_arguments)]
+fn voxel_triangle_axis<const D: usize>(
+    t: &Tri,
+    fnrm: [f64; 3],
+    mat: &Mat,
+    area_mode: AreaMode,
+    kp: &KeyPack,
+    xr: (i64, i64),
+    keep: (i64, i64),
+    out: &mut Vec<Rec>,
+) -> u64 {
+    let (d, a, b) = (D, (D + 1) % 3, (D + 2) % 3);
     let tri_area_grid = 0.5 * norm(fnrm);
     // Projected area → surface area; depth = d0 + ga·x + gb·y.
     let ascale = norm(fnrm) / fnrm[d].abs();
