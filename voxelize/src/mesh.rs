@@ -467,7 +467,7 @@ impl Image {
 }
 
 #[inline]
-fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
+pub(crate) fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
     if (0..n).contains(&i) {
         return i; // the common case, without a division
     }

@@ -328,9 +328,74 @@ struct Tri {
 /// Material view used in the hot loop.
 struct Mat<'a> {
     base: [f32; 4],
-    tex: Option<(&'a Image, &'a TextureRef)>,
-    alpha_tex: Option<(&'a Image, &'a TextureRef)>,
+    tex: Option<(TexImage<'a>, &'a TextureRef)>,
+    alpha_tex: Option<(TexImage<'a>, &'a TextureRef)>,
     alpha: AlphaMode,
+}
+
+/// A texture image for the samplers, with its texels decoded to linear RGBA once when that
+/// table is affordable ([`decode_textures`]).
+#[derive(Clone, Copy)]
+struct TexImage<'a> {
+    img: &'a Image,
+    /// `width × height` linear texels (the values [`Image::sample`] decodes per lookup).
+    linear: Option<&'a [[f32; 4]]>,
+}
+
+impl TexImage<'_> {
+    /// [`Image::sample`], bit for bit; reads pre-decoded texels when there are some.
+    #[inline]
+    fn sample(&self, uv: [f32; 2], wrap_s: Wrap, wrap_t: Wrap) -> [f32; 4] {
+        let Some(lin) = self.linear else {
+            return self.img.sample(uv, wrap_s, wrap_t);
+        };
+        // `decode_textures` made `lin` only for images with 0 < width × height = lin.len().
+        let (w, h) = (i64::from(self.img.width), i64::from(self.img.height));
+        let u = if uv[0].is_finite() { uv[0] } else { 0.0 };
+        let v = if uv[1].is_finite() { uv[1] } else { 0.0 };
+        let x = u as f64 * w as f64 - 0.5;
+        let y = v as f64 * h as f64 - 0.5;
+        let (xi, yi) = (floor_i64(x.clamp(-1e15, 1e15)), floor_i64(y.clamp(-1e15, 1e15)));
+        let fx = (x - xi as f64) as f32;
+        let fy = (y - yi as f64) as f32;
+        let (x0, x1) = (wrap_index(xi, w, wrap_s), wrap_index(xi + 1, w, wrap_s));
+        let (r0, r1) = (wrap_index(yi, h, wrap_t) * w, wrap_index(yi + 1, h, wrap_t) * w);
+        let texel = |i: i64| lin.get(i as usize).copied().unwrap_or([1.0; 4]);
+        let (a, b, c, d) = (texel(r0 + x0), texel(r0 + x1), texel(r1 + x0), texel(r1 + x1));
+        std::array::from_fn(|k| {
+            let top = a[k] + (b[k] - a[k]) * fx;
+            let bot = c[k] + (d[k] - c[k]) * fx;
+            top + (bot - top) * fy
+        })
+    }
+}
+
+/// Linear RGBA tables of the scene's textured images (index = image index), for images of at
+/// most 2^24 texels while the tables stay under 1 GiB in all; `None` = decode per lookup.
+fn decode_textures(scene: &LoadedScene) -> Vec<Option<Vec<[f32; 4]>>> {
+    let mut used = vec![false; scene.images.len()];
+    for m in &scene.materials {
+        for t in [&m.texture, &m.alpha_texture].into_iter().flatten() {
+            if let Some(u) = used.get_mut(t.image) {
+                *u = true;
+            }
+        }
+    }
+    let lut = srgb_lut();
+    let mut budget: u64 = 1 << 26; // texels (16 B each)
+    scene
+        .images
+        .iter()
+        .zip(used)
+        .map(|(img, used)| {
+            let n = u64::from(img.width) * u64::from(img.height);
+            if !used || n == 0 || n > 1 << 24 || n > budget || img.rgba.len() as u64 != n {
+                return None;
+            }
+            budget -= n;
+            Some(img.rgba.par_iter().map(|t| [lut[t[0] as usize], lut[t[1] as usize], lut[t[2] as usize], t[3] as f32 / 255.0]).collect())
+        })
+        .collect()
 }
 
 /// One sample before merging: a packed voxel key ([`KeyPack`]) and attributes.
@@ -525,6 +590,7 @@ pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn F
     }
     let total_tris: u64 = units.iter().map(|u| scene.meshes[u.mesh].triangle_count() as u64).sum();
     let done = std::sync::atomic::AtomicU64::new(0);
+    let linear = decode_textures(scene);
     let mut out = Vec::new();
     for u in &units {
         let mesh = &scene.meshes[u.mesh];
@@ -534,13 +600,16 @@ pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn F
             .iter()
             .map(|prim| {
                 let material = scene.material(prim);
-                fn tex_of<'a>(images: &'a [Image], t: &Option<TextureRef>) -> Option<(&'a Image, TextureRef)> {
-                    t.as_ref().and_then(|t| images.get(t.image).map(|i| (i, t.clone())))
-                }
+                let tex_of = |t: &Option<TextureRef>| -> Option<(TexImage, TextureRef)> {
+                    t.as_ref().and_then(|t| {
+                        let linear = linear.get(t.image).and_then(|l| l.as_deref());
+                        scene.images.get(t.image).map(|img| (TexImage { img, linear }, t.clone()))
+                    })
+                };
                 let mat = MatOwned {
                     base: material.base_color,
-                    tex: tex_of(&scene.images, &material.texture),
-                    alpha_tex: tex_of(&scene.images, &material.alpha_texture),
+                    tex: tex_of(&material.texture),
+                    alpha_tex: tex_of(&material.alpha_texture),
                     alpha: material.alpha_mode,
                 };
                 Prepared::new(prim, u, mat, opts.crease_deg)
@@ -814,8 +883,8 @@ fn radix_sort_low(items: &mut [(u64, u64)], tmp: &mut Vec<(u64, u64)>, bits: u32
 /// through the images).
 struct MatOwned<'a> {
     base: [f32; 4],
-    tex: Option<(&'a Image, TextureRef)>,
-    alpha_tex: Option<(&'a Image, TextureRef)>,
+    tex: Option<(TexImage<'a>, TextureRef)>,
+    alpha_tex: Option<(TexImage<'a>, TextureRef)>,
     alpha: AlphaMode,
 }
 
@@ -1481,6 +1550,39 @@ mod tests {
         assert_eq!(kp.unpack(kp.pack([i64::MAX, 0, 1000])), [301, 0, 1000]);
         assert!(KeyPack::new([0.0; 3], [3e6; 3]).is_err(), "3 × 22 bits do not fit");
         assert!(KeyPack::new([-1e300; 3], [1e300; 3]).is_err(), "saturates, then refuses");
+    }
+
+    /// Lookups in the pre-decoded linear table equal `Image::sample` bit for bit, inside,
+    /// outside (every wrap mode), at texel centres and edges, and for non-finite UVs.
+    #[test]
+    fn decoded_texture_lookup_matches_image_sample() {
+        let mut rng = SplitMix(11);
+        let (w, h) = (7u32, 5u32);
+        let rgba: Vec<[u8; 4]> = (0..w * h).map(|_| std::array::from_fn(|_| (rng.next_u64() >> 56) as u8)).collect();
+        let img = Image { width: w, height: h, rgba, source: "test".into() };
+        let scene = LoadedScene {
+            images: vec![img],
+            materials: vec![Material { texture: Some(TextureRef { image: 0, tex_coord: 0, transform: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat }), ..Default::default() }],
+            ..Default::default()
+        };
+        let linear = decode_textures(&scene);
+        let img = &scene.images[0];
+        let tex = TexImage { img, linear: linear[0].as_deref() };
+        assert!(tex.linear.is_some());
+        let mut uvs: Vec<[f32; 2]> = (0..20_000).map(|_| [(rng.next_f64() * 6.0 - 3.0) as f32, (rng.next_f64() * 6.0 - 3.0) as f32]).collect();
+        for i in -8..=16 {
+            let (cx, cy) = ((i as f32 + 0.5) / w as f32, i as f32 / h as f32);
+            uvs.extend([[cx, cy], [cy, cx], [cx.next_up(), cy.next_down()]]);
+        }
+        uvs.extend([[f32::NAN, 0.3], [0.2, f32::INFINITY], [1e30, -1e30], [-0.0, 1.0]]);
+        for ws in [Wrap::Repeat, Wrap::MirroredRepeat, Wrap::ClampToEdge] {
+            for wt in [Wrap::Repeat, Wrap::MirroredRepeat, Wrap::ClampToEdge] {
+                for &uv in &uvs {
+                    let (got, want) = (tex.sample(uv, ws, wt), img.sample(uv, ws, wt));
+                    assert_eq!(got.map(f32::to_bits), want.map(f32::to_bits), "uv {uv:?} {ws:?} {wt:?}");
+                }
+            }
+        }
     }
 
     #[test]
