@@ -21,6 +21,8 @@ fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
 
 fn check_within_bounds(orig: &SceneTree, got: &SceneTree, profile: Profile) {
     assert_eq!(orig.internal_flags(), got.internal_flags(), "structure must be exact");
+    let depth: Vec<usize> = (0..orig.level_count()).flat_map(|d| orig.level(d).map(move |_| d)).collect();
+    let mut rel_sum = 0f64;
     for (i, (a, b)) in orig.nodes().iter().zip(got.nodes()).enumerate() {
         if profile == Profile::Raw {
             assert_eq!(a, b, "raw node {i}");
@@ -35,8 +37,16 @@ fn check_within_bounds(orig: &SceneTree, got: &SceneTree, profile: Profile) {
         }
         assert!(b.cone + 1e-4 >= a.cone.min(std::f32::consts::PI), "node {i}: cone shrank");
         let rel = (a.area - b.area).abs() / a.area.max(1e-12);
-        assert!(rel < 0.02 || (a.area - b.area).abs() < 1e-6, "node {i}: area {} vs {}", a.area, b.area);
+        rel_sum += rel as f64;
+        // Default: each level moves a child's area by at most half an 8-code step of the
+        // parent's, 4/4096 (≤ 0.49 % of a child holding ≥ 20 % as in `random_tree`); the
+        // errors of the levels above add up (spec/SCT-profiles.md §4).
+        let bound = if profile == Profile::Default { 0.0049 * depth[i] as f32 + 1e-4 } else { 1e-6 };
+        assert!(rel < bound || (a.area - b.area).abs() < 1e-6, "node {i} (depth {}): area {} vs {}", depth[i], a.area, b.area);
     }
+    // They add up like a random walk, not linearly: small on average.
+    let mean = rel_sum / orig.len() as f64;
+    assert!(mean < if profile == Profile::Default { 0.005 } else { 1e-6 }, "mean relative area error {mean}");
 }
 
 #[test]

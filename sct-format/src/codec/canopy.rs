@@ -96,13 +96,20 @@ pub(super) fn check_child(c: &Node, i: usize, params: CodecParams) -> Result<()>
 
 /// Encodes one child's sphere or explains why it cannot.
 pub(super) fn sphere_state(p: &Node, c: &Node, i: usize) -> Result<u16> {
-    posrad::encode_sphere(p.center, p.radius, c.center, c.radius).ok_or_else(|| {
-        Error::Misuse(format!(
-            "child {i} (centre {:?}, radius {}) lies too far outside its decoded parent (centre {:?}, radius {}) \
-             for any position/radius state to contain it",
-            c.center, c.radius, p.center, p.radius
-        ))
-    })
+    posrad::encode_sphere(p.center, p.radius, c.center, c.radius).ok_or_else(|| too_far(p, c, i))
+}
+
+/// [`sphere_state`] and the other equally tight states (see [`posrad::encode_sphere_ties`]).
+pub(super) fn sphere_ties(p: &Node, c: &Node, i: usize) -> Result<posrad::Ties> {
+    posrad::encode_sphere_ties(p.center, p.radius, c.center, c.radius).ok_or_else(|| too_far(p, c, i))
+}
+
+fn too_far(p: &Node, c: &Node, i: usize) -> Error {
+    Error::Misuse(format!(
+        "child {i} (centre {:?}, radius {}) lies too far outside its decoded parent (centre {:?}, radius {}) \
+         for any position/radius state to contain it",
+        c.center, c.radius, p.center, p.radius
+    ))
 }
 
 /// Packs RGB(A) into the 565 word and the 4-bit alpha code.

@@ -2,10 +2,14 @@
 //! predicted from the decoded parent (and, for the second child, from the first), with the
 //! area stored as a fraction of the parent's. The container zstd-compresses the payload.
 //!
-//! Because position/radius, normal, cone and colour use exactly canopy's quantizers, every
-//! error bound of [`super::canopy`] holds unchanged (containment, ≤ 0.144 parent radii centre
-//! error for interior children, 0.64° normal, round-up cone, ≤ 4/2/4/8 colour steps); only
-//! the area becomes lossy (bound below). Predictions change the bytes, never the values.
+//! Position/radius, normal, cone and colour use exactly canopy's quantizers, so containment,
+//! the stick-out slack, the 0.64° normal bound, the round-up cone and the ≤ 4/2/4/8 colour
+//! steps hold unchanged; predictions change the bytes, never the values. The encoder uses its
+//! freedom where it costs no bound (spec/SCT-profiles.md §1.1, §1.2, §3): of equally tight
+//! position/radius states it stores the one whose bytes are most frequent in the block (the
+//! centre error may then exceed canopy's 0.144 parent radii, the radius does not change); of
+//! the normal codes within 0.64° the one closest to the prediction; area codes on a coarser
+//! grid for balanced pairs. The area is lossy (bound below).
 //!
 //! # Block payload (n parents, m = 2n children, child `2k` = A, `2k+1` = B of parent `k`)
 //!
@@ -44,12 +48,12 @@
 //!
 //! # Area bound
 //!
-//! The stored fraction is `round(4096·a/(a+b))`, so each level adds at most `1/8192` of the
-//! parent's decoded area to a child's area error; decoded siblings sum exactly (up to one f32
-//! rounding) to their decoded parent. Errors accumulate with depth (measured in
-//! `examples/rate_distortion.rs`).
+//! The stored fraction is `4096·a/(a+b)` rounded to a step of 1 to 8 codes ([`area_code`]), so
+//! each level moves a child's fraction by at most `4/4096` and by at most 1/32 of the smaller
+//! child's fraction; decoded siblings sum exactly (up to one f32 rounding) to their decoded
+//! parent. Errors accumulate with depth (measured in `examples/rate_distortion.rs`).
 
-use super::canopy::{check_child, check_parent, color_codes, sphere_state, Codes};
+use super::canopy::{check_child, check_parent, color_codes, sphere_ties, Codes};
 use super::{color, normal, posrad, CodecParams};
 use crate::error::{Error, Result};
 use crate::node::Node;
@@ -126,6 +130,70 @@ fn areas(p: &Node, code: u16) -> (f32, f32) {
     (a, (p.area - a).max(0.0))
 }
 
+/// The stored area code of a pair with areas `a`, `b` (informative: any code ≤ 4096 decodes).
+///
+/// The fraction `x = 4096·a/(a+b)` is rounded to the nearest multiple of a step that depends
+/// on the smaller side `s = min(x, 4096 − x)`: [`AREA_STEP`] (8) when `s ≥ 128`, else the
+/// largest power of two ≤ `s/16` (at least 1). Balanced pairs thus use one code in 8 (3 bits
+/// less to store; the fraction is off by ≤ 4/4096) while a step never exceeds 1/16 of the
+/// smaller side, so a level adds at most 1/32 relative error to the smaller child (and slivers
+/// below 16/4096 keep the full resolution).
+fn area_code(a: f32, b: f32) -> u16 {
+    let sum = a as f64 + b as f64;
+    if !(sum > 0.0) {
+        return AREA_ONE / 2;
+    }
+    let x = (a as f64 / sum * AREA_ONE as f64).clamp(0.0, AREA_ONE as f64);
+    let side = x.min(AREA_ONE as f64 - x);
+    // floor(log2(side)) - 4, from the integer part (no libm call); side < 16 → step 1.
+    let whole = side as u32;
+    let shift = if whole >= 16 { (whole.ilog2() - 4).min(AREA_STEP.ilog2()) } else { 0 };
+    let step = (1u32 << shift) as f64;
+    (super::rounding::round_f64(x / step) * step).clamp(0.0, AREA_ONE as f64) as u16
+}
+
+/// Coarsest area code step (see [`area_code`]).
+const AREA_STEP: u32 = 8;
+
+/// Counts of the state's low and high bytes over a block's reference choices.
+struct StateHistogram {
+    low: [u32; 256],
+    high: [u32; 256],
+}
+
+impl Default for StateHistogram {
+    fn default() -> Self {
+        StateHistogram { low: [0; 256], high: [0; 256] }
+    }
+}
+
+impl StateHistogram {
+    fn add(&mut self, s: u16) {
+        self.low[(s & 0xff) as usize] += 1;
+        self.high[(s >> 8) as usize] += 1;
+    }
+
+    /// Proportional to the probability of `s` when the two byte streams are coded on their
+    /// own (order 0): a larger weight costs fewer bits. Exact integers, so the choice does not
+    /// depend on floating point.
+    fn weight(&self, s: u16) -> u64 {
+        (self.low[(s & 0xff) as usize] as u64 + 1) * (self.high[(s >> 8) as usize] as u64 + 1)
+    }
+}
+
+/// Of equally tight states, the one whose bytes are most frequent in the block (the first on
+/// a tie, i.e. the reference choice).
+fn pick_state(t: &super::posrad::Ties, hist: &StateHistogram) -> u16 {
+    let mut best = (hist.weight(t.states[0]), t.states[0]);
+    for &s in &t.as_slice()[1..] {
+        let w = hist.weight(s);
+        if w > best.0 {
+            best = (w, s);
+        }
+    }
+    best.1
+}
+
 fn channels(params: CodecParams) -> usize {
     if params.alpha {
         4
@@ -183,29 +251,42 @@ pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mu
     let (cols, area_bytes) = rest.split_at_mut(ch * m);
     let mut dec = Vec::with_capacity(m);
     let r = (|| -> Result<()> {
+        // Pass 1: the equally tight position/radius states of every child, and how often the
+        // reference choice (the first) uses each state byte in this block.
+        let mut ties = Vec::with_capacity(m);
+        let mut hist = StateHistogram::default();
         for (k, pair) in children.chunks_exact(2).enumerate() {
             let p = &parents[k];
             check_parent(p, k)?;
             let (a, b) = (&pair[0], &pair[1]);
             check_child(a, 2 * k, params)?;
             check_child(b, 2 * k + 1, params)?;
-            let sum = a.area as f64 + b.area as f64;
-            let code =
-                if sum > 0.0 { super::rounding::round_f64(a.area as f64 / sum * AREA_ONE as f64).clamp(0.0, AREA_ONE as f64) as u16 } else { AREA_ONE / 2 };
+            for (h, c) in pair.iter().enumerate() {
+                let t = sphere_ties(p, c, 2 * k + h)?;
+                hist.add(t.states[0]);
+                ties.push(t);
+            }
+        }
+        for (k, pair) in children.chunks_exact(2).enumerate() {
+            let p = &parents[k];
+            let (a, b) = (&pair[0], &pair[1]);
+            let code = area_code(a.area, b.area);
             area_bytes[k] = code as u8;
             area_bytes[n + k] = (code >> 8) as u8;
             let (area_a, area_b) = areas(p, code);
             let mut dec_a: Option<Node> = None;
             for (h, c) in pair.iter().enumerate() {
                 let i = 2 * k + h;
-                let s = sphere_state(p, c, i)?;
+                let s = pick_state(&ties[i], &hist);
                 states[i] = s as u8;
                 states[m + i] = (s >> 8) as u8;
-                let (nc, axis, cone) = normal::encode_cone_decoded(c.normal, c.cone);
                 let (pred, pc) = match &dec_a {
                     None => (pred_normal_a(p), quant4(p.color)),
                     Some(da) => (pred_normal_b(p, da.normal), quant4(pred_color_b(p, area_a, area_b, da.color, ch))),
                 };
+                let (nc, axis, cone) = normal::encode_cone_toward(c.normal, c.cone, |code| {
+                    zz(code as u8, pred as u8, 8) as u32 + zz((code >> 8) as u8, (pred >> 8) as u8, 8) as u32
+                });
                 norms[i] = zz(nc as u8, pred as u8, 8);
                 norms[m + i] = zz((nc >> 8) as u8, (pred >> 8) as u8, 8);
                 cones[i] = cone;
@@ -302,6 +383,83 @@ mod tests {
         assert_eq!(zz(2, 3, 5), 1);
         assert_eq!(zz(4, 3, 5), 2);
         assert_eq!(unzz(32, 0, 5), None);
+    }
+
+    #[test]
+    fn area_codes_coarse_for_balanced_pairs_fine_for_slivers() {
+        for i in 0..=20_000u32 {
+            let a = i as f32 / 20_000.0;
+            let b = 1.0 - a;
+            let c = area_code(a, b);
+            let x = a as f64 / (a as f64 + b as f64) * 4096.0;
+            let s = x.min(4096.0 - x);
+            let err = (c as f64 - x).abs();
+            assert!(err <= 4.0 + 1e-9, "{a}: code {c} for {x}");
+            assert!(err <= (s / 32.0).max(0.5) + 1e-9, "{a}: code {c} for {x}");
+            if s >= 128.0 {
+                assert_eq!(c % 8, 0, "{a}: balanced pair must use the 8-code grid");
+            }
+            if s < 16.0 {
+                assert!(err <= 0.5 + 1e-9, "{a}: sliver keeps full resolution");
+            }
+        }
+        assert_eq!(area_code(0.0, 0.0), AREA_ONE / 2);
+        assert_eq!(area_code(1.0, 0.0), AREA_ONE);
+        assert_eq!(area_code(0.0, 1.0), 0);
+    }
+
+    #[test]
+    fn tie_choice_follows_the_block_histogram() {
+        let mut h = StateHistogram::default();
+        for _ in 0..10 {
+            h.add(0x0102);
+        }
+        h.add(0x0304);
+        let t = super::posrad::Ties { len: 3, states: [0x0304, 0x0505, 0x0102, 0, 0, 0, 0, 0] };
+        assert_eq!(pick_state(&t, &h), 0x0102);
+        // Equal weights keep the reference choice.
+        let t = super::posrad::Ties { len: 2, states: [0x0606, 0x0707, 0, 0, 0, 0, 0, 0] };
+        assert_eq!(pick_state(&t, &h), 0x0606);
+    }
+
+    /// Many similar pairs: the encoder's freedoms must leave mostly zero normal residuals and
+    /// 8-code area steps (a regression guard for the size of the default profile).
+    #[test]
+    fn encoder_choices_shrink_the_streams() {
+        let mut parents = Vec::new();
+        let mut kids = Vec::new();
+        for i in 0..2000 {
+            let t = i as f32 * 0.37;
+            let p = Node { center: [t, 0.0, 0.0], radius: 1.0, normal: [0.0, 0.0, 1.0], cone: 0.3, area: 2.0, color: [100; 4] };
+            let (s, c) = (0.1 * (t * 1.3).sin(), 0.1 * (t * 0.7).cos());
+            let n = [s, c, 1.0];
+            let off = 0.4 + 0.05 * (t * 2.1).sin();
+            let a = Node { center: [t + off, 0.0, 0.0], radius: 0.58, normal: n, cone: 0.0, area: 1.0 + 0.1 * s, color: [100; 4] };
+            // Nearly the mirror of A's normal (0.2° off): the prediction is within reach.
+            let b = Node { center: [t - off, 0.0, 0.0], radius: 0.58, normal: [-s + 0.0035, -c, 1.0], cone: 0.0, area: 1.0 - 0.1 * s, color: [100; 4] };
+            parents.push(Node { color: [100, 100, 100, 255], ..p });
+            kids.extend([Node { color: [100, 100, 100, 255], ..a }, Node { color: [100, 100, 100, 255], ..b }]);
+        }
+        let mut out = Vec::new();
+        let dec = encode(CodecParams::default(), &parents, &kids, &mut out).unwrap();
+        let m = kids.len();
+        let n = parents.len();
+        // B's normal is the reflection of A's: a code within 0.64° equal to the prediction
+        // exists for most, and must be taken.
+        let zero_b = (0..n).filter(|k| out[2 * m + 2 * k + 1] == 0 && out[3 * m + 2 * k + 1] == 0).count();
+        assert!(zero_b * 10 >= n * 7, "{zero_b} of {n} B normals predicted exactly");
+        // The precise (closest) codes would match the prediction far less often.
+        let precise = (0..n).filter(|&k| normal::oct_encode(kids[2 * k + 1].normal) == pred_normal_b(&parents[k], dec[2 * k].normal)).count();
+        assert!(precise * 10 < zero_b * 7, "precise codes match {precise} times, chosen {zero_b}");
+        // Balanced pairs: area codes on the 8-code grid.
+        assert!(out[8 * m..8 * m + n].iter().all(|&c| c % 8 == 0));
+        for (c, d) in kids.iter().zip(&dec) {
+            let e = normal::angle(c.normal, d.normal).to_degrees();
+            assert!(e <= normal::MAX_NORMAL_ERROR_DEG, "{e}");
+        }
+        let mut again = Vec::new();
+        decode(CodecParams::default(), &parents, &out, 0, &mut again).unwrap();
+        assert_eq!(again, dec);
     }
 
     #[test]

@@ -180,6 +180,57 @@ pub fn encode_cone_decoded(axis: [f32; 3], cone: f32) -> (u16, [f32; 3], u8) {
     (code, dec, cone_encode_up(cone.max(0.0) as f64 + err))
 }
 
+/// `cos²` of [`MAX_NORMAL_ERROR_DEG`] (0.64°), written out so that no libm call decides a code.
+const COS2_MAX_ERROR: f64 = 0.999875233894061;
+
+/// Like [`encode_cone_decoded`], but among the codes near the projection (a 4×4 block) whose
+/// decoded axis lies within [`MAX_NORMAL_ERROR_DEG`] of `axis`, picks the one of smallest
+/// `cost` (the residual against a prediction), then the closest; the precise code of
+/// [`oct_encode`] is the starting point, so it is kept unless another is strictly better.
+/// The cone code still rounds up over the actual axis error, so the decoded cone contains
+/// the original cone.
+pub fn encode_cone_toward(axis: [f32; 3], cone: f32, cost: impl Fn(u16) -> u32) -> (u16, [f32; 3], u8) {
+    if !usable(axis) {
+        return encode_cone_decoded(axis, cone);
+    }
+    let (c0, _) = oct_encode_decoded(axis);
+    let p = oct_project(axis);
+    let (fu, fv) = (super::rounding::floor_f32(p[0]), super::rounding::floor_f32(p[1]));
+    let m = [axis[0] as f64, axis[1] as f64, axis[2] as f64];
+    let n2 = m[0] * m[0] + m[1] * m[1] + m[2] * m[2];
+    // cos of the angle to the candidate's surface point w: (m·w) / (|m| |w|).
+    let cos = |code: u16| {
+        let w = oct_unnormalized(code);
+        let d = m[0] * w[0] as f64 + m[1] * w[1] as f64 + m[2] * w[2] as f64;
+        let l2 = (w[0] as f64).powi(2) + (w[1] as f64).powi(2) + (w[2] as f64).powi(2);
+        (d, l2)
+    };
+    let (d0, l0) = cos(c0);
+    let mut best = (cost(c0), d0 / (n2 * l0).sqrt(), c0);
+    for du in -1..=2 {
+        for dv in -1..=2 {
+            let u = (fu + du as f32).clamp(0.0, 255.0) as u16;
+            let v = (fv + dv as f32).clamp(0.0, 255.0) as u16;
+            let code = u | v << 8;
+            let k = cost(code);
+            if k > best.0 || code == best.2 {
+                continue;
+            }
+            let (d, l2) = cos(code);
+            if d <= 0.0 || d * d < COS2_MAX_ERROR * n2 * l2 {
+                continue;
+            }
+            let c = d / (n2 * l2).sqrt();
+            if k < best.0 || c > best.1 {
+                best = (k, c, code);
+            }
+        }
+    }
+    let dec = oct_decode(best.2);
+    let err = angle(axis, dec);
+    (best.2, dec, cone_encode_up(cone.max(0.0) as f64 + err))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

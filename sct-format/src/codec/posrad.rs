@@ -196,14 +196,86 @@ fn fit(t: &Tables, g: [i32; 3], pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) ->
 /// child. The caller checks finiteness and `pr > 0`. `None` when no legal state contains it
 /// (the child lies too far outside the parent).
 pub fn encode_sphere(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Option<u16> {
+    search(pc, pr, cc, cr, false).map(|t| t.states[0])
+}
+
+/// Most equally tight states [`encode_sphere_ties`] reports.
+pub const MAX_TIES: usize = 8;
+
+/// The states that contain a child with the smallest decoded radius the reference encoder
+/// finds: `states[0]` is [`encode_sphere`]'s choice, the others (grid neighbours of it with
+/// the same radius code that also contain the child) follow in a fixed order.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Ties {
+    /// Number of valid entries of `states` (≥ 1).
+    pub len: u8,
+    /// The states.
+    pub states: [u16; MAX_TIES],
+}
+
+impl Ties {
+    fn one(s: u16) -> Ties {
+        let mut states = [0; MAX_TIES];
+        states[0] = s;
+        Ties { len: 1, states }
+    }
+
+    /// The valid states.
+    pub fn as_slice(&self) -> &[u16] {
+        &self.states[..self.len as usize]
+    }
+}
+
+/// [`encode_sphere`]'s state and, when it came from the nearest grid point, every other state
+/// of the same radius code at a neighbouring grid point (±1 per axis) that also contains the
+/// child (evaluated exactly as [`fit`] does). Any of them is equally tight (same decoded
+/// radius); they differ only in centre error, which stays below the decoded radius minus the
+/// child's. Only neighbours can qualify: the same radius code allows a centre error of at
+/// most the nearest point's error (≤ √3/2 grid steps) plus one radius step (6/13 grid steps),
+/// < 1.5 grid steps, and every grid point two steps away on some axis is farther than that.
+pub fn encode_sphere_ties(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Option<Ties> {
+    search(pc, pr, cc, cr, true)
+}
+
+fn search(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: bool) -> Option<Ties> {
     let t = tables();
     let v = |i: usize| (cc[i] as f64 - pc[i] as f64) / pr as f64 * QP as f64;
-    let g0 = [v(0), v(1), v(2)].map(super::rounding::round_f64);
+    let vg = [v(0), v(1), v(2)];
+    let g0 = vg.map(super::rounding::round_f64);
     // Fast path: the nearest grid point overall minimises the error, hence the radius.
     if g0.iter().all(|a| a.abs() <= QP as f64) {
         let g = [g0[0] as i32, g0[1] as i32, g0[2] as i32];
-        if let Some((s, _, _)) = fit(t, g, pc, pr, cc, cr) {
-            return Some(s);
+        if let Some((s, q, _)) = fit(t, g, pc, pr, cc, cr) {
+            let mut ties = Ties::one(s);
+            if !want_ties {
+                return Some(ties);
+            }
+            let r = pr * t.radius[s as usize];
+            // Room left for the centre error, in grid steps, with a generous margin for the f32
+            // rounding of decoded centres: the exact test below decides.
+            let room = (r as f64 - cr as f64) / pr as f64 * QP as f64 * 1.01 + 0.01;
+            let room2 = room * room;
+            for di in -1..=1 {
+                for dj in -1..=1 {
+                    for dk in -1..=1 {
+                        if (di, dj, dk) == (0, 0, 0) {
+                            continue;
+                        }
+                        let g2 = [g[0] + di, g[1] + dj, g[2] + dk];
+                        let e = |a: usize| g2[a] as f64 - vg[a];
+                        if e(0) * e(0) + e(1) * e(1) + e(2) * e(2) > room2 {
+                            continue;
+                        }
+                        let Some(s2) = t.index(g2, q) else { continue };
+                        let Some((dc, dr)) = decode_state(t, s2 as usize, pc, pr) else { continue };
+                        if dist64(dc, cc) + cr as f64 <= dr as f64 && (ties.len as usize) < MAX_TIES {
+                            ties.states[ties.len as usize] = s2;
+                            ties.len += 1;
+                        }
+                    }
+                }
+            }
+            return Some(ties);
         }
     }
     // Near or outside the boundary: exhaustive search over the 925 grid points.
@@ -216,7 +288,7 @@ pub fn encode_sphere(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Option<u16
             }
         }
     }
-    best.map(|b| b.0)
+    best.map(|b| Ties::one(b.0))
 }
 
 #[cfg(test)]
@@ -279,6 +351,37 @@ mod tests {
         let (dc, dr) = decode_state(tables(), s as usize, [1.0, 2.0, 3.0], 0.5).unwrap();
         assert!(contains(dc, dr, [1.0, 2.0, 3.0], 0.5));
         assert!(tables().state[s as usize].1 <= 14);
+    }
+
+    /// Every tie contains the child with the same radius code as the reference choice, the
+    /// reference choice comes first, and ties do occur.
+    #[test]
+    fn ties_are_equally_tight_and_contain_the_child() {
+        let t = tables();
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        let mut rnd = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (pc, pr) = ([0.3f32, -1.2, 2.0], 0.75f32);
+        let mut with_ties = 0;
+        for _ in 0..20_000 {
+            let cr = (pr as f64 * (0.2 + 0.6 * rnd())) as f32;
+            let reach = (pr - cr) as f64;
+            let cc = [0, 1, 2].map(|i| (pc[i] as f64 + reach * (2.0 * rnd() - 1.0) * 0.57) as f32);
+            let Some(ties) = encode_sphere_ties(pc, pr, cc, cr) else { continue };
+            assert_eq!(Some(ties.states[0]), encode_sphere(pc, pr, cc, cr));
+            let q0 = t.state[ties.states[0] as usize].1;
+            for &s in ties.as_slice() {
+                assert_eq!(t.state[s as usize].1, q0);
+                let (dc, dr) = decode_state(t, s as usize, pc, pr).unwrap();
+                assert!(contains(dc, dr, cc, cr));
+            }
+            with_ties += (ties.len > 1) as u32;
+        }
+        assert!(with_ties > 1000, "{with_ties}");
     }
 
     #[test]
