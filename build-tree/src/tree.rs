@@ -15,9 +15,10 @@
 //!   `m` items `[lo, hi)` whose root is slot `s` owns slots `[s, s + 2m - 1)`; its left
 //!   child over `[lo, mid)` is slot `s + 1` and its right child slot `s + 2(mid - lo)`. The
 //!   root slot stores `mid` for an internal node and `hi` for a leaf (possibly welded), so
-//!   disjoint subtrees write disjoint slices and rayon needs no synchronisation. The
-//!   breadth-first walk over the slots keeps only each leaf's range start (4 bytes a leaf,
-//!   plus a bit per item marking starts), so the slots are freed before the leaves exist;
+//!   disjoint subtrees write disjoint slices and rayon needs no synchronisation. A
+//!   depth-first walk over the slots keeps only each leaf's breadth-first index in item
+//!   order (4 bytes a leaf, plus a bit per item marking range starts), so the slots are
+//!   freed before the leaves exist;
 //! - the output nodes in breadth-first order, whose internal nodes are filled level by
 //!   level from the bottom.
 //!
@@ -171,6 +172,26 @@ pub(crate) fn build_tree_with_map_owned(
     build_tree_impl(samples, opts, true)
 }
 
+/// Marks a leaf's root slot once the layout has replaced its `hi` by the leaf's
+/// breadth-first index (both are below 2^31, see the size check).
+const LEAF: u32 = 1 << 31;
+
+/// Positions of the set bits of a word, lowest first.
+struct BitIter(u64);
+
+impl Iterator for BitIter {
+    type Item = usize;
+    #[inline]
+    fn next(&mut self) -> Option<usize> {
+        if self.0 == 0 {
+            return None;
+        }
+        let b = self.0.trailing_zeros() as usize;
+        self.0 &= self.0 - 1;
+        Some(b)
+    }
+}
+
 fn build_tree_impl(
     samples: Vec<Node>,
     opts: &BuildOptions,
@@ -180,7 +201,8 @@ fn build_tree_impl(
     if n == 0 {
         return Err(BuildError::Input("no samples to build a tree from".into()));
     }
-    // Slots and item indices are u32; SceneTree allows fewer than 2^32 - 1 nodes.
+    // Slots and item indices are u32 with the top bit free (LEAF); SceneTree allows fewer
+    // than 2^32 - 1 nodes.
     if n > (u32::MAX / 2) as usize {
         return Err(BuildError::Input(format!("{n} samples exceed the 2^31 - 1 a tree can hold")));
     }
@@ -214,22 +236,20 @@ fn build_tree_impl(
     let src: Vec<u32> = items.par_iter().map(|it| it.idx).collect();
     drop(items);
 
-    // 2a: breadth-first walk: internal flags, and for every leaf (in breadth-first leaf
-    // order) the start of its item range. Ranges tile the items, so a bit per item marking
-    // the starts gives every range's end; the slots are not needed after this walk.
+    // 2a: breadth-first walk: internal flags; every leaf's root slot becomes `LEAF | j`, `j`
+    // its breadth-first leaf index.
     let mut internal: Vec<bool> = Vec::new();
-    let mut leaf_lo: Vec<u32> = Vec::new();
-    let mut starts = vec![0u64; n.div_ceil(64)];
     // (lo, hi, slot) of every node of the current and the next level.
     let mut level: Vec<(u32, u32, u32)> = vec![(0, n as u32, 0)];
     let mut next: Vec<(u32, u32, u32)> = Vec::new();
     let mut depth = 0u32;
+    let mut leaves = 0u32;
     loop {
         for &(lo, hi, slot) in &level {
             let v = slots[slot as usize];
             if v == hi {
-                leaf_lo.push(lo);
-                starts[lo as usize / 64] |= 1 << (lo % 64);
+                slots[slot as usize] = LEAF | leaves;
+                leaves += 1;
                 internal.push(false);
             } else {
                 internal.push(true);
@@ -246,68 +266,79 @@ fn build_tree_impl(
     }
     drop(level);
     drop(next);
-    drop(slots);
-    let leaves = leaf_lo.len();
     let total = internal.len();
-    if total != 2 * leaves - 1 {
+    if total != 2 * leaves as usize - 1 {
         return Err(BuildError::Internal(format!("layout gave {total} nodes for {leaves} leaves")));
     }
-    // End of the item range starting at `lo`: the next start, or `n`.
-    let range_end = |lo: u32| -> usize {
-        let lo = lo as usize;
-        let (mut w, b) = (lo / 64, lo % 64);
-        let mut word = starts[w] & (!1u64).checked_shl(b as u32).unwrap_or(0);
-        while word == 0 {
-            w += 1;
-            match starts.get(w) {
-                Some(&x) => word = x,
-                None => return n,
-            }
-        }
-        (w * 64 + word.trailing_zeros() as usize).min(n)
-    };
 
-    // 2b: every leaf welded straight into its breadth-first leaf place, in parallel (each
-    // leaf depends only on its own members, read through `src`). Only the leaves are
-    // touched now; the vector's capacity is the whole tree's, so growing it once the
-    // samples are freed neither copies nor overlaps them. Peak here: samples 40 + leaves 40
-    // + src 4 + leaf starts 4 + flags 2 bytes per sample.
+    // 2b: depth-first walk over the slots: the breadth-first index of every leaf in item
+    // order, and a bit per item marking where each leaf's range starts (ranges tile the
+    // items). That is all the welding needs, so the slots are freed before the leaves exist.
+    let mut bfs_of_dfs: Vec<u32> = Vec::with_capacity(leaves as usize);
+    let mut starts = vec![0u64; n.div_ceil(64)];
+    let mut stack: Vec<(u32, u32, u32)> = vec![(0, n as u32, 0)];
+    while let Some((lo, hi, slot)) = stack.pop() {
+        let v = slots[slot as usize];
+        if v & LEAF != 0 {
+            bfs_of_dfs.push(v & !LEAF);
+            starts[lo as usize / 64] |= 1 << (lo % 64);
+        } else {
+            stack.push((v, hi, slot + 2 * (v - lo)));
+            stack.push((lo, v, slot + 1));
+        }
+    }
+    drop(stack);
+    drop(slots);
+
+    // 2c: every leaf welded straight into its breadth-first leaf place, in item order (the
+    // members are read through `src` sequentially). Only the leaves are touched now; the
+    // vector's capacity is the whole tree's, so growing it once the samples are freed
+    // neither copies nor overlaps them. Peak here: samples 40 + leaves 40 + src 4 + leaf
+    // order 4 + flags 2 bytes per sample.
     let mut nodes: Vec<Node> = Vec::with_capacity(total);
-    nodes.resize(leaves, Node::default());
-    nodes.par_iter_mut().zip(leaf_lo.par_iter()).with_min_len(1024).for_each_init(Vec::new, |members, (node, &lo)| {
-        let ids = &src[lo as usize..range_end(lo)];
+    nodes.resize(leaves as usize, Node::default());
+    // Breadth-first node index of every leaf, for the map.
+    let node_of_leaf: Vec<u32> = if want_map {
+        internal.iter().enumerate().filter(|(_, &f)| !f).map(|(i, _)| i as u32).collect()
+    } else {
+        Vec::new()
+    };
+    let mut map = if want_map { vec![u32::MAX; n] } else { Vec::new() };
+    let mut members: Vec<Node> = Vec::new();
+    // Range starts in item order: set bits of `starts`, then `n`.
+    let mut bounds = starts
+        .iter()
+        .enumerate()
+        .flat_map(|(w, &word)| BitIter(word).map(move |b| w * 64 + b))
+        .chain(std::iter::once(n))
+        .peekable();
+    for &j in &bfs_of_dfs {
+        let (Some(lo), Some(&hi)) = (bounds.next(), bounds.peek()) else {
+            return Err(BuildError::Internal("leaf ranges do not match the leaves".into()));
+        };
+        let ids = &src[lo..hi];
+        let node = &mut nodes[j as usize];
         if let [one] = ids {
             *node = samples[*one as usize];
         } else {
             members.clear();
             members.extend(ids.iter().map(|&i| samples[i as usize]));
-            *node = weld(members);
+            *node = weld(&members);
         }
-    });
-    let map = if want_map {
-        // Breadth-first node index of every leaf, then of every sample.
-        let mut map = vec![u32::MAX; n];
-        let mut j = 0usize;
-        for (pos, &f) in internal.iter().enumerate() {
-            if !f {
-                let lo = leaf_lo[j];
-                for &i in &src[lo as usize..range_end(lo)] {
-                    map[i as usize] = pos as u32;
-                }
-                j += 1;
+        if want_map {
+            for &i in ids {
+                map[i as usize] = node_of_leaf[j as usize];
             }
         }
-        map
-    } else {
-        Vec::new()
-    };
-    drop(leaf_lo);
+    }
+    drop(members);
+    drop(node_of_leaf);
+    drop(bfs_of_dfs);
     drop(starts);
     drop(src);
     drop(samples);
-    let leaves = leaves as u32;
 
-    // 2c: grow to the whole tree and move every leaf back to its node index: leaf `j` lands
+    // 2d: grow to the whole tree and move every leaf back to its node index: leaf `j` lands
     // at index >= j, so walking from the end moves each leaf before its old place is
     // overwritten.
     nodes.resize(total, Node::default());
