@@ -320,46 +320,60 @@ fn key(z: f32, index: u32) -> Cand {
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn draw_batch(q: &[Splat; BATCH], base: u32, cand: &mut [Cand], touched: &mut [bool], w: usize, h: usize, rows: (&mut i32, &mut i32)) {
-    // Per splat: the four centres' masks (all ones or zero), whether the fast path draws
-    // it, and the high half of its candidate.
+    // Per splat: the candidates offered to its four centres (zero where it misses one)
+    // and whether the fast path draws it.
     let mut m = [[0u32; BATCH]; 4];
-    let mut ok = [0u32; BATCH];
     let mut nk = [0u32; BATCH];
+    let mut ok = [0u32; BATCH];
     let (wl, hl) = (w as u32 - 1, h as u32 - 1);
     let (mut lo, mut hi) = (*rows.0, *rows.1);
+    let mut all = 1;
     for k in 0..BATCH {
-        let (x0, y0, ex, ey) = ((q[k].bounds[0] as i32), (q[k].bounds[2] as i32), (q[k].bounds[1] as i32) - (q[k].bounds[0] as i32), (q[k].bounds[3] as i32) - (q[k].bounds[2] as i32));
-        let fx = x0 as f32 + 0.5 - q[k].x;
+        let s = &q[k];
+        let (x0, y0) = (s.bounds[0] as i32, s.bounds[2] as i32);
+        let (ex, ey) = (s.bounds[1] as i32 - x0, s.bounds[3] as i32 - y0);
+        let fx = x0 as f32 + 0.5 - s.x;
         let fx1 = fx + 1.0;
-        let fy = y0 as f32 + 0.5 - q[k].y;
-        let fy1 = (y0 + 1) as f32 + 0.5 - q[k].y;
-        let (ux, uy, ia, ib) = (q[k].ux, q[k].uy, q[k].inv_a2, q[k].inv_b2);
+        let fy = y0 as f32 + 0.5 - s.y;
+        let fy1 = (y0 + 1) as f32 + 0.5 - s.y;
+        let (ux, uy, ia, ib) = (s.ux, s.uy, s.inv_a2, s.inv_b2);
         let hit = |dx: f32, dy: f32| {
             let (a, b) = (dx * ux + dy * uy, dy * ux - dx * uy);
             0u32.wrapping_sub((a * a * ia + b * b * ib <= 1.0) as u32)
         };
         // Centres (0,0), (1,0), (0,1), (1,1) inside the box; none for an empty box.
         let (c0, c1, r0, r1) = (!(ex >> 31) as u32, !((ex - 1) >> 31) as u32, !(ey >> 31) as u32, !((ey - 1) >> 31) as u32);
+        nk[k] = !depth_key(s.z);
         m[0][k] = hit(fx, fy) & c0 & r0;
         m[1][k] = hit(fx1, fy) & c1 & r0;
         m[2][k] = hit(fx, fy1) & c0 & r1;
         m[3][k] = hit(fx1, fy1) & c1 & r1;
         // A negative coordinate fails the unsigned comparison. NaN and +inf depths never
         // pass a depth test; `draw_any` drops them.
-        ok[k] = ((ex <= 1) & (ey <= 1) & ((x0 as u32) < wl) & ((y0 as u32) < hl) & ((q[k].color[3] as i32) == 255) & (q[k].z < f32::INFINITY)) as u32;
-        nk[k] = !depth_key(q[k].z);
+        ok[k] = ((ex <= 1) & (ey <= 1) & ((x0 as u32) < wl) & ((y0 as u32) < hl) & (s.color[3] == 255) & (s.z < f32::INFINITY)) as u32;
+        all &= ok[k];
         lo = lo.min(y0);
         hi = hi.max(y0);
     }
     (*rows.0, *rows.1) = (lo, hi);
-    for k in 0..BATCH {
-        let index = base + k as u32;
-        if ok[k] != 0 {
-            let key = ((nk[k] as u64) << 32) | !index as u64;
-            let pick = |m: u32| key & (m as i32 as i64 as u64);
-            put_quad(cand, (q[k].bounds[2] as i32) as usize * w + (q[k].bounds[0] as i32) as usize, w, [pick(m[0][k]), pick(m[1][k]), pick(m[2][k]), pick(m[3][k])]);
-        } else {
-            draw_any(&q[k], index, cand, touched, w, h);
+    let at = |s: &Splat| s.bounds[2] as i32 as usize * w + s.bounds[0] as i32 as usize;
+    let cands = |k: usize| {
+        let key = ((nk[k] as u64) << 32) | !(base + k as u32) as u64;
+        let pick = |m: u32| key & (m as i32 as i64 as u64);
+        [pick(m[0][k]), pick(m[1][k]), pick(m[2][k]), pick(m[3][k])]
+    };
+    if all != 0 {
+        // The usual case, without a branch per splat.
+        for k in 0..BATCH {
+            put_quad(cand, at(&q[k]), w, cands(k));
+        }
+    } else {
+        for k in 0..BATCH {
+            if ok[k] != 0 {
+                put_quad(cand, at(&q[k]), w, cands(k));
+            } else {
+                draw_any(&q[k], base + k as u32, cand, touched, w, h);
+            }
         }
     }
 }
