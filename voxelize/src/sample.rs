@@ -739,43 +739,67 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
         items: Vec<(u64, u64)>,
         tmp: Vec<(u64, u64)>,
     }
-    let parts: Vec<(Vec<Node>, u64, u64)> = lists
-        .par_iter()
-        .zip(slab_x.par_iter())
-        .map_init(
-            || Bufs { recs: Vec::new(), items: Vec::new(), tmp: Vec::new() },
-            |bufs, (list, &(x0, x1))| {
-                bufs.recs.clear();
-                let mut dropped = 0u64;
-                for &gi in list {
-                    let (pi, ti) = tris[gi as usize];
-                    let p = &pp[pi as usize];
-                    let t = p.tri(ti as usize);
-                    let mat = p.mat.view();
-                    dropped += match (opts.method, opts.area) {
-                        (Method::Voxel, AreaMode::Exact) => voxel_triangle(&t, &mat, AreaMode::Exact, kp, (x0, x1), ALL_X, &mut bufs.recs),
-                        // Per-triangle areas (EQ 17, scan-line) need the whole triangle's sample
-                        // count: walk it whole, but shade and keep only this slab's voxels
-                        // (each voxel, hence each alpha drop, belongs to one slab).
-                        (Method::Scanline, _) => scanline_triangle(&t, &mat, kp, (x0, x1), &mut bufs.recs),
-                        _ => voxel_triangle(&t, &mat, opts.area, kp, ALL_X, (x0, x1), &mut bufs.recs),
-                    };
-                }
-                // Progress counts a triangle once, in its first slab.
-                progress(list.iter().filter(|&&gi| xr[gi as usize].0 >= x0).count() as u64);
-                let before = bufs.recs.len() as u64;
-                bufs.items.clear();
-                bufs.items.extend(bufs.recs.iter().enumerate().map(|(i, r)| (r.key, i as u64)));
-                radix_sort_low(&mut bufs.items, &mut bufs.tmp, kp.total_bits());
-                (merge_sorted(&bufs.items, &bufs.recs, kp, radius, h, h2, opts.merge), before, dropped)
-            },
-        )
-        .collect();
-    let before = parts.iter().map(|p| p.1).sum();
-    let dropped = parts.iter().map(|p| p.2).sum();
-    let mut nodes = Vec::with_capacity(parts.iter().map(|p| p.0.len()).sum());
-    for (p, _, _) in parts {
-        nodes.extend(p);
+    // Slab buffers outlive rayon's jobs in a pool, so batches reuse them.
+    let pool: std::sync::Mutex<Vec<Bufs>> = std::sync::Mutex::new(Vec::new());
+    struct Pooled<'p> {
+        bufs: Bufs,
+        pool: &'p std::sync::Mutex<Vec<Bufs>>,
+    }
+    impl Drop for Pooled<'_> {
+        fn drop(&mut self) {
+            let b = std::mem::replace(&mut self.bufs, Bufs { recs: Vec::new(), items: Vec::new(), tmp: Vec::new() });
+            if let Ok(mut p) = self.pool.lock() {
+                p.push(b);
+            }
+        }
+    }
+    // Slabs run in about 8 batches, each batch's output appended in slab order as it ends:
+    // the per-slab outputs of only one batch coexist with the result (not all of them).
+    let batch = slab_x.len().div_ceil(8).max(8 * rayon::current_num_threads());
+    let (mut nodes, mut before, mut dropped) = (Vec::new(), 0u64, 0u64);
+    for (lists, slab_x) in lists.chunks(batch).zip(slab_x.chunks(batch)) {
+        let parts: Vec<(Vec<Node>, u64, u64)> = lists
+            .par_iter()
+            .zip(slab_x.par_iter())
+            .map_init(
+                || Pooled {
+                    bufs: pool.lock().ok().and_then(|mut p| p.pop()).unwrap_or_else(|| Bufs { recs: Vec::new(), items: Vec::new(), tmp: Vec::new() }),
+                    pool: &pool,
+                },
+                |pooled, (list, &(x0, x1))| {
+                    let bufs = &mut pooled.bufs;
+                    bufs.recs.clear();
+                    let mut dropped = 0u64;
+                    for &gi in list {
+                        let (pi, ti) = tris[gi as usize];
+                        let p = &pp[pi as usize];
+                        let t = p.tri(ti as usize);
+                        let mat = p.mat.view();
+                        dropped += match (opts.method, opts.area) {
+                            (Method::Voxel, AreaMode::Exact) => voxel_triangle(&t, &mat, AreaMode::Exact, kp, (x0, x1), ALL_X, &mut bufs.recs),
+                            // Per-triangle areas (EQ 17, scan-line) need the whole triangle's sample
+                            // count: walk it whole, but shade and keep only this slab's voxels
+                            // (each voxel, hence each alpha drop, belongs to one slab).
+                            (Method::Scanline, _) => scanline_triangle(&t, &mat, kp, (x0, x1), &mut bufs.recs),
+                            _ => voxel_triangle(&t, &mat, opts.area, kp, ALL_X, (x0, x1), &mut bufs.recs),
+                        };
+                    }
+                    // Progress counts a triangle once, in its first slab.
+                    progress(list.iter().filter(|&&gi| xr[gi as usize].0 >= x0).count() as u64);
+                    let before = bufs.recs.len() as u64;
+                    bufs.items.clear();
+                    bufs.items.extend(bufs.recs.iter().enumerate().map(|(i, r)| (r.key, i as u64)));
+                    radix_sort_low(&mut bufs.items, &mut bufs.tmp, kp.total_bits());
+                    (merge_sorted(&bufs.items, &bufs.recs, kp, radius, h, h2, opts.merge), before, dropped)
+                },
+            )
+            .collect();
+        nodes.reserve(parts.iter().map(|p| p.0.len()).sum());
+        for (p, b, d) in parts {
+            nodes.extend(p);
+            before += b;
+            dropped += d;
+        }
     }
     (nodes, before, dropped)
 }
