@@ -284,9 +284,7 @@ pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mu
                     None => (pred_normal_a(p), quant4(p.color)),
                     Some(da) => (pred_normal_b(p, da.normal), quant4(pred_color_b(p, area_a, area_b, da.color, ch))),
                 };
-                let (nc, axis, cone) = normal::encode_cone_toward(c.normal, c.cone, |code| {
-                    zz(code as u8, pred as u8, 8) as u32 + zz((code >> 8) as u8, (pred >> 8) as u8, 8) as u32
-                });
+                let (nc, axis, cone) = normal::encode_cone_toward(c.normal, c.cone, pred, |a, b| zz(a, b, 8) as u32);
                 norms[i] = zz(nc as u8, pred as u8, 8);
                 norms[m + i] = zz((nc >> 8) as u8, (pred >> 8) as u8, 8);
                 cones[i] = cone;

@@ -104,22 +104,35 @@ pub fn oct_encode(n: [f32; 3]) -> u16 {
 pub fn oct_encode_decoded(n: [f32; 3]) -> (u16, [f32; 3]) {
     let p = oct_project(n);
     let (fu, fv) = (super::rounding::floor_f32(p[0]), super::rounding::floor_f32(p[1]));
-    // Rank by cos² = (n·w)² / |w|² (the |n|² factor is common) on the unnormalised surface
-    // points w, cross-multiplied: no square root or division per candidate. Valid while every
-    // n·w > 0, which holds for these neighbouring codes; otherwise fall back to cosines.
     let m = [n[0] as f64, n[1] as f64, n[2] as f64];
     let mut cand = [(0u16, 0f64, 0f64); 4];
-    let mut all_positive = true;
     for (k, c) in cand.iter_mut().enumerate() {
         let u = (fu + (k >> 1) as f32).clamp(0.0, 255.0) as u16;
         let v = (fv + (k & 1) as f32).clamp(0.0, 255.0) as u16;
         let code = u | v << 8;
-        let w = oct_unnormalized(code);
-        let d = m[0] * w[0] as f64 + m[1] * w[1] as f64 + m[2] * w[2] as f64;
-        let l2 = (w[0] as f64).powi(2) + (w[1] as f64).powi(2) + (w[2] as f64).powi(2);
-        all_positive &= d > 0.0;
+        let (d, l2) = dot_len2(m, oct_unnormalized(code));
         *c = (code, d, l2);
     }
+    let code = cand[pick_precise(&cand)].0;
+    (code, oct_decode(code))
+}
+
+/// `m·w` and `|w|²` in f64 (`w` an unnormalised surface point).
+#[inline]
+fn dot_len2(m: [f64; 3], w: [f32; 3]) -> (f64, f64) {
+    let d = m[0] * w[0] as f64 + m[1] * w[1] as f64 + m[2] * w[2] as f64;
+    let l2 = (w[0] as f64).powi(2) + (w[1] as f64).powi(2) + (w[2] as f64).powi(2);
+    (d, l2)
+}
+
+/// Of four candidates `(code, m·w, |w|²)`, the index of the one closest in angle to `m`.
+///
+/// Rank by cos² = (m·w)² / |w|² (the |m|² factor is common), cross-multiplied: no square root
+/// or division per candidate. Valid while every m·w > 0, which holds for these neighbouring
+/// codes; otherwise fall back to cosines. The first wins a tie.
+#[inline]
+fn pick_precise(cand: &[(u16, f64, f64); 4]) -> usize {
+    let all_positive = cand.iter().all(|c| c.1 > 0.0);
     let mut best = 0;
     for k in 1..4 {
         let (b, c) = (cand[best], cand[k]);
@@ -128,8 +141,7 @@ pub fn oct_encode_decoded(n: [f32; 3]) -> (u16, [f32; 3]) {
             best = k;
         }
     }
-    let code = cand[best].0;
-    (code, oct_decode(code))
+    best
 }
 
 /// Decoded cone semi-angle of `code`.
@@ -185,50 +197,76 @@ const COS2_MAX_ERROR: f64 = 0.999875233894061;
 
 /// Like [`encode_cone_decoded`], but among the codes near the projection (a 4×4 block) whose
 /// decoded axis lies within [`MAX_NORMAL_ERROR_DEG`] of `axis`, picks the one of smallest
-/// `cost` (the residual against a prediction), then the closest; the precise code of
-/// [`oct_encode`] is the starting point, so it is kept unless another is strictly better.
-/// The cone code still rounds up over the actual axis error, so the decoded cone contains
-/// the original cone.
-pub fn encode_cone_toward(axis: [f32; 3], cone: f32, cost: impl Fn(u16) -> u32) -> (u16, [f32; 3], u8) {
+/// cost `zz(u, û) + zz(v, v̂)` (the residual against the prediction `pred = û | v̂ << 8`), then
+/// the closest; the precise code of [`oct_encode`] is the starting point, so it is kept unless
+/// another is strictly better. The cone code still rounds up over the actual axis error, so the
+/// decoded cone contains the original cone.
+///
+/// Costs, `u` and `v` surface coordinates are worked out once per row and column of the block
+/// (the same f32 operations as [`oct_unnormalized`], so the same values); a candidate costing
+/// more than the best so far is skipped before any floating point.
+pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, u8) -> u32) -> (u16, [f32; 3], u8) {
     if !usable(axis) {
         return encode_cone_decoded(axis, cone);
     }
-    let (c0, _) = oct_encode_decoded(axis);
     let p = oct_project(axis);
     let (fu, fv) = (super::rounding::floor_f32(p[0]), super::rounding::floor_f32(p[1]));
-    let m = [axis[0] as f64, axis[1] as f64, axis[2] as f64];
-    let n2 = m[0] * m[0] + m[1] * m[1] + m[2] * m[2];
-    // cos of the angle to the candidate's surface point w: (m·w) / (|m| |w|).
-    let cos = |code: u16| {
-        let w = oct_unnormalized(code);
-        let d = m[0] * w[0] as f64 + m[1] * w[1] as f64 + m[2] * w[2] as f64;
-        let l2 = (w[0] as f64).powi(2) + (w[1] as f64).powi(2) + (w[2] as f64).powi(2);
-        (d, l2)
+    const D: [f32; 4] = [-1.0, 0.0, 1.0, 2.0];
+    let us = D.map(|d| (fu + d).clamp(0.0, 255.0) as u16);
+    let vs = D.map(|d| (fv + d).clamp(0.0, 255.0) as u16);
+    let xs = us.map(|u| u as f32 / 255.0 * 2.0 - 1.0);
+    let ys = vs.map(|v| v as f32 / 255.0 * 2.0 - 1.0);
+    let cu = us.map(|u| zz(u as u8, pred as u8));
+    let cv = vs.map(|v| zz(v as u8, (pred >> 8) as u8));
+    // oct_unnormalized of code us[i] | vs[j] << 8.
+    let surface = |i: usize, j: usize| {
+        let (mut x, mut y) = (xs[i], ys[j]);
+        let z = 1.0 - x.abs() - y.abs();
+        if z < 0.0 {
+            let (ox, oy) = (x, y);
+            x = (1.0 - oy.abs()) * sgn(ox);
+            y = (1.0 - ox.abs()) * sgn(oy);
+        }
+        [x, y, z]
     };
-    let (d0, l0) = cos(c0);
-    let mut best = (cost(c0), d0 / (n2 * l0).sqrt(), c0);
-    for du in -1..=2 {
-        for dv in -1..=2 {
-            let u = (fu + du as f32).clamp(0.0, 255.0) as u16;
-            let v = (fv + dv as f32).clamp(0.0, 255.0) as u16;
-            let code = u | v << 8;
-            let k = cost(code);
-            if k > best.0 || code == best.2 {
-                continue;
-            }
-            let (d, l2) = cos(code);
-            if d <= 0.0 || d * d < COS2_MAX_ERROR * n2 * l2 {
-                continue;
-            }
-            let c = d / (n2 * l2).sqrt();
-            if k < best.0 || c > best.1 {
-                best = (k, c, code);
+    let m = [axis[0] as f64, axis[1] as f64, axis[2] as f64];
+    // The precise code: oct_encode_decoded's four candidates are the inner 2×2 of the block.
+    let mut cand = [(0u16, 0f64, 0f64); 4];
+    for (k, c) in cand.iter_mut().enumerate() {
+        let (i, j) = (1 + (k >> 1), 1 + (k & 1));
+        let (d, l2) = dot_len2(m, surface(i, j));
+        *c = (us[i] | vs[j] << 8, d, l2);
+    }
+    let k0 = pick_precise(&cand);
+    let (c0, d0, l0) = cand[k0];
+    let k0c = cu[1 + (k0 >> 1)] + cv[1 + (k0 & 1)];
+    let mut best = (k0c, c0);
+    // A cost of 0 is the prediction itself: nothing can beat it.
+    if k0c > 0 {
+        let n2 = m[0] * m[0] + m[1] * m[1] + m[2] * m[2];
+        let mut best_cos = d0 / (n2 * l0).sqrt();
+        for i in 0..4 {
+            for j in 0..4 {
+                let k = cu[i] + cv[j];
+                let code = us[i] | vs[j] << 8;
+                if k > best.0 || code == best.1 {
+                    continue;
+                }
+                let (d, l2) = dot_len2(m, surface(i, j));
+                if d <= 0.0 || d * d < COS2_MAX_ERROR * n2 * l2 {
+                    continue;
+                }
+                let c = d / (n2 * l2).sqrt();
+                if k < best.0 || c > best_cos {
+                    best = (k, code);
+                    best_cos = c;
+                }
             }
         }
     }
-    let dec = oct_decode(best.2);
+    let dec = oct_decode(best.1);
     let err = angle(axis, dec);
-    (best.2, dec, cone_encode_up(cone.max(0.0) as f64 + err))
+    (best.1, dec, cone_encode_up(cone.max(0.0) as f64 + err))
 }
 
 #[cfg(test)]

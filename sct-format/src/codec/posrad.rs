@@ -255,17 +255,29 @@ fn search(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: bool) -> Opti
             // rounding of decoded centres: the exact test below decides.
             let room = (r as f64 - cr as f64) / pr as f64 * QP as f64 * 1.01 + 0.01;
             let room2 = room * room;
-            for di in -1..=1 {
-                for dj in -1..=1 {
-                    for dk in -1..=1 {
-                        if (di, dj, dk) == (0, 0, 0) {
+            // Squared offset from v per axis for the neighbour offsets -1, 0, 1 (the same f64
+            // values the sum below always used); an axis offset is worth trying only if it
+            // fits with the others at their nearest (offset 0, since g is the nearest point).
+            let sq = |a: usize| {
+                [-1, 0, 1].map(|d| {
+                    let e = (g[a] + d) as f64 - vg[a];
+                    e * e
+                })
+            };
+            let (s0, s1, s2) = (sq(0), sq(1), sq(2));
+            for (di, &e0) in s0.iter().enumerate() {
+                if e0 + s1[1] + s2[1] > room2 {
+                    continue;
+                }
+                for (dj, &e1) in s1.iter().enumerate() {
+                    if e0 + e1 + s2[1] > room2 {
+                        continue;
+                    }
+                    for (dk, &e2) in s2.iter().enumerate() {
+                        if (di, dj, dk) == (1, 1, 1) || e0 + e1 + e2 > room2 {
                             continue;
                         }
-                        let g2 = [g[0] + di, g[1] + dj, g[2] + dk];
-                        let e = |a: usize| g2[a] as f64 - vg[a];
-                        if e(0) * e(0) + e(1) * e(1) + e(2) * e(2) > room2 {
-                            continue;
-                        }
+                        let g2 = [g[0] + di as i32 - 1, g[1] + dj as i32 - 1, g[2] + dk as i32 - 1];
                         let Some(s2) = t.index(g2, q) else { continue };
                         let Some((dc, dr)) = decode_state(t, s2 as usize, pc, pr) else { continue };
                         if dist64(dc, cc) + cr as f64 <= dr as f64 && (ties.len as usize) < MAX_TIES {
