@@ -710,7 +710,7 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
         diff[c1 + 1] -= per;
     }
     let total: f64 = est.iter().sum();
-    let slabs = ((total / 131_072.0).ceil() as usize).clamp(8, 16_384).min(ncells);
+    let slabs = ((total / slab_target()).ceil() as usize).clamp(8, 16_384).min(ncells);
     let mut slab_of_cell = vec![0u32; ncells];
     let mut slab_x: Vec<(i64, i64)> = Vec::with_capacity(slabs);
     let (mut acc, mut run, mut start) = (0.0, 0.0, 0usize);
@@ -802,6 +802,19 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
         }
     }
     (nodes, before, dropped)
+}
+
+/// Expected samples per slab (unit tests lower it to get many slabs and batches from small
+/// meshes).
+#[cfg(not(test))]
+fn slab_target() -> f64 {
+    131_072.0
+}
+#[cfg(test)]
+static SLAB_TARGET: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(131_072);
+#[cfg(test)]
+fn slab_target() -> f64 {
+    SLAB_TARGET.load(std::sync::atomic::Ordering::Relaxed) as f64
 }
 
 /// Turns sorted (key, record) pairs into nodes, merging records of one voxel (areas add;
@@ -1606,6 +1619,72 @@ mod tests {
                     assert_eq!(got.map(f32::to_bits), want.map(f32::to_bits), "uv {uv:?} {ws:?} {wt:?}");
                 }
             }
+        }
+    }
+
+    /// A bumpy sheet over many slabs (small slab target: dozens of slabs, several batches):
+    /// 1 and 2 threads give the same samples for every method; progress counts each triangle
+    /// once; EQ 17 and scan-line areas still divide each triangle's area by its whole sample
+    /// count (they sum to the mesh area) although multi-slab triangles are shaded per slab.
+    #[test]
+    fn slabs_batches_progress_and_per_triangle_areas() {
+        SLAB_TARGET.store(300, std::sync::atomic::Ordering::Relaxed);
+        let n = 40u32;
+        let mut positions = Vec::new();
+        for y in 0..=n {
+            for x in 0..=n {
+                let (fx, fy) = (x as f32 / n as f32, y as f32 / n as f32);
+                positions.push([fx, fy, 0.15 * (7.0 * fx).sin() * (5.0 * fy).cos()]);
+            }
+        }
+        let mut triangles = Vec::new();
+        for y in 0..n {
+            for x in 0..n {
+                let i = y * (n + 1) + x;
+                triangles.push([i, i + 1, i + n + 2]);
+                triangles.push([i, i + n + 2, i + n + 1]);
+            }
+        }
+        let ntris = triangles.len() as u64;
+        let prim = Primitive { positions, triangles, ..Default::default() };
+        let scene = LoadedScene {
+            meshes: vec![Mesh { name: "sheet".into(), primitives: vec![prim] }],
+            instances: vec![Instance { mesh: 0, transform: IDENTITY }],
+            materials: vec![Material { base_color: [0.8, 0.5, 0.2, 1.0], ..Default::default() }],
+            ..Default::default()
+        };
+        let area = scene.world_area();
+        for (method, area_mode) in [(Method::Voxel, AreaMode::Exact), (Method::Voxel, AreaMode::Eq17), (Method::Scanline, AreaMode::Eq17)] {
+            let opts = SampleOptions { method, area: area_mode, density: Density::VoxelSize(0.004), merge: false, ..Default::default() };
+            let run = |threads: usize| {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+                let calls = std::sync::Mutex::new(Vec::new());
+                let s = pool.install(|| {
+                    sample_scene(&scene, &opts, &|done, total| {
+                        assert_eq!(total, ntris);
+                        calls.lock().expect("lock").push(done);
+                    })
+                });
+                (s.expect("samples"), calls.into_inner().expect("lock"))
+            };
+            let (a, pa) = run(1);
+            let (b, pb) = run(2);
+            for p in [pa, pb] {
+                // Reaches the total, and only at the end (the slabs after the last one where
+                // a triangle starts add nothing); counting a triangle in every slab it spans
+                // would saturate after a fraction of the slabs.
+                assert_eq!(p.iter().max(), Some(&ntris), "{method:?}");
+                let at_total = p.iter().filter(|&&d| d == ntris).count();
+                assert!(p.len() > 100 && at_total * 10 < p.len(), "{method:?}: {at_total} of {} calls at the total", p.len());
+            }
+            assert!(a.stats.samples > 40_000, "{method:?}: {} samples", a.stats.samples);
+            let (na, nb) = (&a.meshes[0].samples, &b.meshes[0].samples);
+            assert_eq!(na.len(), nb.len());
+            for (x, y) in na.iter().zip(nb) {
+                assert_eq!((x.center, x.area.to_bits(), x.normal, x.color), (y.center, y.area.to_bits(), y.normal, y.color), "{method:?}");
+            }
+            let rel = (a.stats.sample_area - area) / area;
+            assert!(rel.abs() < 1e-5, "{method:?}: area error {rel:e}");
         }
     }
 
