@@ -152,6 +152,10 @@ struct Layer {
 /// Layers kept between calls (at most [`KEEP_BYTES`] of them): reallocating two 7 MiB
 /// layers per 1280×720 frame costs a page fault per 4 KiB touched.
 static SCRATCH: std::sync::Mutex<Vec<Layer>> = std::sync::Mutex::new(Vec::new());
+/// The splats' colours (`u32` per splat) kept between calls like the layers: written as the
+/// splats are drawn, so that the merge looks a winner's colour up in an array a tenth the
+/// size of the splats' (a random access per covered pixel).
+static COLORS: std::sync::Mutex<Vec<u32>> = std::sync::Mutex::new(Vec::new());
 const KEEP_BYTES: usize = 256 << 20;
 
 /// Order-preserving map of a depth to `u32` (`a < b` ⇔ `key(a) < key(b)` for non-NaN
@@ -206,15 +210,22 @@ fn rasterize_part(frame: &mut Frame, splats: &[Splat]) {
         l.touched.resize(nbands, false);
     }
 
+    let mut colors = COLORS.lock().map(|mut g| std::mem::take(&mut *g)).unwrap_or_else(|e| std::mem::take(&mut *e.into_inner()));
+    if colors.len() < splats.len() {
+        colors.resize(splats.len(), 0);
+    }
+    // Chunk `i` of the colours, for the worker that draws chunk `i` of the splats.
+    let parts: Vec<std::sync::Mutex<&mut [u32]>> = colors[..splats.len()].chunks_mut(CHUNK).map(std::sync::Mutex::new).collect();
     let next = std::sync::atomic::AtomicUsize::new(0);
     layers[..workers].par_iter_mut().for_each(|l| loop {
-        let start = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed).saturating_mul(CHUNK);
-        if start >= splats.len() {
-            break;
-        }
+        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let start = i.saturating_mul(CHUNK);
+        let Some(Ok(mut col)) = parts.get(i).map(|p| p.lock()) else { break };
         let end = (start + CHUNK).min(splats.len());
-        draw_chunk(&splats[start..end], start as u32, &mut l.cand[..px], &mut l.touched, w, h);
+        draw_chunk(&splats[start..end], start as u32, &mut l.cand[..px], &mut l.touched, &mut col, w, h);
     });
+    drop(parts);
+    let colors_of = &colors[..];
 
     // Each band's slices of the layers that wrote to it.
     let band_px = BAND * w;
@@ -230,10 +241,10 @@ fn rasterize_part(frame: &mut Frame, splats: &[Splat]) {
         let mut put = |i: usize, c: Cand| {
             let c = !c;
             let z = key_depth((c >> 32) as u32);
-            if let (Some(d), Some(col), Some(s)) = (depth.get_mut(i), color.get_mut(i), splats.get(c as u32 as usize)) {
+            if let (Some(d), Some(col), Some(s)) = (depth.get_mut(i), color.get_mut(i), colors_of.get(c as u32 as usize)) {
                 if z < *d {
                     *d = z;
-                    *col = s.color;
+                    *col = s.to_ne_bytes();
                 }
             }
         };
@@ -263,6 +274,13 @@ fn rasterize_part(frame: &mut Frame, splats: &[Splat]) {
         }
     });
 
+    if colors.len() * 4 <= KEEP_BYTES {
+        if let Ok(mut g) = COLORS.lock() {
+            if g.is_empty() {
+                *g = colors;
+            }
+        }
+    }
     let kept: usize = layers.iter().map(|l| l.cand.len() * std::mem::size_of::<Cand>()).sum();
     if kept <= KEEP_BYTES {
         if let Ok(mut g) = SCRATCH.lock() {
@@ -278,15 +296,15 @@ const BATCH: usize = 64;
 
 /// Draws the splats of one chunk (`base`: index of its first splat) into a worker's layer.
 #[inline(never)]
-fn draw_chunk(splats: &[Splat], base: u32, cand: &mut [Cand], touched: &mut [bool], w: usize, h: usize) {
+fn draw_chunk(splats: &[Splat], base: u32, cand: &mut [Cand], touched: &mut [bool], colors: &mut [u32], w: usize, h: usize) {
     let batches = splats.chunks_exact(BATCH);
     let rest = batches.remainder();
     // First rows of the batches' boxes: a superset of the rows `draw_batch` writes itself
     // (rows `y0` and `y0 + 1` of a box), marked in `touched` once per chunk.
     let (mut lo, mut hi) = (i32::MAX, i32::MIN);
-    for (g, batch) in batches.enumerate() {
-        if let Ok(batch) = <&[Splat; BATCH]>::try_from(batch) {
-            draw_batch(batch, base + (g * BATCH) as u32, cand, touched, w, h, (&mut lo, &mut hi));
+    for (g, (batch, col)) in batches.zip(colors.chunks_exact_mut(BATCH)).enumerate() {
+        if let (Ok(batch), Ok(col)) = (<&[Splat; BATCH]>::try_from(batch), <&mut [u32; BATCH]>::try_from(col)) {
+            draw_batch(batch, base + (g * BATCH) as u32, cand, touched, col, w, h, (&mut lo, &mut hi));
         }
     }
     if lo <= hi {
@@ -296,7 +314,8 @@ fn draw_chunk(splats: &[Splat], base: u32, cand: &mut [Cand], touched: &mut [boo
         }
     }
     let first = base + (splats.len() - rest.len()) as u32;
-    for (j, s) in rest.iter().enumerate() {
+    for (j, (s, c)) in rest.iter().zip(colors.iter_mut().skip(splats.len() - rest.len())).enumerate() {
+        *c = u32::from_ne_bytes(s.color);
         draw_any(s, first + j as u32, cand, touched, w, h);
     }
 }
@@ -319,7 +338,7 @@ fn key(z: f32, index: u32) -> Cand {
 /// both draw the same pixels.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn draw_batch(q: &[Splat; BATCH], base: u32, cand: &mut [Cand], touched: &mut [bool], w: usize, h: usize, rows: (&mut i32, &mut i32)) {
+fn draw_batch(q: &[Splat; BATCH], base: u32, cand: &mut [Cand], touched: &mut [bool], col: &mut [u32; BATCH], w: usize, h: usize, rows: (&mut i32, &mut i32)) {
     // Per splat: the candidates offered to its four centres (zero where it misses one)
     // and whether the fast path draws it.
     let mut m = [[0u32; BATCH]; 4];
@@ -366,9 +385,11 @@ fn draw_batch(q: &[Splat; BATCH], base: u32, cand: &mut [Cand], touched: &mut [b
         // The usual case, without a branch per splat.
         for k in 0..BATCH {
             put_quad(cand, at(&q[k]), w, cands(k));
+            col[k] = u32::from_ne_bytes(q[k].color);
         }
     } else {
         for k in 0..BATCH {
+            col[k] = u32::from_ne_bytes(q[k].color);
             if ok[k] != 0 {
                 put_quad(cand, at(&q[k]), w, cands(k));
             } else {
@@ -608,6 +629,21 @@ mod tests {
         naive(&mut want, &splats);
         rasterize(&mut got, &splats);
         assert_eq!(got, want);
+    }
+
+    #[test]
+    fn kept_buffers_do_not_leak_into_the_next_frame() {
+        // Colours and layers are kept between calls: a smaller set of splats with other
+        // colours, then the first again, must each draw exactly their own image.
+        let mut rnd = xorshift(99);
+        let big: Vec<Splat> = (0..20_000).map(|i| Splat::disc(rnd() * 40.0, rnd() * 30.0, (rnd() * 4.0).floor(), rnd() * 1.5, [1, (i % 200) as u8, 3, 255])).collect();
+        let small: Vec<Splat> = big.iter().take(5_001).map(|s| Splat { color: [9, s.color[1], 9, 255], ..*s }).collect();
+        for splats in [&big, &small, &big] {
+            let (mut want, mut got) = (Frame::new(40, 30, [0; 4]), Frame::new(40, 30, [0; 4]));
+            naive(&mut want, splats);
+            rasterize(&mut got, splats);
+            assert_eq!(got, want);
+        }
     }
 
     #[test]
