@@ -188,8 +188,33 @@ pub fn encode_cone_decoded(axis: [f32; 3], cone: f32) -> (u16, [f32; 3], u8) {
         return (code, oct_decode(code), 255);
     }
     let (code, dec) = oct_encode_decoded(axis);
-    let err = angle(axis, dec);
-    (code, dec, cone_encode_up(cone.max(0.0) as f64 + err))
+    (code, dec, cone_code_over(axis, dec, cone))
+}
+
+/// `cone_encode_up(cone + angle(axis, dec))` (cone clamped at 0), with the `atan2` of
+/// [`angle`] worked out only when needed: from the same f64 cross and dot products,
+/// `x = |a×b| / a·b` brackets the angle, `atan x ∈ [x − x³/3, x]` for `x ≥ 0`; when both ends
+/// (widened by 1e-12, far more than the rounding of `x` and of `atan2`) round up to the same
+/// code, that is the code (`cone_encode_up` is monotone). The codes are identical to the
+/// direct evaluation; the bracket decides almost always (normal errors are < 0.64°).
+fn cone_code_over(axis: [f32; 3], dec: [f32; 3], cone: f32) -> u8 {
+    let base = cone.max(0.0) as f64;
+    let a = [axis[0] as f64, axis[1] as f64, axis[2] as f64];
+    let b = [dec[0] as f64, dec[1] as f64, dec[2] as f64];
+    let c = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    let cn = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
+    let dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    if dot > 0.0 {
+        let x = cn / dot;
+        if x < 0.1 {
+            let lo = (x - x * x * x / 3.0 - 1e-12).max(0.0);
+            let code = cone_encode_up(base + lo);
+            if code == cone_encode_up(base + x + 1e-12) {
+                return code;
+            }
+        }
+    }
+    cone_encode_up(base + angle(axis, dec))
 }
 
 /// `cos²` of [`MAX_NORMAL_ERROR_DEG`] (0.64°), written out so that no libm call decides a code.
@@ -265,8 +290,7 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
         }
     }
     let dec = oct_decode(best.1);
-    let err = angle(axis, dec);
-    (best.1, dec, cone_encode_up(cone.max(0.0) as f64 + err))
+    (best.1, dec, cone_code_over(axis, dec, cone))
 }
 
 #[cfg(test)]
@@ -310,6 +334,22 @@ mod tests {
             // Codes on the grid map back to themselves or an equivalent (seam) code.
             assert!(angle(v, oct_decode(oct_encode(v))) < 1e-6);
         }
+    }
+
+    /// The bracketed cone code equals the direct `atan2` evaluation.
+    #[test]
+    fn cone_code_over_matches_atan2() {
+        let mut differ = 0;
+        for i in 0..400_000u64 {
+            let v = unit(i * 5);
+            let cone = [0.0f32, 1e-3, 0.3, (i % 255) as f32 * (CONE_STEP as f32), 3.0][(i % 5) as usize];
+            for dec in [oct_decode(oct_encode(v)), oct_decode(oct_encode(v) ^ 0x0101), oct_decode(oct_encode(v).wrapping_add(3)), v] {
+                let want = cone_encode_up(cone.max(0.0) as f64 + angle(v, dec));
+                assert_eq!(cone_code_over(v, dec, cone), want, "{v:?} {dec:?} {cone}");
+                differ += (cone_encode_up(cone as f64) != want) as u32;
+            }
+        }
+        assert!(differ > 1000);
     }
 
     #[test]
