@@ -209,7 +209,9 @@ fn cone_code_over(axis: [f32; 3], dec: [f32; 3], cone: f32) -> u8 {
         if x < 0.1 {
             let lo = (x - x * x * x / 3.0 - 1e-12).max(0.0);
             let code = cone_encode_up(base + lo);
-            if code == cone_encode_up(base + x + 1e-12) {
+            // Same code for the upper end iff it covers that too (the smallest code covering
+            // `lo` is then the smallest covering anything in between); 255 covers all.
+            if code == 255 || cone_table()[code as usize] as f64 >= base + x + 1e-12 {
                 return code;
             }
         }
