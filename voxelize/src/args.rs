@@ -81,6 +81,11 @@ pub struct SamplingArgs {
     /// Refuse runs estimated to make more samples than this.
     #[arg(long, value_name = "N", default_value_t = 400_000_000)]
     pub max_samples: u64,
+    /// Coarsen the voxel, when the density rule above would make more, to about N samples
+    /// (estimated before merging): a cap for batch conversion of assets whose triangles are
+    /// far smaller than any view needs.
+    #[arg(long, value_name = "N")]
+    pub sample_budget: Option<u64>,
 }
 
 impl SamplingArgs {
@@ -116,6 +121,7 @@ impl SamplingArgs {
             merge: !self.no_merge,
             crease_deg: self.crease,
             max_samples: self.max_samples,
+            budget: self.sample_budget,
         }
     }
 }

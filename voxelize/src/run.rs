@@ -10,7 +10,7 @@ use serde_json::json;
 use crate::error::{Error, LoadError};
 use crate::load::{load, LoadOptions};
 use crate::mesh::{Instance, LoadedScene};
-use crate::sample::{sample_points, sample_scene, AreaMode, Density, Method, SampleOptions, Sampled, SampledMesh};
+use crate::sample::{sample_points, sample_scene, AreaMode, Density, SampleOptions, Sampled, SampledMesh};
 
 /// Options of a run.
 #[derive(Clone, Debug)]
@@ -201,14 +201,6 @@ fn changed_since(f: &Path, started: std::time::SystemTime) -> bool {
     std::fs::metadata(f).and_then(|m| m.modified()).is_ok_and(|t| t > started && t <= now)
 }
 
-fn method_name(m: Method) -> &'static str {
-    match m {
-        Method::Voxel => "voxel",
-        Method::Scanline => "scanline",
-        Method::Vertex => "vertex",
-    }
-}
-
 /// Runs the whole job: [`sample_in_memory`], then writes `opts.output` atomically (nothing for a dry
 /// run). `progress(done, total)` reports sampled triangles.
 pub fn run(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summary, Error> {
@@ -294,11 +286,11 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
             json!({"screen": {"pixels": pixels, "resolution": resolution, "distance": distance, "fov_deg": fov_deg}})
         }
     };
-    let generator = Generator {
+    let mut generator = Generator {
         tool: "sct-voxelize".into(),
         version: env!("CARGO_PKG_VERSION").into(),
         parameters: json!({
-            "method": method_name(s.method),
+            "method": s.method.name(),
             "density": density,
             "voxel_size": sampled.voxel.size,
             "area": match s.area { AreaMode::Exact => "exact", AreaMode::Eq17 => "eq17" },
@@ -308,6 +300,9 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
         }),
         sources: sources.clone(),
     };
+    if let (Some(b), Some(map)) = (s.budget, generator.parameters.as_object_mut()) {
+        map.insert("sample_budget".into(), json!(b));
+    }
     let n_points = points.len() as u64;
     let mut warnings = scene.warnings.clone();
     for m in sampled.meshes.iter().filter(|m| m.samples.is_empty()) {
@@ -325,7 +320,7 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
         inputs: sources,
         output: None,
         output_bytes: 0,
-        method: method_name(s.method).into(),
+        method: s.method.name().into(),
         area_mode: match s.area { AreaMode::Exact => "exact", AreaMode::Eq17 => "eq17" }.into(),
         merged: s.merge,
         triangles_read: scene.stats.triangles_read,

@@ -42,6 +42,17 @@ pub enum Method {
     Vertex,
 }
 
+impl Method {
+    /// The name used on the command line and in JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Voxel => "voxel",
+            Method::Scanline => "scanline",
+            Method::Vertex => "vertex",
+        }
+    }
+}
+
 /// How voxel samples get their area.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum AreaMode {
@@ -95,6 +106,9 @@ pub struct SampleOptions {
     pub crease_deg: f32,
     /// Refuse to make more samples than this (estimated before sampling).
     pub max_samples: u64,
+    /// Coarsen the voxel, when the density rule would make more, to about this many samples
+    /// (estimated before merging).
+    pub budget: Option<u64>,
 }
 
 impl Default for SampleOptions {
@@ -106,6 +120,7 @@ impl Default for SampleOptions {
             merge: true,
             crease_deg: 60.0,
             max_samples: 400_000_000,
+            budget: None,
         }
     }
 }
@@ -552,39 +567,116 @@ impl Poly2 {
     }
 }
 
+/// Samples made at voxel size `h`, estimated before allocating. Before merging, a triangle
+/// crosses about `area/h² + perimeter/(2h) + 1` voxels, so the count is
+/// `area/h² + perimeter/h + per_triangle` summed over all units (each unit's voxel is a fixed
+/// multiple of `h`). After merging, a surface leaves about one sample per voxel it crosses:
+/// `Σ area·|n|₁/h²` for the voxel sampler (a plane crosses `|n|₁/h²` cubes per unit area),
+/// `Σ area·|n|∞/h²` for the scan-line sampler (one sample per column). Both can be solved for
+/// the `h` of a sample budget.
+#[derive(Clone, Copy, Debug, Default)]
+struct SampleEstimate {
+    /// Σ triangle area / (unit voxel / h)², world units².
+    area: f64,
+    /// Σ half perimeter / (unit voxel / h), world units.
+    perimeter: f64,
+    /// Samples that do not shrink with a coarser voxel (one per triangle; all of them for the
+    /// vertex sampler).
+    per_triangle: f64,
+    /// Σ triangle area × (voxels crossed per unit area × h²) / (unit voxel / h)².
+    merged_area: f64,
+}
+
+impl SampleEstimate {
+    fn of(scene: &LoadedScene, units: &[Unit], h: f64, method: Method) -> Self {
+        let mut e = SampleEstimate::default();
+        for u in units {
+            let mesh = &scene.meshes[u.mesh];
+            let m = u.bake.unwrap_or([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]);
+            let k = u.h / h;
+            for p in &mesh.primitives {
+                for t in &p.triangles {
+                    e.per_triangle += 1.0;
+                    if method == Method::Vertex {
+                        continue;
+                    }
+                    let [a, b, c] = t.map(|i| transform_point(&m, p.positions[i as usize]));
+                    let n = cross(sub(b, a), sub(c, a));
+                    let area = 0.5 * norm(n) / (k * k);
+                    e.area += area;
+                    // Columns are sampled at their centres (no edge term); a conservative
+                    // voxelization also takes the voxels along the edges.
+                    if method == Method::Voxel {
+                        e.perimeter += (norm(sub(b, a)) + norm(sub(c, b)) + norm(sub(a, c))) / k;
+                    }
+                    let len = norm(n);
+                    if len > 0.0 {
+                        let [x, y, z] = n.map(|v| v.abs() / len);
+                        e.merged_area += area * if method == Method::Scanline { x.max(y).max(z) } else { x + y + z };
+                    }
+                }
+            }
+        }
+        e
+    }
+
+    /// Samples before merging.
+    fn at(&self, h: f64) -> f64 {
+        self.merged_area / (h * h) + self.perimeter / h + self.per_triangle
+    }
+
+    /// The voxel size expected to give `budget` samples (after merging when `merge`), if a
+    /// finite one exists.
+    fn voxel_for(&self, budget: f64, merge: bool) -> Option<f64> {
+        let h = if merge {
+            (self.merged_area / budget).sqrt()
+        } else {
+            // area·x² + perimeter·x − room = 0 with x = 1/h.
+            let (a, p) = (self.merged_area, self.perimeter);
+            let room = budget - self.per_triangle;
+            if room <= 0.0 || a <= 0.0 {
+                return None;
+            }
+            let x = (-p + (p * p + 4.0 * a * room).sqrt()) / (2.0 * a);
+            1.0 / x
+        };
+        (h.is_finite() && h > 0.0).then_some(h)
+    }
+}
+
 /// Samples a loaded scene.
 pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Sampled, String> {
-    let voxel = choose_voxel_size(scene, &opts.density)?;
-    let h = voxel.size;
+    let mut voxel = choose_voxel_size(scene, &opts.density)?;
     let mut stats = SampleStats::default();
-    let units = plan_units(scene, h, &mut stats);
-    // Estimate before allocating: a triangle crosses about (area/h² + perimeter/h + 1) voxels
-    // times up to ~1.7 for steep planes.
-    let mut estimate = 0.0f64;
-    for u in &units {
-        let mesh = &scene.meshes[u.mesh];
-        let s = u.bake.map_or(1.0, |m| determinant(&m).abs().cbrt());
-        for p in &mesh.primitives {
-            for t in &p.triangles {
-                let [a, b, c] = t.map(|i| p.positions[i as usize].map(f64::from));
-                let area = 0.5 * norm(cross(sub(b, a), sub(c, a))) * s * s;
-                let per = (norm(sub(b, a)) + norm(sub(c, b)) + norm(sub(a, c))) * s;
-                estimate += match opts.method {
-                    Method::Vertex => 1.0,
-                    _ => area / (u.h * u.h) + 0.5 * per / u.h + 1.0,
-                };
-            }
-        }
-        if let Some(b) = scene.world_bounds() {
-            let ext = b.0.iter().chain(b.1.iter()).fold(0.0f64, |m, v| m.max(v.abs()));
-            if u.bake.is_some() && ext / u.h > (1u64 << 30) as f64 {
-                return Err(format!("voxel size {h} is too small for coordinates up to {ext} (more than 2^30 voxels along an axis)"));
-            }
+    let mut units = plan_units(scene, voxel.size, &mut stats);
+    let mut est = SampleEstimate::of(scene, &units, voxel.size, opts.method);
+    // The vertex sampler makes one sample per triangle at any voxel size: no budget applies.
+    if let (Some(budget), false) = (opts.budget, opts.method == Method::Vertex) {
+        if let Some(coarser) = est.voxel_for(budget as f64, opts.merge).filter(|&c| c > voxel.size) {
+            voxel.reason = format!("{}; coarsened to {coarser:.6} to stay within --sample-budget {budget}", voxel.reason);
+            voxel.size = coarser;
+            stats = SampleStats::default();
+            units = plan_units(scene, coarser, &mut stats);
+            est = SampleEstimate::of(scene, &units, coarser, opts.method);
+        } else if !opts.merge && est.at(voxel.size) > budget as f64 {
+            return Err(format!(
+                "--sample-budget {budget} cannot be met without merging: the {} sampler makes at least one sample per triangle ({:.0})",
+                opts.method.name(),
+                est.per_triangle
+            ));
         }
     }
+    let h = voxel.size;
+    if let Some(b) = scene.world_bounds() {
+        let ext = b.0.iter().chain(b.1.iter()).fold(0.0f64, |m, v| m.max(v.abs()));
+        if units.iter().any(|u| u.bake.is_some() && ext / u.h > (1u64 << 30) as f64) {
+            return Err(format!("voxel size {h} is too small for coordinates up to {ext} (more than 2^30 voxels along an axis)"));
+        }
+    }
+    let estimate = est.at(h);
     if estimate > opts.max_samples as f64 {
         return Err(format!(
-            "voxel size {h} would make about {estimate:.0} samples, more than --max-samples {}; use a larger --voxel-size or a smaller γ",
+            "voxel size {h} would make about {estimate:.0} samples, more than --max-samples {}; use a larger --voxel-size, a smaller γ or --sample-budget",
             opts.max_samples
         ));
     }
@@ -1570,6 +1662,20 @@ pub fn coverage(spheres: &[([f64; 3], f64)], points: &[[f64; 3]]) -> (f64, Vec<u
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sample_budget_voxel_inverts_the_estimate() {
+        let e = SampleEstimate { area: 2.0, perimeter: 30.0, per_triangle: 1000.0, merged_area: 3.0 };
+        for budget in [2e3, 1e5, 3.7e7] {
+            let h = e.voxel_for(budget, false).unwrap();
+            assert!((e.at(h) - budget).abs() <= 1e-9 * budget, "{budget}: {}", e.at(h));
+            let h = e.voxel_for(budget, true).unwrap();
+            assert!((e.merged_area / (h * h) - budget).abs() <= 1e-9 * budget);
+        }
+        // Unmerged, every triangle keeps a sample: no voxel size gets below that.
+        assert_eq!(e.voxel_for(1000.0, false), None);
+        assert_eq!(SampleEstimate::default().voxel_for(10.0, true), None);
+    }
 
     #[test]
     fn key_pack_round_trips_and_orders_x_major() {

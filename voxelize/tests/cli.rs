@@ -45,3 +45,28 @@ fn exit_codes_and_output() {
     let st = bin().arg(&bx).arg("-o").arg(&out).args(["--voxel-size", "-1"]).output().unwrap();
     assert_eq!(st.status.code(), Some(2));
 }
+
+/// `--sample-budget` coarsens the voxel to about N samples (after merging), says so in the
+/// voxel reason, leaves a coarser density alone, and refuses a budget that cannot be met.
+#[test]
+fn sample_budget_caps_the_density() {
+    let Some(bunny) = model("scans/stanford-bunny-original-ply/bun_zipper.ply") else { return };
+    let run = |args: &[&str]| {
+        let st = bin().arg(&bunny).args(["-o", "unused.samples", "--dry-run", "--json"]).args(args).output().unwrap();
+        (st.status.code(), serde_json::from_slice::<serde_json::Value>(&st.stdout).ok(), String::from_utf8_lossy(&st.stderr).into_owned())
+    };
+    let (code, v, err) = run(&["--sample-budget", "50000"]);
+    assert_eq!(code, Some(0), "{err}");
+    let v = v.unwrap();
+    let n = v["samples"].as_u64().unwrap();
+    assert!((45_000..=51_000).contains(&n), "{n} samples for a budget of 50000");
+    assert!(v["voxel_size_reason"].as_str().unwrap().contains("coarsened"), "{v}");
+    // Already coarser than the budget needs: unchanged.
+    let (_, plain, _) = run(&["--voxel-size", "0.004"]);
+    let (_, capped, _) = run(&["--voxel-size", "0.004", "--sample-budget", "50000000"]);
+    assert_eq!(plain.unwrap()["samples"], capped.unwrap()["samples"]);
+    // Without merging every triangle keeps a sample: a budget below the triangle count fails.
+    let (code, _, err) = run(&["--sample-budget", "1000", "--no-merge"]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("--sample-budget 1000 cannot be met"), "{err}");
+}
