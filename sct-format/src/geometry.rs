@@ -89,33 +89,42 @@ pub fn enclosing_sphere(ca: [f64; 3], ra: f64, cb: [f64; 3], rb: f64) -> ([f64; 
 /// clamped to [0, π]. Returns a unit axis and a semi-angle in [0, π]; a result of π means
 /// "any direction" (obtuse cones up to the whole sphere are allowed).
 pub fn merge_cones(na: [f64; 3], ta: f64, nb: [f64; 3], tb: f64) -> ([f64; 3], f64) {
+    let (n, t, _) = merge_unit_cones(normalize(na), ta, normalize(nb), tb);
+    (n, t)
+}
+
+/// [`merge_cones`] on already normalised axes (`None`: zero axis). Also returns the angle
+/// between the two axes when both exist, so [`parent_of`] need not evaluate it again
+/// (`angle_between` is symmetric bit for bit: the cross product only changes sign).
+fn merge_unit_cones(a: Option<[f64; 3]>, ta: f64, b: Option<[f64; 3]>, tb: f64) -> ([f64; 3], f64, Option<f64>) {
     let ta = ta.clamp(0.0, PI);
     let tb = tb.clamp(0.0, PI);
-    let (a, b) = match (normalize(na), normalize(nb)) {
+    let (a, b) = match (a, b) {
         (Some(a), Some(b)) => (a, b),
-        (Some(a), None) => return (a, PI),
-        (None, Some(b)) => return (b, PI),
-        (None, None) => return ([0.0, 0.0, 1.0], PI),
+        (Some(a), None) => return (a, PI, None),
+        (None, Some(b)) => return (b, PI, None),
+        (None, None) => return ([0.0, 0.0, 1.0], PI, None),
     };
-    let d = angle_between(a, b);
+    let ab = dot(a, b);
+    let d = norm(cross(a, b)).atan2(ab);
     if d + tb <= ta {
-        return (a, ta);
+        return (a, ta, Some(d));
     }
     if d + ta <= tb {
-        return (b, tb);
+        return (b, tb, Some(d));
     }
     let tc = 0.5 * (d + ta + tb);
     if tc >= PI {
-        return (a, PI);
+        return (a, PI, Some(d));
     }
     // Rotate A's axis towards B's by (tc - ta) within the plane spanned by the two axes.
-    let u = normalize(sub(b, [a[0] * dot(a, b), a[1] * dot(a, b), a[2] * dot(a, b)]))
+    let u = normalize(sub(b, [a[0] * ab, a[1] * ab, a[2] * ab]))
         // Antiparallel (or parallel, which the containment cases already caught): every
         // plane through A works, so pick a deterministic perpendicular.
         .unwrap_or_else(|| any_perpendicular(a));
     let phi = tc - ta;
     let (s, c) = phi.sin_cos();
-    ([a[0] * c + u[0] * s, a[1] * c + u[1] * s, a[2] * c + u[2] * s], tc)
+    ([a[0] * c + u[0] * s, a[1] * c + u[1] * s, a[2] * c + u[2] * s], tc, Some(d))
 }
 
 /// A unit vector perpendicular to unit `a`.
@@ -159,14 +168,15 @@ fn covering_radius(c: [f32; 3], a: &Node, b: &Node) -> f32 {
     f32_up(ra.max(rb) * (1.0 + F64_MARGIN))
 }
 
-/// Smallest f32 cone angle at f32 axis `n` containing both children's cones (π at most).
-fn covering_cone(n: [f32; 3], a: &Node, b: &Node) -> f32 {
+/// Smallest f32 cone angle at f32 axis `n` containing the cones `(ua, ta)` and `(ub, tb)`
+/// (normalised axes, `None` for a zero axis; π at most).
+fn covering_cone(n: [f32; 3], ua: Option<[f64; 3]>, ta: f32, ub: Option<[f64; 3]>, tb: f32) -> f32 {
     let Some(n) = normalize(to64(n)) else { return std::f32::consts::PI };
-    let need = |m: &Node| match normalize(to64(m.normal)) {
-        Some(m_axis) => angle_between(n, m_axis) + m.cone as f64,
+    let need = |axis: Option<[f64; 3]>, cone: f32| match axis {
+        Some(m_axis) => angle_between(n, m_axis) + cone as f64,
         None => PI,
     };
-    let t = need(a).max(need(b)) * (1.0 + F64_MARGIN) + F64_MARGIN;
+    let t = need(ua, ta).max(need(ub, tb)) * (1.0 + F64_MARGIN) + F64_MARGIN;
     // f32 π rounds above the true π, so it always covers the whole sphere.
     if t >= PI {
         std::f32::consts::PI
@@ -190,14 +200,22 @@ pub fn parent_of(a: &Node, b: &Node) -> Node {
         covering_radius(center, a, b)
     };
 
-    let (n, t) = merge_cones(to64(a.normal), a.cone as f64, to64(b.normal), b.cone as f64);
+    // Each child's axis is normalised once and shared by the merge, the containment checks
+    // and the covering angle (the same f64 operations as evaluating them separately).
+    let (ua, ub) = (normalize(to64(a.normal)), normalize(to64(b.normal)));
+    let (n, t, d) = merge_unit_cones(ua, a.cone as f64, ub, b.cone as f64);
     let normal = to32(n);
-    let cone = if normal == a.normal && t == a.cone as f64 && cone_contains(a.normal, a.cone, b.normal, b.cone, 0.0) {
+    // `cone_contains(outer, inner, 0)` with the axes' angle `d` already known.
+    let contains = |outer: f32, inner: f32| {
+        let (outer, inner) = (outer as f64, inner as f64);
+        outer >= PI || d.is_some_and(|d| d + inner <= outer)
+    };
+    let cone = if normal == a.normal && t == a.cone as f64 && contains(a.cone, b.cone) {
         a.cone
-    } else if normal == b.normal && t == b.cone as f64 && cone_contains(b.normal, b.cone, a.normal, a.cone, 0.0) {
+    } else if normal == b.normal && t == b.cone as f64 && contains(b.cone, a.cone) {
         b.cone
     } else {
-        covering_cone(normal, a, b)
+        covering_cone(normal, ua, a.cone, ub, b.cone)
     };
 
     Node {
@@ -332,6 +350,209 @@ mod tests {
         assert_eq!(merge_color([0, 0, 0, 0], 0.0, [255, 255, 255, 255], 0.0), [128, 128, 128, 128]);
         // One zero-area child has no influence.
         assert_eq!(merge_color([0, 0, 0, 0], 0.0, [200, 100, 50, 255], 2.0), [200, 100, 50, 255]);
+    }
+
+    /// The pre-sharing implementation of [`parent_of`] (each step normalising its own axes),
+    /// kept verbatim as the bit-exact reference for the optimised one.
+    mod reference {
+        use super::super::*;
+
+        pub fn merge_cones(na: [f64; 3], ta: f64, nb: [f64; 3], tb: f64) -> ([f64; 3], f64) {
+            let ta = ta.clamp(0.0, PI);
+            let tb = tb.clamp(0.0, PI);
+            let (a, b) = match (normalize(na), normalize(nb)) {
+                (Some(a), Some(b)) => (a, b),
+                (Some(a), None) => return (a, PI),
+                (None, Some(b)) => return (b, PI),
+                (None, None) => return ([0.0, 0.0, 1.0], PI),
+            };
+            let d = angle_between(a, b);
+            if d + tb <= ta {
+                return (a, ta);
+            }
+            if d + ta <= tb {
+                return (b, tb);
+            }
+            let tc = 0.5 * (d + ta + tb);
+            if tc >= PI {
+                return (a, PI);
+            }
+            let u = normalize(sub(b, [a[0] * dot(a, b), a[1] * dot(a, b), a[2] * dot(a, b)]))
+                .unwrap_or_else(|| any_perpendicular(a));
+            let phi = tc - ta;
+            let (s, c) = phi.sin_cos();
+            ([a[0] * c + u[0] * s, a[1] * c + u[1] * s, a[2] * c + u[2] * s], tc)
+        }
+
+        fn covering_cone(n: [f32; 3], a: &Node, b: &Node) -> f32 {
+            let Some(n) = normalize(to64(n)) else { return std::f32::consts::PI };
+            let need = |m: &Node| match normalize(to64(m.normal)) {
+                Some(m_axis) => angle_between(n, m_axis) + m.cone as f64,
+                None => PI,
+            };
+            let t = need(a).max(need(b)) * (1.0 + F64_MARGIN) + F64_MARGIN;
+            if t >= PI {
+                std::f32::consts::PI
+            } else {
+                f32_up(t).min(std::f32::consts::PI)
+            }
+        }
+
+        pub fn parent_of(a: &Node, b: &Node) -> Node {
+            let (c, r) = enclosing_sphere(to64(a.center), a.radius as f64, to64(b.center), b.radius as f64);
+            let center = to32(c);
+            let radius = if center == a.center && r == a.radius as f64 && covers(a, b) {
+                a.radius
+            } else if center == b.center && r == b.radius as f64 && covers(b, a) {
+                b.radius
+            } else {
+                covering_radius(center, a, b)
+            };
+            let (n, t) = merge_cones(to64(a.normal), a.cone as f64, to64(b.normal), b.cone as f64);
+            let normal = to32(n);
+            let cone = if normal == a.normal && t == a.cone as f64 && cone_contains(a.normal, a.cone, b.normal, b.cone, 0.0) {
+                a.cone
+            } else if normal == b.normal && t == b.cone as f64 && cone_contains(b.normal, b.cone, a.normal, a.cone, 0.0) {
+                b.cone
+            } else {
+                covering_cone(normal, a, b)
+            };
+            Node {
+                center,
+                radius,
+                normal,
+                cone,
+                area: merge_area(a.area, b.area),
+                color: merge_color(a.color, a.area, b.color, b.area),
+            }
+        }
+    }
+
+    fn node_bits(n: &Node) -> ([u32; 3], u32, [u32; 3], u32, u32, [u8; 4]) {
+        (
+            n.center.map(f32::to_bits),
+            n.radius.to_bits(),
+            n.normal.map(f32::to_bits),
+            n.cone.to_bits(),
+            n.area.to_bits(),
+            n.color,
+        )
+    }
+
+    /// splitmix64: a tiny deterministic generator, so the comparison needs no seed plumbing.
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> u64 {
+            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = self.0;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        }
+        fn unit(&mut self) -> f32 {
+            (self.next() >> 40) as f32 / (1u64 << 24) as f32
+        }
+        fn pick<T: Copy>(&mut self, v: &[T]) -> T {
+            v[(self.next() % v.len() as u64) as usize]
+        }
+        /// A float from a mix of ordinary, special and raw-bit values.
+        fn float(&mut self, scale: f32) -> f32 {
+            const SPECIAL: [f32; 12] = [
+                0.0, -0.0, 1.0, -1.0, f32::MIN_POSITIVE, 1e-30, 1e30, f32::INFINITY, f32::NEG_INFINITY,
+                f32::NAN, std::f32::consts::PI, std::f32::consts::FRAC_PI_2,
+            ];
+            match self.next() % 16 {
+                0 => self.pick(&SPECIAL),
+                1 => f32::from_bits(self.next() as u32),
+                _ => (self.unit() * 2.0 - 1.0) * scale,
+            }
+        }
+        fn axis(&mut self) -> [f32; 3] {
+            match self.next() % 8 {
+                0 => [self.float(1.0), self.float(1.0), self.float(1.0)],
+                1 => [0.0, 0.0, 0.0],
+                2 => self.pick(&[[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]),
+                _ => {
+                    let v = [self.unit() * 2.0 - 1.0, self.unit() * 2.0 - 1.0, self.unit() * 2.0 - 1.0];
+                    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    if l > 0.0 { v.map(|x| x / l) } else { [0.0, 0.0, 1.0] }
+                }
+            }
+        }
+        fn node(&mut self) -> Node {
+            let scale = self.pick(&[1e-4f32, 1e-2, 1.0, 100.0, 1e6]);
+            let cone = match self.next() % 6 {
+                0 => 0.0,
+                1 => std::f32::consts::PI,
+                2 => self.float(4.0),
+                _ => self.unit() * std::f32::consts::PI,
+            };
+            Node {
+                center: [self.float(scale), self.float(scale), self.float(scale)],
+                radius: match self.next() % 4 {
+                    0 => 0.0,
+                    1 => self.float(scale),
+                    _ => self.unit() * scale,
+                },
+                normal: self.axis(),
+                cone,
+                area: if self.next() % 4 == 0 { self.float(10.0) } else { self.unit() * 10.0 },
+                color: (self.next() as u32).to_le_bytes(),
+            }
+        }
+        /// A node related to `a`: a copy, a shifted copy, one nested inside, or a copy with
+        /// a nearby, equal or opposite axis (the containment and antiparallel branches).
+        fn related(&mut self, a: &Node) -> Node {
+            let mut b = self.node();
+            match self.next() % 6 {
+                0 => b = *a,
+                1 => {
+                    b.center = a.center;
+                    b.radius = a.radius * self.unit();
+                }
+                2 => b.normal = a.normal,
+                3 => b.normal = a.normal.map(|x| -x),
+                4 => {
+                    b.normal = a.normal.map(|x| x + (self.unit() - 0.5) * 1e-3);
+                    b.cone = a.cone;
+                }
+                _ => {
+                    b.normal = a.normal;
+                    b.cone = a.cone * self.unit();
+                    b.center = a.center;
+                }
+            }
+            b
+        }
+    }
+
+    #[test]
+    fn parent_of_matches_reference_bit_for_bit() {
+        let mut rng = Rng(0x5C7_0F_9A2E);
+        for i in 0..400_000 {
+            let a = rng.node();
+            let b = if i % 2 == 0 { rng.node() } else { rng.related(&a) };
+            for (x, y) in [(&a, &b), (&b, &a)] {
+                let got = node_bits(&parent_of(x, y));
+                let want = node_bits(&reference::parent_of(x, y));
+                assert_eq!(got, want, "case {i}: parent_of({x:?}, {y:?})");
+            }
+            let (n1, t1) = merge_cones(to64(a.normal), a.cone as f64, to64(b.normal), b.cone as f64);
+            let (n2, t2) = reference::merge_cones(to64(a.normal), a.cone as f64, to64(b.normal), b.cone as f64);
+            assert_eq!((n1.map(f64::to_bits), t1.to_bits()), (n2.map(f64::to_bits), t2.to_bits()), "case {i}");
+        }
+        // Deep folds: parents of parents (the builder's real inputs).
+        let mut rng = Rng(42);
+        for _ in 0..2_000 {
+            let mut acc_new = rng.node();
+            let mut acc_old = acc_new;
+            for _ in 0..16 {
+                let s = if rng.next() % 3 == 0 { rng.related(&acc_new) } else { rng.node() };
+                acc_new = parent_of(&acc_new, &s);
+                acc_old = reference::parent_of(&acc_old, &s);
+                assert_eq!(node_bits(&acc_new), node_bits(&acc_old));
+            }
+        }
     }
 
     fn arb_unit() -> impl Strategy<Value = [f32; 3]> {
