@@ -106,11 +106,17 @@ struct Aabb {
 impl Aabb {
     const EMPTY: Aabb = Aabb { min: [f32::INFINITY; 3], max: [f32::NEG_INFINITY; 3] };
 
+    /// Grows the box to hold `c`. A compare-and-select is one `minss`/`maxss` where
+    /// `f32::min`/`max` add a NaN fix-up; the results are the same here: centres are
+    /// finite (checked on input) and the bounds never NaN, so only the sign of a zero tie
+    /// could differ, and no split decision sees that (`mid`, `extent` and the comparisons
+    /// made with them are the same for ±0).
     #[inline]
     fn add(&mut self, c: &[f32; 3]) {
-        for ((lo, hi), &v) in self.min.iter_mut().zip(self.max.iter_mut()).zip(c) {
-            *lo = lo.min(v);
-            *hi = hi.max(v);
+        for k in 0..3 {
+            let v = c[k];
+            self.min[k] = if v < self.min[k] { v } else { self.min[k] };
+            self.max[k] = if v > self.max[k] { v } else { self.max[k] };
         }
     }
 
