@@ -237,7 +237,88 @@ pub fn encode_sphere_ties(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Optio
     search(pc, pr, cc, cr, true)
 }
 
+/// `x.round()` (half away from zero) as an integer when it lies in `-QP..=QP`, i.e. when
+/// `-6.5 < x < 6.5` (`None` otherwise, NaN included): the same grid point as
+/// `round_f64(x)` and its `|·| <= QP` test, without the float round trip.
+#[inline]
+fn round_on_grid(x: f64) -> Option<i32> {
+    if !(x > -(QP as f64 + 0.5) && x < QP as f64 + 0.5) {
+        return None;
+    }
+    let t = x as i32;
+    // Exact: |x| < 7, so x - t is exact (Sterbenz / integer part).
+    let f = x - t as f64;
+    Some(t + (f >= 0.5) as i32 - (f <= -0.5) as i32)
+}
+
 fn search(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: bool) -> Option<Ties> {
+    let t = tables();
+    let v = |i: usize| (cc[i] as f64 - pc[i] as f64) / pr as f64 * QP as f64;
+    let vg = [v(0), v(1), v(2)];
+    // Fast path: the nearest grid point overall minimises the error, hence the radius.
+    if let [Some(g0), Some(g1), Some(g2)] = vg.map(round_on_grid) {
+        let g = [g0, g1, g2];
+        if let Some((s, q, _)) = fit(t, g, pc, pr, cc, cr) {
+            let mut ties = Ties::one(s);
+            if !want_ties {
+                return Some(ties);
+            }
+            let r = pr * t.radius[s as usize];
+            // Room left for the centre error, in grid steps, with a generous margin for the f32
+            // rounding of decoded centres: the exact test below decides.
+            let room = (r as f64 - cr as f64) / pr as f64 * QP as f64 * 1.01 + 0.01;
+            let room2 = room * room;
+            // Squared offset from v per axis for the neighbour offsets -1, 0, 1 (the same f64
+            // values the sum below always used); an axis offset is worth trying only if it
+            // fits with the others at their nearest (offset 0, since g is the nearest point).
+            let sq = |a: usize| {
+                [-1, 0, 1].map(|d| {
+                    let e = (g[a] + d) as f64 - vg[a];
+                    e * e
+                })
+            };
+            let (s0, s1, s2) = (sq(0), sq(1), sq(2));
+            for (di, &e0) in s0.iter().enumerate() {
+                if e0 + s1[1] + s2[1] > room2 {
+                    continue;
+                }
+                for (dj, &e1) in s1.iter().enumerate() {
+                    if e0 + e1 + s2[1] > room2 {
+                        continue;
+                    }
+                    for (dk, &e2) in s2.iter().enumerate() {
+                        if (di, dj, dk) == (1, 1, 1) || e0 + e1 + e2 > room2 {
+                            continue;
+                        }
+                        let g2 = [g[0] + di as i32 - 1, g[1] + dj as i32 - 1, g[2] + dk as i32 - 1];
+                        let Some(s2) = t.index(g2, q) else { continue };
+                        let Some((dc, dr)) = decode_state(t, s2 as usize, pc, pr) else { continue };
+                        if dist64(dc, cc) + cr as f64 <= dr as f64 && (ties.len as usize) < MAX_TIES {
+                            ties.states[ties.len as usize] = s2;
+                            ties.len += 1;
+                        }
+                    }
+                }
+            }
+            return Some(ties);
+        }
+    }
+    // Near or outside the boundary: exhaustive search over the 925 grid points.
+    let mut best: Option<(u16, i32, f64)> = None;
+    for g in &t.inside {
+        let g = [g[0] as i32, g[1] as i32, g[2] as i32];
+        if let Some(c) = fit(t, g, pc, pr, cc, cr) {
+            if best.is_none_or(|b| (c.1, c.2) < (b.1, b.2)) {
+                best = Some(c);
+            }
+        }
+    }
+    best.map(|b| Ties::one(b.0))
+}
+
+/// The search as first written (`round_f64` and a float range test), kept as a reference.
+#[cfg(test)]
+fn search_reference(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: bool) -> Option<Ties> {
     let t = tables();
     let v = |i: usize| (cc[i] as f64 - pc[i] as f64) / pr as f64 * QP as f64;
     let vg = [v(0), v(1), v(2)];
@@ -400,5 +481,56 @@ mod tests {
     fn far_child_is_refused() {
         assert!(encode_sphere([0.0; 3], 1.0, [5.0, 0.0, 0.0], 0.1).is_none());
         assert!(encode_sphere([0.0; 3], 1.0, [0.0; 3], 1.5).is_none());
+    }
+
+    /// The search finds exactly the states of the reference one.
+    #[test]
+    fn ties_match_reference() {
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        let mut rnd = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut with_ties = 0;
+        for n in 0..300_000 {
+            let pr = (0.001 + rnd() * if n % 3 == 0 { 1e3 } else { 1.0 }) as f32;
+            let pc = [0, 1, 2].map(|_| ((rnd() - 0.5) * if n % 5 == 0 { 1e4 } else { 2.0 }) as f32);
+            let cr = (pr as f64 * (0.05 + 0.9 * rnd())) as f32;
+            let reach = (pr - cr) as f64;
+            let cc = [0, 1, 2].map(|i| (pc[i] as f64 + reach * (2.0 * rnd() - 1.0) * 0.7) as f32);
+            let got = search(pc, pr, cc, cr, true);
+            assert_eq!(got, search_reference(pc, pr, cc, cr, true), "{pc:?} {pr} {cc:?} {cr}");
+            with_ties += got.is_some_and(|t| t.len > 1) as u32;
+        }
+        assert!(with_ties > 10_000, "{with_ties}");
+    }
+
+    /// `round_on_grid` agrees with `round_f64` and the `|g| <= 6` test, around every
+    /// half-integer and at random.
+    #[test]
+    fn round_on_grid_matches_round() {
+        let want = |x: f64| {
+            let r = crate::codec::rounding::round_f64(x);
+            (r.abs() <= QP as f64).then_some(r as i32)
+        };
+        let mut xs = vec![f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 0.0, -0.0, 1e300, -1e300];
+        for k in -20..=20 {
+            let h = k as f64 * 0.5;
+            let mut up = h;
+            let mut down = h;
+            for _ in 0..4 {
+                xs.extend([up, down]);
+                up = f64::from_bits(up.to_bits() + 1).max(up.next_up());
+                down = down.next_down();
+            }
+        }
+        for i in 0..200_000 {
+            xs.push((i as f64 / 200_000.0 - 0.5) * 16.0);
+        }
+        for x in xs {
+            assert_eq!(round_on_grid(x), want(x), "{x}");
+        }
     }
 }
