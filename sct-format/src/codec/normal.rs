@@ -231,8 +231,99 @@ const COS2_MAX_ERROR: f64 = 0.999875233894061;
 ///
 /// Costs, `u` and `v` surface coordinates are worked out once per row and column of the block
 /// (the same f32 operations as [`oct_unnormalized`], so the same values); a candidate costing
-/// more than the best so far is skipped before any floating point.
+/// more than the best so far is skipped before any floating point. On the upper hemisphere
+/// (`z ≥ 0`, no fold) the f64 terms `m₀x`, `x²` of a column and `m₁y`, `y²` of a row are
+/// computed once: `m·w = (m₀x + m₁y) + m₂z` and `|w|² = (x² + y²) + z²` are then the same
+/// operations in the same order as [`dot_len2`], so the same values.
 pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, u8) -> u32) -> (u16, [f32; 3], u8) {
+    if !usable(axis) {
+        return encode_cone_decoded(axis, cone);
+    }
+    let p = oct_project(axis);
+    let (fu, fv) = (super::rounding::floor_f32(p[0]), super::rounding::floor_f32(p[1]));
+    const D: [f32; 4] = [-1.0, 0.0, 1.0, 2.0];
+    let us = D.map(|d| (fu + d).clamp(0.0, 255.0) as u16);
+    let vs = D.map(|d| (fv + d).clamp(0.0, 255.0) as u16);
+    let xs = us.map(|u| u as f32 / 255.0 * 2.0 - 1.0);
+    let ys = vs.map(|v| v as f32 / 255.0 * 2.0 - 1.0);
+    let cu = us.map(|u| zz(u as u8, pred as u8));
+    let cv = vs.map(|v| zz(v as u8, (pred >> 8) as u8));
+    let m = [axis[0] as f64, axis[1] as f64, axis[2] as f64];
+    // Per column / row: 1 - |x|, m₀x, x² (f64), and the same for y.
+    let omx = xs.map(|x| 1.0 - x.abs());
+    let omy = ys.map(|y| 1.0 - y.abs());
+    let mx = xs.map(|x| m[0] * x as f64);
+    let my = ys.map(|y| m[1] * y as f64);
+    let x2 = xs.map(|x| (x as f64) * (x as f64));
+    let y2 = ys.map(|y| (y as f64) * (y as f64));
+    // oct_unnormalized of code us[i] | vs[j] << 8.
+    let surface = |i: usize, j: usize| {
+        let (mut x, mut y) = (xs[i], ys[j]);
+        let z = omx[i] - y.abs();
+        if z < 0.0 {
+            let (ox, oy) = (x, y);
+            x = omy[j] * sgn(ox);
+            y = omx[i] * sgn(oy);
+        }
+        [x, y, z]
+    };
+    // dot_len2(m, surface(i, j)).
+    let dl = |i: usize, j: usize| {
+        let z = omx[i] - ys[j].abs();
+        if z < 0.0 {
+            return dot_len2(m, surface(i, j));
+        }
+        let z = z as f64;
+        (mx[i] + my[j] + m[2] * z, x2[i] + y2[j] + z * z)
+    };
+    // The precise code: oct_encode_decoded's four candidates are the inner 2×2 of the block.
+    let mut cand = [(0u16, 0f64, 0f64); 4];
+    for (k, c) in cand.iter_mut().enumerate() {
+        let (i, j) = (1 + (k >> 1), 1 + (k & 1));
+        let (d, l2) = dl(i, j);
+        *c = (us[i] | vs[j] << 8, d, l2);
+    }
+    let k0 = pick_precise(&cand);
+    let (c0, d0, l0) = cand[k0];
+    let k0c = cu[1 + (k0 >> 1)] + cv[1 + (k0 & 1)];
+    let mut best = (k0c, c0);
+    let mut best_ij = (1 + (k0 >> 1), 1 + (k0 & 1));
+    // A cost of 0 is the prediction itself: nothing can beat it.
+    if k0c > 0 {
+        let n2 = m[0] * m[0] + m[1] * m[1] + m[2] * m[2];
+        let bound = COS2_MAX_ERROR * n2;
+        let mut best_cos = d0 / (n2 * l0).sqrt();
+        for i in 0..4 {
+            for j in 0..4 {
+                let k = cu[i] + cv[j];
+                let code = us[i] | vs[j] << 8;
+                if k > best.0 || code == best.1 {
+                    continue;
+                }
+                let (d, l2) = dl(i, j);
+                if d <= 0.0 || d * d < bound * l2 {
+                    continue;
+                }
+                let c = d / (n2 * l2).sqrt();
+                if k < best.0 || c > best_cos {
+                    best = (k, code);
+                    best_ij = (i, j);
+                    best_cos = c;
+                }
+            }
+        }
+    }
+    // oct_decode(best.1): the same surface point, normalised the same way.
+    let [x, y, z] = surface(best_ij.0, best_ij.1);
+    let l = (x * x + y * y + z * z).sqrt();
+    let dec = [x / l, y / l, z / l];
+    (best.1, dec, cone_code_over(axis, dec, cone))
+}
+
+/// The straightforward form of [`encode_cone_toward`] (before its per-row precomputation),
+/// kept to check that the fast form picks identical codes.
+#[cfg(test)]
+fn encode_cone_toward_reference(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, u8) -> u32) -> (u16, [f32; 3], u8) {
     if !usable(axis) {
         return encode_cone_decoded(axis, cone);
     }
@@ -367,5 +458,49 @@ mod tests {
         assert_eq!(cone_encode_up(0.0), 0);
         assert_eq!(cone_encode_up(10.0), 255);
         assert_eq!(cone_decode(255), std::f32::consts::PI);
+    }
+
+    /// The fast 4×4 search picks the same code, decoded axis and cone code as the
+    /// straightforward one, for random, axis-aligned and equator directions and predictions.
+    #[test]
+    fn cone_toward_matches_reference() {
+        let mut x = 0x2545_F491_4F6C_DD1Du64;
+        let mut rnd = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let zz = |a: u8, b: u8| {
+            let d = a.wrapping_sub(b) as i8 as i32;
+            (if d >= 0 { 2 * d } else { -2 * d - 1 }) as u32
+        };
+        let mut axes: Vec<[f32; 3]> = (0..400_000).map(|i| unit(i * 5)).collect();
+        for _ in 0..200_000 {
+            let r = rnd();
+            let f = |s: u32| ((r >> s) as u16 as f32 / 65535.0 * 2.0 - 1.0) * if (r >> (s + 16)) & 3 == 0 { 1e-3 } else { 1.0 };
+            axes.push([f(0), f(16), f(32)]);
+        }
+        axes.extend([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 1.0, -1e-7], [-0.577, 0.577, 0.577], [0.0; 3]]);
+        for a in axes {
+            let r = rnd();
+            let near = oct_encode(if usable(a) { a } else { [0.0, 0.0, 1.0] });
+            let pred = match r & 3 {
+                0 => r as u16,
+                1 => near,
+                _ => {
+                    let du = ((r >> 8) % 9) as u8;
+                    let dv = ((r >> 16) % 9) as u8;
+                    ((near as u8).wrapping_add(du).wrapping_sub(4)) as u16 | (((near >> 8) as u8).wrapping_add(dv).wrapping_sub(4) as u16) << 8
+                }
+            };
+            let cone = ((r >> 24) as u8) as f32 / 255.0;
+            let got = encode_cone_toward(a, cone, pred, zz);
+            let want = encode_cone_toward_reference(a, cone, pred, zz);
+            assert_eq!(got.0, want.0, "{a:?} {pred}");
+            assert_eq!(got.1.map(f32::to_bits), want.1.map(f32::to_bits), "{a:?} {pred}");
+            assert_eq!(got.2, want.2, "{a:?} {pred}");
+            assert_eq!(want.1.map(f32::to_bits), oct_decode(want.0).map(f32::to_bits));
+        }
     }
 }
