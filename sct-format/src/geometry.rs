@@ -155,9 +155,24 @@ pub fn merge_color(ca: [u8; 4], wa: f32, cb: [u8; 4], wb: f32) -> [u8; 4] {
     let mut out = [0u8; 4];
     for i in 0..4 {
         let v = (ca[i] as f64 * wa + cb[i] as f64 * wb) * inv;
-        out[i] = v.round().clamp(0.0, 255.0) as u8;
+        out[i] = round_to_u8(v);
     }
     out
+}
+
+/// `v.round().clamp(0.0, 255.0) as u8` (half away from zero), without the `round` call
+/// that a baseline x86-64 build makes: truncate, then add one when the exact fraction
+/// `v - trunc(v)` (exact for 0 ≤ v < 255) is at least one half. NaN gives 0 like the cast.
+#[inline]
+fn round_to_u8(v: f64) -> u8 {
+    if v >= 255.0 {
+        255
+    } else if v >= 0.0 {
+        let i = v as u8;
+        i + u8::from(v - i as f64 >= 0.5)
+    } else {
+        0
+    }
 }
 
 /// Smallest f32 radius such that the sphere at f32 centre `c` contains both spheres.
@@ -352,7 +367,8 @@ mod tests {
         assert_eq!(merge_color([0, 0, 0, 0], 0.0, [200, 100, 50, 255], 2.0), [200, 100, 50, 255]);
     }
 
-    /// The pre-sharing implementation of [`parent_of`] (each step normalising its own axes),
+    /// The pre-sharing implementation of [`parent_of`] (each step normalising its own axes,
+    /// `f64::round` for the colour),
     /// kept verbatim as the bit-exact reference for the optimised one.
     mod reference {
         use super::super::*;
@@ -396,6 +412,18 @@ mod tests {
             } else {
                 f32_up(t).min(std::f32::consts::PI)
             }
+        }
+
+        pub fn merge_color(ca: [u8; 4], wa: f32, cb: [u8; 4], wb: f32) -> [u8; 4] {
+            let (wa, wb) = (wa.max(0.0) as f64, wb.max(0.0) as f64);
+            let (wa, wb) = if wa + wb > 0.0 && (wa + wb).is_finite() { (wa, wb) } else { (1.0, 1.0) };
+            let inv = 1.0 / (wa + wb);
+            let mut out = [0u8; 4];
+            for i in 0..4 {
+                let v = (ca[i] as f64 * wa + cb[i] as f64 * wb) * inv;
+                out[i] = v.round().clamp(0.0, 255.0) as u8;
+            }
+            out
         }
 
         pub fn parent_of(a: &Node, b: &Node) -> Node {
@@ -523,6 +551,40 @@ mod tests {
                 }
             }
             b
+        }
+    }
+
+    #[test]
+    fn round_to_u8_matches_round_clamp_cast() {
+        let reference = |v: f64| v.round().clamp(0.0, 255.0) as u8;
+        let mut vs = vec![f64::NAN, f64::INFINITY, f64::NEG_INFINITY, f64::MAX, f64::MIN, -0.0, 0.0, 1e-300, -1e-300];
+        for k in -4..=1024 {
+            let h = k as f64 * 0.5;
+            let (mut lo, mut hi) = (h, h);
+            for _ in 0..4 {
+                lo = lo.next_down();
+                hi = hi.next_up();
+                vs.extend([lo, hi]);
+            }
+            vs.push(h);
+        }
+        let mut rng = Rng(7);
+        for _ in 0..200_000 {
+            vs.push((rng.unit() as f64 * 2.0 - 0.5) * 300.0);
+            vs.push(f64::from_bits(rng.next()));
+        }
+        for v in vs {
+            assert_eq!(round_to_u8(v), reference(v), "v = {v:e} ({:#x})", v.to_bits());
+        }
+    }
+
+    #[test]
+    fn merge_color_matches_reference() {
+        let mut rng = Rng(11);
+        for _ in 0..400_000 {
+            let (ca, cb) = ((rng.next() as u32).to_le_bytes(), (rng.next() as u32).to_le_bytes());
+            let (wa, wb) = (rng.float(10.0), if rng.next() % 4 == 0 { rng.float(1e-3) } else { rng.unit() * 10.0 });
+            assert_eq!(merge_color(ca, wa, cb, wb), reference::merge_color(ca, wa, cb, wb), "{ca:?} {wa:e} {cb:?} {wb:e}");
         }
     }
 
