@@ -112,6 +112,7 @@ impl Aabb {
     /// could differ, and no split decision sees that (`mid`, `extent` and the comparisons
     /// made with them are the same for ±0).
     #[inline]
+    #[allow(clippy::needless_range_loop)] // indexed: 0.2 % fewer instructions than the zip form
     fn add(&mut self, c: &[f32; 3]) {
         for k in 0..3 {
             let v = c[k];
