@@ -441,29 +441,37 @@ impl Image {
         if w == 0 || h == 0 || self.rgba.len() < (w * h) as usize {
             return [1.0; 4];
         }
-        let u = if uv[0].is_finite() { uv[0] } else { 0.0 };
-        let v = if uv[1].is_finite() { uv[1] } else { 0.0 };
-        let x = u as f64 * w as f64 - 0.5;
-        let y = v as f64 * h as f64 - 0.5;
-        // Clamp before conversion so huge UVs cannot overflow.
-        let (xi, yi) = (floor_i64(x.clamp(-1e15, 1e15)), floor_i64(y.clamp(-1e15, 1e15)));
-        let fx = (x - xi as f64) as f32;
-        let fy = (y - yi as f64) as f32;
         let lut = srgb_lut();
-        // Wrap the two columns and rows once (4 wraps, not 8); a hot path (once per sample).
-        let (x0, x1) = (wrap_index(xi, w, wrap_s), wrap_index(xi + 1, w, wrap_s));
-        let (r0, r1) = (wrap_index(yi, h, wrap_t) * w, wrap_index(yi + 1, h, wrap_t) * w);
-        let texel = |i: i64| -> [f32; 4] {
-            let t = self.rgba[i as usize];
+        bilinear(w, h, uv, wrap_s, wrap_t, |i| {
+            let t = self.rgba[i];
             [lut[t[0] as usize], lut[t[1] as usize], lut[t[2] as usize], t[3] as f32 / 255.0]
-        };
-        let (a, b, c, d) = (texel(r0 + x0), texel(r0 + x1), texel(r1 + x0), texel(r1 + x1));
-        std::array::from_fn(|k| {
-            let top = a[k] + (b[k] - a[k]) * fx;
-            let bot = c[k] + (d[k] - c[k]) * fx;
-            top + (bot - top) * fy
         })
     }
+}
+
+/// Bilinear lookup in a `w` × `h` texture (texel centres at half-integers, the GL convention)
+/// with the wrap modes; `texel(row-major index)` gives one linear RGBA texel. Shared by
+/// [`Image::sample`] and the sampler's pre-decoded tables, so both stay bit-identical.
+#[inline]
+pub(crate) fn bilinear(w: i64, h: i64, uv: [f32; 2], wrap_s: Wrap, wrap_t: Wrap, texel: impl Fn(usize) -> [f32; 4]) -> [f32; 4] {
+    let u = if uv[0].is_finite() { uv[0] } else { 0.0 };
+    let v = if uv[1].is_finite() { uv[1] } else { 0.0 };
+    let x = u as f64 * w as f64 - 0.5;
+    let y = v as f64 * h as f64 - 0.5;
+    // Clamp before conversion so huge UVs cannot overflow.
+    let (xi, yi) = (floor_i64(x.clamp(-1e15, 1e15)), floor_i64(y.clamp(-1e15, 1e15)));
+    let fx = (x - xi as f64) as f32;
+    let fy = (y - yi as f64) as f32;
+    // Wrap the two columns and rows once (4 wraps, not 8); a hot path (once per sample).
+    let (x0, x1) = (wrap_index(xi, w, wrap_s), wrap_index(xi + 1, w, wrap_s));
+    let (r0, r1) = (wrap_index(yi, h, wrap_t) * w, wrap_index(yi + 1, h, wrap_t) * w);
+    let at = |i: i64| texel(i as usize);
+    let (a, b, c, d) = (at(r0 + x0), at(r0 + x1), at(r1 + x0), at(r1 + x1));
+    std::array::from_fn(|k| {
+        let top = a[k] + (b[k] - a[k]) * fx;
+        let bot = c[k] + (d[k] - c[k]) * fx;
+        top + (bot - top) * fy
+    })
 }
 
 #[inline]

@@ -366,22 +366,7 @@ impl TexImage<'_> {
         };
         // `decode_textures` made `lin` only for images with 0 < width × height = lin.len().
         let (w, h) = (i64::from(self.img.width), i64::from(self.img.height));
-        let u = if uv[0].is_finite() { uv[0] } else { 0.0 };
-        let v = if uv[1].is_finite() { uv[1] } else { 0.0 };
-        let x = u as f64 * w as f64 - 0.5;
-        let y = v as f64 * h as f64 - 0.5;
-        let (xi, yi) = (floor_i64(x.clamp(-1e15, 1e15)), floor_i64(y.clamp(-1e15, 1e15)));
-        let fx = (x - xi as f64) as f32;
-        let fy = (y - yi as f64) as f32;
-        let (x0, x1) = (wrap_index(xi, w, wrap_s), wrap_index(xi + 1, w, wrap_s));
-        let (r0, r1) = (wrap_index(yi, h, wrap_t) * w, wrap_index(yi + 1, h, wrap_t) * w);
-        let texel = |i: i64| lin.get(i as usize).copied().unwrap_or([1.0; 4]);
-        let (a, b, c, d) = (texel(r0 + x0), texel(r0 + x1), texel(r1 + x0), texel(r1 + x1));
-        std::array::from_fn(|k| {
-            let top = a[k] + (b[k] - a[k]) * fx;
-            let bot = c[k] + (d[k] - c[k]) * fx;
-            top + (bot - top) * fy
-        })
+        bilinear(w, h, uv, wrap_s, wrap_t, |i| lin.get(i).copied().unwrap_or([1.0; 4]))
     }
 }
 
