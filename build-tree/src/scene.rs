@@ -408,21 +408,21 @@ impl<'a> Composer<'a> {
             return Err(BuildError::Input("scene: grid needs radius > 0 and finite spacing and jitter".into()));
         }
         let child = self.node(&g.child)?;
-        let mut rng = SplitMix(g.seed);
+        let mut rng = sct_format::rng::SplitMix64(g.seed);
         let mut ids = Vec::with_capacity(count as usize);
         for i in 0..g.nx {
             for k in 0..g.nz {
-                let x = i as f64 * g.spacing + g.jitter * (2.0 * rng.unit() - 1.0);
-                let z = k as f64 * g.spacing + g.jitter * (2.0 * rng.unit() - 1.0);
+                let x = i as f64 * g.spacing + g.jitter * (2.0 * rng.next_f64() - 1.0);
+                let z = k as f64 * g.spacing + g.jitter * (2.0 * rng.next_f64() - 1.0);
                 let rotation = if g.random_rotation {
-                    let half = std::f64::consts::PI * rng.unit();
+                    let half = std::f64::consts::PI * rng.next_f64();
                     [0.0, half.sin(), 0.0, half.cos()]
                 } else {
                     [0.0, 0.0, 0.0, 1.0]
                 };
                 let transform = fit_transform(&self.bounds[child as usize], rotation, [x, 0.0, z], g.radius)?;
                 let (tint, color) = if g.random_tint {
-                    let v = rng.next();
+                    let v = rng.next_u64();
                     (Some([v as u8, (v >> 8) as u8, (v >> 16) as u8, 255]), Propagation::PushDown)
                 } else {
                     (None, Propagation::PullUp)
@@ -464,21 +464,6 @@ fn fit_transform(bound: &Node, rotation: [f64; 4], center: [f64; 3], radius: f64
     let c = t.apply_point([bound.center[0] as f64, bound.center[1] as f64, bound.center[2] as f64]);
     t.translation = [center[0] - c[0], center[1] - c[1], center[2] - c[2]];
     Ok(t)
-}
-
-/// Deterministic generator for grid jitter and tints (SplitMix64).
-struct SplitMix(u64);
-impl SplitMix {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
 }
 
 /// Reads and parses a `scene.json` file.

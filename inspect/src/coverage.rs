@@ -392,7 +392,7 @@ fn mesh_points(mesh: &Path, opts: &AgainstOptions) -> Result<Vec<[f64; 3]>, Insp
     if pts.is_empty() {
         // A point cloud (PLY without faces): its points are the surface.
         if let Some(pc) = scene.points.as_ref().filter(|pc| !pc.positions.is_empty()) {
-            let mut rng = voxelize::mesh::SplitMix(opts.seed);
+            let mut rng = sct_format::rng::SplitMix64(opts.seed);
             pts = (0..opts.points).map(|_| pc.positions[(rng.next_u64() % pc.positions.len() as u64) as usize].map(f64::from)).collect();
         }
     }
@@ -535,7 +535,7 @@ mod tests {
     /// Brute force against the k-d tree on a grid of spheres of varied radii.
     #[test]
     fn nearest_matches_brute_force() {
-        let mut rng = voxelize::mesh::SplitMix(7);
+        let mut rng = sct_format::rng::SplitMix64(7);
         let spheres: Vec<[f32; 4]> =
             (0..2000).map(|_| [rng.next_f64() * 10.0, rng.next_f64() * 10.0, rng.next_f64(), 0.01 + rng.next_f64() * 0.2].map(|x| x as f32)).collect();
         let t = SphereTree::build(spheres.iter().copied().zip(0u32..).collect());

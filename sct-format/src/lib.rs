@@ -50,6 +50,7 @@ pub mod limits;
 pub mod node;
 pub mod raw;
 pub mod read;
+pub mod rng;
 pub mod samples;
 pub mod traverse;
 pub mod tree;

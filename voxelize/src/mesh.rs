@@ -633,7 +633,7 @@ pub fn surface_points(scene: &LoadedScene, n: usize, seed: u64) -> Vec<[f64; 3]>
     if tris.is_empty() {
         return Vec::new();
     }
-    let mut rng = SplitMix(seed);
+    let mut rng = sct_format::rng::SplitMix64(seed);
     (0..n)
         .map(|_| {
             let x = rng.next_f64() * total;
@@ -647,24 +647,6 @@ pub fn surface_points(scene: &LoadedScene, n: usize, seed: u64) -> Vec<[f64; 3]>
             std::array::from_fn(|k| a[k] + u * (b[k] - a[k]) + v * (c[k] - a[k]))
         })
         .collect()
-}
-
-/// SplitMix64: tiny, seedable, good enough for sampling test points.
-pub struct SplitMix(pub u64);
-
-impl SplitMix {
-    /// Next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1).
-    pub fn next_f64(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
 }
 
 #[cfg(test)]

@@ -1684,7 +1684,7 @@ mod tests {
     /// outside (every wrap mode), at texel centres and edges, and for non-finite UVs.
     #[test]
     fn decoded_texture_lookup_matches_image_sample() {
-        let mut rng = SplitMix(11);
+        let mut rng = sct_format::rng::SplitMix64(11);
         let (w, h) = (7u32, 5u32);
         let rgba: Vec<[u8; 4]> = (0..w * h).map(|_| std::array::from_fn(|_| (rng.next_u64() >> 56) as u8)).collect();
         let img = Image { width: w, height: h, rgba, source: "test".into() };
@@ -1781,7 +1781,7 @@ mod tests {
 
     #[test]
     fn radix_sort_is_a_stable_sort() {
-        let mut rng = SplitMix(3);
+        let mut rng = sct_format::rng::SplitMix64(3);
         let mut tmp = Vec::new();
         for (n, bits) in [(10, 5), (1000, 3), (5000, 40), (70_000, 23), (3000, 64), (4000, 33), (4000, 22)] {
             // Bits above `bits` are equal (the bucket's), and ignored.

@@ -464,13 +464,8 @@ mod tests {
     /// straightforward one, for random, axis-aligned and equator directions and predictions.
     #[test]
     fn cone_toward_matches_reference() {
-        let mut x = 0x2545_F491_4F6C_DD1Du64;
-        let mut rnd = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x
-        };
+        let mut rng = crate::rng::SplitMix64(0x2545_F491_4F6C_DD1D);
+        let mut rnd = || rng.next_u64();
         let zz = |a: u8, b: u8| {
             let d = a.wrapping_sub(b) as i8 as i32;
             (if d >= 0 { 2 * d } else { -2 * d - 1 }) as u32

@@ -451,13 +451,8 @@ mod tests {
     #[test]
     fn ties_are_equally_tight_and_contain_the_child() {
         let t = tables();
-        let mut x = 0x9E37_79B9_7F4A_7C15u64;
-        let mut rnd = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::rng::SplitMix64(0x9E37_79B9_7F4A_7C15);
+        let mut rnd = || rng.next_f64();
         let (pc, pr) = ([0.3f32, -1.2, 2.0], 0.75f32);
         let mut with_ties = 0;
         for _ in 0..20_000 {
@@ -486,13 +481,8 @@ mod tests {
     /// The search finds exactly the states of the reference one.
     #[test]
     fn ties_match_reference() {
-        let mut x = 0x9E37_79B9_7F4A_7C15u64;
-        let mut rnd = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::rng::SplitMix64(0x9E37_79B9_7F4A_7C15);
+        let mut rnd = || rng.next_f64();
         let mut with_ties = 0;
         for n in 0..300_000 {
             let pr = (0.001 + rnd() * if n % 3 == 0 { 1e3 } else { 1.0 }) as f32;

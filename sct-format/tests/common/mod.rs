@@ -3,19 +3,18 @@
 
 use sct_format::{Node, SceneTree};
 
-/// Small deterministic PRNG (splitmix64) so tests need no extra dependency.
-pub struct Rng(pub u64);
+/// The workspace's deterministic generator with the helpers these tests need.
+pub struct Rng(pub sct_format::rng::SplitMix64);
 
 impl Rng {
+    pub fn new(seed: u64) -> Self {
+        Rng(sct_format::rng::SplitMix64(seed))
+    }
     pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E3779B97F4A7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58476D1CE4E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D049BB133111EB);
-        z ^ (z >> 31)
+        self.0.next_u64()
     }
     pub fn f32(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+        self.0.next_f32()
     }
     pub fn unit(&mut self) -> [f32; 3] {
         loop {
@@ -32,7 +31,7 @@ impl Rng {
 /// child lies inside its parent, areas split exactly, and cones contain the children's
 /// normals (internal cones are whole-sphere; leaves have cone 0).
 pub fn random_tree(seed: u64, target_nodes: usize, alpha: bool) -> SceneTree {
-    let mut rng = Rng(seed);
+    let mut rng = Rng::new(seed);
     let root = Node { center: [1.0, -2.0, 3.0], radius: 1000.0, normal: [0.0, 0.0, 1.0], cone: std::f32::consts::PI, area: 100.0, color: [128, 64, 32, 255] };
     let mut nodes = vec![root];
     let mut internal = Vec::new();
