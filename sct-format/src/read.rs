@@ -620,13 +620,20 @@ mod tests {
 
     const AT: u64 = 1000;
 
-    /// A graph of a tree (node 0) and a group (node 1) whose `k` children all point forward.
-    fn bad_group(k: u64) -> Vec<u8> {
+    /// The head of a two-node graph (root 1) and node 0, a tree node for tree 0; the caller
+    /// appends node 1 (12-byte head + 5-byte node: node 1 starts at `AT + 17`).
+    fn tree_then_one_node() -> Vec<u8> {
         let mut b = Vec::new();
         b.put_u64(2);
         b.put_u32(1);
         b.put_u8(kind::TREE);
         b.put_u32(0);
+        b
+    }
+
+    /// A graph of a tree (node 0) and a group (node 1) whose `k` children all point forward.
+    fn bad_group(k: u64) -> Vec<u8> {
+        let mut b = tree_then_one_node();
         b.put_u8(kind::GROUP);
         b.put_u32(0);
         b.put_u64(k);
@@ -658,11 +665,7 @@ mod tests {
     /// A bad instance transform is reported at the instance's offset, not the section's.
     #[test]
     fn bad_transform_is_reported_at_the_instance() {
-        let mut b = Vec::new();
-        b.put_u64(2);
-        b.put_u32(1);
-        b.put_u8(kind::TREE);
-        b.put_u32(0);
+        let mut b = tree_then_one_node();
         b.put_u8(kind::INSTANCE);
         b.put_u32(0);
         for v in [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, -2.0] {
@@ -683,11 +686,7 @@ mod tests {
     #[test]
     fn bad_tree_references_are_reported_at_their_node() {
         // Tree 0 has 4 leaves, the group (node 1) has 2 children.
-        let mut b = Vec::new();
-        b.put_u64(2);
-        b.put_u32(1);
-        b.put_u8(kind::TREE);
-        b.put_u32(0);
+        let mut b = tree_then_one_node();
         b.put_u8(kind::GROUP);
         b.put_u32(0);
         b.put_u64(2);
