@@ -140,7 +140,8 @@ fn areas(p: &Node, code: u16) -> (f32, f32) {
 /// below 16/4096 keep the full resolution).
 fn area_code(a: f32, b: f32) -> u16 {
     let sum = a as f64 + b as f64;
-    if !(sum > 0.0) {
+    // Also catches NaN.
+    if sum.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return AREA_ONE / 2;
     }
     let x = (a as f64 / sum * AREA_ONE as f64).clamp(0.0, AREA_ONE as f64);

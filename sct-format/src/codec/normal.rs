@@ -30,7 +30,12 @@ fn sgn(v: f32) -> f32 {
 /// Decodes an octahedral code to a unit vector (f32, deterministic IEEE operations only).
 #[inline]
 pub fn oct_decode(code: u16) -> [f32; 3] {
-    let [x, y, z] = oct_unnormalized(code);
+    normalized(oct_unnormalized(code))
+}
+
+/// A surface point scaled to unit length, as [`oct_decode`] does it.
+#[inline]
+fn normalized([x, y, z]: [f32; 3]) -> [f32; 3] {
     let l = (x * x + y * y + z * z).sqrt();
     // l ≥ 1/√3 on the octahedron surface: never zero.
     [x / l, y / l, z / l]
@@ -229,6 +234,10 @@ const COS2_MAX_ERROR: f64 = 0.999875233894061;
 /// another is strictly better. The cone code still rounds up over the actual axis error, so the
 /// decoded cone contains the original cone.
 ///
+/// The prediction itself costs 0, so when it lies in the block and within the bound nothing can
+/// beat it: that is checked first, before the block is set up (about a third of the bunny's
+/// children stop there).
+///
 /// Costs, `u` and `v` surface coordinates are worked out once per row and column of the block
 /// (the same f32 operations as [`oct_unnormalized`], so the same values); a candidate costing
 /// more than the best so far is skipped before any floating point. On the upper hemisphere
@@ -241,6 +250,20 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
     }
     let p = oct_project(axis);
     let (fu, fv) = (super::rounding::floor_f32(p[0]), super::rounding::floor_f32(p[1]));
+    let m = [axis[0] as f64, axis[1] as f64, axis[2] as f64];
+    let n2 = m[0] * m[0] + m[1] * m[1] + m[2] * m[2];
+    let bound = COS2_MAX_ERROR * n2;
+    // The block's codes are u ∈ [fu − 1, fu + 2] ∩ [0, 255] (fu ∈ [0, 255]), likewise v.
+    let (pu, pv) = ((pred & 0xff) as f32, (pred >> 8) as f32);
+    if pu >= fu - 1.0 && pu <= fu + 2.0 && pv >= fv - 1.0 && pv <= fv + 2.0 {
+        let w = oct_unnormalized(pred);
+        let (d, l2) = dot_len2(m, w);
+        // The search's bound test, negated.
+        if !(d <= 0.0 || d * d < bound * l2) {
+            let dec = normalized(w);
+            return (pred, dec, cone_code_over(axis, dec, cone));
+        }
+    }
     const D: [f32; 4] = [-1.0, 0.0, 1.0, 2.0];
     let us = D.map(|d| (fu + d).clamp(0.0, 255.0) as u16);
     let vs = D.map(|d| (fv + d).clamp(0.0, 255.0) as u16);
@@ -248,7 +271,6 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
     let ys = vs.map(|v| v as f32 / 255.0 * 2.0 - 1.0);
     let cu = us.map(|u| zz(u as u8, pred as u8));
     let cv = vs.map(|v| zz(v as u8, (pred >> 8) as u8));
-    let m = [axis[0] as f64, axis[1] as f64, axis[2] as f64];
     // Per column / row: 1 - |x|, m₀x, x² (f64), and the same for y.
     let omx = xs.map(|x| 1.0 - x.abs());
     let omy = ys.map(|y| 1.0 - y.abs());
@@ -290,8 +312,6 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
     let mut best_ij = (1 + (k0 >> 1), 1 + (k0 & 1));
     // A cost of 0 is the prediction itself: nothing can beat it.
     if k0c > 0 {
-        let n2 = m[0] * m[0] + m[1] * m[1] + m[2] * m[2];
-        let bound = COS2_MAX_ERROR * n2;
         let mut best_cos = d0 / (n2 * l0).sqrt();
         for i in 0..4 {
             for j in 0..4 {
@@ -313,10 +333,8 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
             }
         }
     }
-    // oct_decode(best.1): the same surface point, normalised the same way.
-    let [x, y, z] = surface(best_ij.0, best_ij.1);
-    let l = (x * x + y * y + z * z).sqrt();
-    let dec = [x / l, y / l, z / l];
+    // oct_decode(best.1): the same surface point.
+    let dec = normalized(surface(best_ij.0, best_ij.1));
     (best.1, dec, cone_code_over(axis, dec, cone))
 }
 
