@@ -156,17 +156,22 @@ pub fn cone_decode(code: u8) -> f32 {
 }
 
 fn cone_table() -> &'static [f32; 256] {
-    static T: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
-    T.get_or_init(|| {
-        let mut t = [0f32; 256];
-        for (i, v) in t.iter_mut().enumerate() {
-            *v = (i as f64 * CONE_STEP) as f32;
-        }
-        // f32 π lies above the true π, so code 255 covers the whole sphere.
-        t[255] = std::f32::consts::PI;
-        t
-    })
+    &CONE_TABLE
 }
+
+/// Decoded cone angles, built at compile time (IEEE arithmetic, the same values as at run time;
+/// checked in a test): no lazy-initialisation check on each of the encoder's two lookups a node.
+static CONE_TABLE: [f32; 256] = {
+    let mut t = [0f32; 256];
+    let mut i = 0;
+    while i < 256 {
+        t[i] = (i as f64 * CONE_STEP) as f32;
+        i += 1;
+    }
+    // f32 π lies above the true π, so code 255 covers the whole sphere.
+    t[255] = std::f32::consts::PI;
+    t
+};
 
 /// Smallest cone code whose decoded angle is at least `need` radians (code 255 = π covers
 /// any need, including ≥ π).
@@ -461,6 +466,16 @@ mod tests {
             }
         }
         assert!(differ > 1000);
+    }
+
+    /// The compile-time table holds what run-time arithmetic gives.
+    #[test]
+    fn cone_table_matches_run_time() {
+        let step = std::hint::black_box(PI) / 255.0;
+        for (i, &v) in CONE_TABLE.iter().enumerate().take(255) {
+            assert_eq!(v.to_bits(), ((i as f64 * step) as f32).to_bits(), "{i}");
+        }
+        assert_eq!(CONE_TABLE[255], std::f32::consts::PI);
     }
 
     #[test]
