@@ -115,7 +115,12 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
         let mut normals = Vec::new();
         let mut colors = Vec::new();
         // Corner (position, uv, normal) triple -> vertex: OBJ indexes attributes separately.
-        let mut vmap: HashMap<(u32, u32, u32), u32> = HashMap::new();
+        // The vertices of one position form a chain (first per position, next per vertex)
+        // holding their (uv, normal) pair: positions rarely have more than a few, and a
+        // hash map of triples cost more than the OBJ parse.
+        let mut first = vec![u32::MAX; npos];
+        let mut next: Vec<u32> = Vec::new();
+        let mut tn: Vec<(u32, u32)> = Vec::new();
         let mut corner_vertex = |c: usize, prim: &mut Primitive| -> Result<u32, LoadError> {
             let p = mesh.indices[c];
             let t = if has_uv { mesh.texcoord_indices[c] } else { u32::MAX };
@@ -136,11 +141,18 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
             if has_n && n as usize >= nn {
                 return Err(oor("face normal index", n, nn));
             }
-            if let Some(&v) = vmap.get(&(p, t, n)) {
-                return Ok(v);
+            let pi = p as usize;
+            let mut v = first[pi];
+            while v != u32::MAX {
+                if tn[v as usize] == (t, n) {
+                    return Ok(v);
+                }
+                v = next[v as usize];
             }
             let v = prim.positions.len() as u32;
-            let pi = p as usize;
+            next.push(first[pi]);
+            first[pi] = v;
+            tn.push((t, n));
             prim.positions.push([mesh.positions[3 * pi], mesh.positions[3 * pi + 1], mesh.positions[3 * pi + 2]]);
             if has_uv {
                 let ti = t as usize;
@@ -159,7 +171,6 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
                     1.0,
                 ]);
             }
-            vmap.insert((p, t, n), v);
             Ok(v)
         };
         let arities: Vec<u32> = if mesh.face_arities.is_empty() {
