@@ -484,6 +484,47 @@ impl Poly2 {
         self.clip_half_into(|p| p[axis] - lo, Some((axis, lo)), tmp);
         tmp.clip_half_into(|p| hi - p[axis], Some((axis, hi)), out);
     }
+    /// Splits at `x[axis] = c` into the parts `x[axis] ≤ c` (`below`) and `≥ c` (`above`) in
+    /// one pass: the polygons of the two clips, with each cut point computed once and shared,
+    /// so the parts meet exactly.
+    #[inline]
+    fn split_axis_into(&self, axis: usize, c: f64, below: &mut Poly2, above: &mut Poly2) {
+        below.n = 0;
+        above.n = 0;
+        if self.n == 0 {
+            return;
+        }
+        let mut prev = self.v[self.n - 1];
+        let mut fp = prev[axis] - c;
+        for i in 0..self.n {
+            let cur = self.v[i];
+            let fc = cur[axis] - c;
+            let (cross_above, cross_below) = ((fc >= 0.0) != (fp >= 0.0), (fc <= 0.0) != (fp <= 0.0));
+            if cross_above || cross_below {
+                let t = fp / (fp - fc);
+                let mut x = [prev[0] + t * (cur[0] - prev[0]), prev[1] + t * (cur[1] - prev[1])];
+                x[axis] = c;
+                if cross_above && above.n < MAXV {
+                    above.v[above.n] = x;
+                    above.n += 1;
+                }
+                if cross_below && below.n < MAXV {
+                    below.v[below.n] = x;
+                    below.n += 1;
+                }
+            }
+            if fc >= 0.0 && above.n < MAXV {
+                above.v[above.n] = cur;
+                above.n += 1;
+            }
+            if fc <= 0.0 && below.n < MAXV {
+                below.v[below.n] = cur;
+                below.n += 1;
+            }
+            prev = cur;
+            fp = fc;
+        }
+    }
     /// Keeps the side `f(p) >= 0` of a line (`f` affine). `exact` = (axis, value) for
     /// axis-aligned lines: intersections get that coordinate exactly, so neighbouring clips
     /// agree bit for bit.
@@ -547,6 +588,12 @@ impl Poly2 {
             (lo.min(x), hi.max(x))
         })
     }
+}
+
+/// The polygon at `r` of a ping-pong pair (to read) and the other one (to write).
+fn ping(pair: &mut [Poly2; 2], r: usize) -> (&Poly2, &mut Poly2) {
+    let (a, b) = pair.split_at_mut(1);
+    if r == 0 { (&a[0], &mut b[0]) } else { (&b[0], &mut a[0]) }
 }
 
 /// Samples made at voxel size `h`, estimated before allocating. Before merging, a triangle
@@ -1339,11 +1386,25 @@ fn voxel_triangle_axis<const D: usize>(
     }
     let half = 0.5 * (ga.abs() + gb.abs());
     const EPS: f64 = 1e-9;
-    // Reused polygon buffers: strip, column piece, lower depth part, and clip temporaries.
+    // The triangle is swept: each strip is split off the rest of the triangle (one pass, the
+    // cut shared by both sides), each boundary column off the rest of its strip. Reused
+    // buffers: the rest of the triangle and of the strip (ping-pong pairs), the strip, the
+    // column piece, the lower depth part and a clip temporary.
+    let mut rest = [tri, Poly2::empty()];
+    let mut r = 0;
     let (mut strip, mut col, mut lower, mut tmp) = (Poly2::empty(), Poly2::empty(), Poly2::empty(), Poly2::empty());
+    let mut srest = [Poly2::empty(), Poly2::empty()];
     for ia in lo_a..=hi_a {
         let (x0, x1) = (ia as f64, ia as f64 + 1.0);
-        tri.clip_axis_into(0, x0, x1, &mut tmp, &mut strip);
+        if x1 >= ahi {
+            // The rest lies below x1: it is the strip (the split would copy it).
+            std::mem::swap(&mut strip, &mut rest[r]);
+            rest[r].n = 0;
+        } else {
+            let (src, dst) = ping(&mut rest, r);
+            src.split_axis_into(0, x1, &mut strip, dst);
+            r ^= 1;
+        }
         if strip.n < 3 {
             continue;
         }
@@ -1366,6 +1427,9 @@ fn voxel_triangle_axis<const D: usize>(
         if b == 0 {
             (blo, bhi) = (blo.max(xr.0), bhi.min(xr.1));
         }
+        // The rest of the strip lies above `cut` (interior columns are skipped, not split off).
+        std::mem::swap(&mut srest[0], &mut strip);
+        let (mut sr, mut cut) = (0, blo as f64);
         for ib in blo..=bhi {
             let y = ib as f64;
             let interior = y >= first_in && y <= last_in;
@@ -1374,7 +1438,19 @@ fn voxel_triangle_axis<const D: usize>(
                 let dc = depth(&cen);
                 (1.0, cen, dc - half, dc + half)
             } else {
-                strip.clip_axis_into(1, y, y + 1.0, &mut tmp, &mut col);
+                if y > cut {
+                    srest[sr].clip_half_into(|p| p[1] - y, Some((1, y)), &mut tmp);
+                    std::mem::swap(&mut srest[sr], &mut tmp);
+                }
+                if y + 1.0 >= bmax {
+                    std::mem::swap(&mut col, &mut srest[sr]);
+                    srest[sr].n = 0;
+                } else {
+                    let (src, dst) = ping(&mut srest, sr);
+                    src.split_axis_into(1, y + 1.0, &mut col, dst);
+                    sr ^= 1;
+                }
+                cut = y + 1.0;
                 if col.n < 3 {
                     continue;
                 }
