@@ -875,7 +875,9 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
         }
     }
     // Slabs run in about 8 batches, each batch's output appended in slab order as it ends:
-    // the per-slab outputs of only one batch coexist with the result (not all of them).
+    // the per-slab outputs of only one batch coexist with the result (not all of them), and
+    // their buffers are reused by the next batch (no fresh pages to fault in and zero).
+    let outs: std::sync::Mutex<Vec<Vec<Node>>> = std::sync::Mutex::new(Vec::new());
     let batch = slab_x.len().div_ceil(8).max(8 * rayon::current_num_threads());
     let (mut nodes, mut before, mut dropped) = (Vec::new(), 0u64, 0u64);
     for (lists, slab_x) in lists.chunks(batch).zip(slab_x.chunks(batch)) {
@@ -909,15 +911,21 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
                     progress(list.iter().filter(|&&gi| xr[gi as usize].0 >= x0).count() as u64);
                     let before = bufs.recs.len() as u64;
                     let idx_mask = sort_order(&bufs.recs, &mut bufs.items, &mut bufs.tmp);
-                    (merge_sorted(&bufs.items, idx_mask, &bufs.recs, kp, radius, h, h2, opts.merge), before, dropped)
+                    let mut out = outs.lock().ok().and_then(|mut o| o.pop()).unwrap_or_default();
+                    merge_sorted(&bufs.items, idx_mask, &bufs.recs, kp, radius, h, h2, opts.merge, &mut out);
+                    (out, before, dropped)
                 },
             )
             .collect();
         nodes.reserve(parts.iter().map(|p| p.0.len()).sum());
-        for (p, b, d) in parts {
-            nodes.extend(p);
+        for (mut p, b, d) in parts {
+            nodes.extend_from_slice(&p);
             before += b;
             dropped += d;
+            p.clear();
+            if let Ok(mut o) = outs.lock() {
+                o.push(p);
+            }
         }
     }
     (nodes, before, dropped)
@@ -958,10 +966,11 @@ fn sort_order(recs: &[Rec], items: &mut Vec<u64>, tmp: &mut Vec<u64>) -> u64 {
 /// Turns records into nodes in the order of `items` (record index = item & `idx_mask`, in key
 /// order), merging records of one voxel (areas add; normal and colour are area-weighted means).
 #[allow(clippy::too_many_arguments)]
-fn merge_sorted(items: &[u64], idx_mask: u64, recs: &[Rec], kp: &KeyPack, r: f32, h: f64, h2: f64, merge: bool) -> Vec<Node> {
+fn merge_sorted(items: &[u64], idx_mask: u64, recs: &[Rec], kp: &KeyPack, r: f32, h: f64, h2: f64, merge: bool, out: &mut Vec<Node>) {
     let rec = |j: usize| &recs[(items[j] & idx_mask) as usize];
     let center = |key: u64| kp.unpack(key).map(|v| ((v as f64 + 0.5) * h) as f32);
-    let mut out = Vec::with_capacity(if merge { items.len() * 4 / 5 } else { items.len() });
+    out.clear();
+    out.reserve(if merge { items.len() * 4 / 5 } else { items.len() });
     // Neighbouring voxels mostly carry the same colour (always for untextured meshes without
     // vertex colours): encode a colour once for a run of equal ones.
     let mut memo = ([f32::NAN; 4], [0u8; 4]);
@@ -1003,7 +1012,6 @@ fn merge_sorted(items: &[u64], idx_mask: u64, recs: &[Rec], kp: &KeyPack, r: f32
         out.push(Node { center: center(key), radius: r, normal, cone: 0.0, area: (a * h2) as f32, color: enc(c.map(|x| (x / wsum) as f32)) });
         i = j;
     }
-    out
 }
 
 /// Stable LSD radix sort of `items` by their bits `shift .. shift + bits` (the bits above are

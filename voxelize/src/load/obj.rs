@@ -2,6 +2,7 @@
 //! backslash line continuations, texture paths with backslashes/spaces/options, and CDT
 //! triangulation of n-gons (tobj's own triangulation is a fan).
 
+use std::borrow::Cow;
 use std::cell::RefCell;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -34,7 +35,7 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
             }
         };
         let text = match decode_text(&found, &bytes) {
-            Ok(t) => join_continuations(&t),
+            Ok(t) => join_continuations(&t).into_owned(),
             Err(e) => {
                 warnings.borrow_mut().push(format!("{e}; using default colour"));
                 return Err(tobj::LoadError::ReadError);
@@ -248,7 +249,11 @@ pub(super) fn decode_text(path: &Path, bytes: &[u8]) -> Result<String, LoadError
 
 /// Joins lines ending in a backslash with the next line (an OBJ/MTL continuation).
 /// Also drops `usemtl`/`mtllib` lines without a name (Rhino writes them; tobj refuses them).
-pub(super) fn join_continuations(text: &str) -> String {
+pub(super) fn join_continuations(text: &str) -> Cow<'_, str> {
+    // Most files have neither (a substring search is far cheaper than a copy line by line).
+    if !text.contains('\\') && !text.contains("usemtl") && !text.contains("mtllib") {
+        return Cow::Borrowed(text);
+    }
     let mut out = String::with_capacity(text.len());
     for line in text.split_inclusive('\n') {
         let trimmed = line.trim_end_matches(['\n', '\r']);
@@ -261,7 +266,7 @@ pub(super) fn join_continuations(text: &str) -> String {
             out.push_str(line);
         }
     }
-    out
+    Cow::Owned(out)
 }
 
 /// Finds a file referenced from an OBJ/MTL: as written, with backslashes as separators,
