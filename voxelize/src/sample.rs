@@ -1262,7 +1262,7 @@ impl<'m> Planes<'m> {
     }
 
     /// (colour or `None` = dropped by alpha, unit normal) at projection-plane point `p`.
-    #[inline]
+    #[inline(always)]
     fn shade(&self, p: [f64; 2]) -> (Option<[f32; 4]>, [f32; 3]) {
         let (da, db) = ((p[0] - self.o[0]) as f32, (p[1] - self.o[1]) as f32);
         let at = |pl: &[f32; 3]| pl[0] + pl[1] * da + pl[2] * db;
