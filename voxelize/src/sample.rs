@@ -1948,6 +1948,30 @@ mod tests {
         }
     }
 
+    /// One-pass splitting gives the polygons of the two clips bit for bit (vertices on the cut
+    /// line included), so swept strips and columns meet exactly.
+    #[test]
+    fn split_equals_two_clips() {
+        let mut rng = sct_format::rng::SplitMix64(5);
+        for i in 0..20_000 {
+            // Random triangles, some with vertices on the cut line.
+            let mut p = Poly2::empty();
+            p.n = 3;
+            for v in &mut p.v[..3] {
+                *v = [(rng.next_f64() * 8.0).floor() / 2.0, rng.next_f64() * 4.0];
+            }
+            let (axis, c) = (i % 2, if i % 3 == 0 { 2.0 } else { rng.next_f64() * 4.0 });
+            let (mut below, mut above) = (Poly2::empty(), Poly2::empty());
+            p.split_axis_into(axis, c, &mut below, &mut above);
+            let want_below = p.clip_half(|q| c - q[axis], Some((axis, c)));
+            let want_above = p.clip_half(|q| q[axis] - c, Some((axis, c)));
+            for (got, want) in [(below, want_below), (above, want_above)] {
+                assert_eq!(got.n, want.n);
+                assert_eq!(got.v[..got.n], want.v[..want.n]);
+            }
+        }
+    }
+
     #[test]
     fn radix_sort_is_a_stable_sort() {
         let mut rng = sct_format::rng::SplitMix64(3);
