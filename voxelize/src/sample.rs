@@ -414,6 +414,8 @@ struct KeyPack {
     lo: [i64; 3],
     hi: [i64; 3],
     bits: [u32; 3],
+    /// `bits[1] + bits[2]`.
+    shift_x: u32,
 }
 
 impl KeyPack {
@@ -431,13 +433,13 @@ impl KeyPack {
                 h[2].saturating_sub(l[2])
             ));
         }
-        Ok(KeyPack { lo: l, hi: h, bits })
+        Ok(KeyPack { lo: l, hi: h, bits, shift_x: bits[1] + bits[2] })
     }
     #[inline]
     fn pack(&self, k: [i64; 3]) -> u64 {
         // Clamped so a rounding stray can never spill into a neighbouring field.
         let v: [u64; 3] = std::array::from_fn(|i| (k[i].clamp(self.lo[i], self.hi[i]) - self.lo[i]) as u64);
-        (v[0] << (self.bits[1] + self.bits[2])) | (v[1] << self.bits[2]) | v[2]
+        (v[0] << self.shift_x) | (v[1] << self.bits[2]) | v[2]
     }
     #[inline]
     fn unpack(&self, key: u64) -> [i64; 3] {
@@ -1360,7 +1362,7 @@ fn voxel_triangle_axis<const D: usize>(
         key[a] = ia;
         key[b] = ib;
         key[d] = k;
-        if !(keep.0..=keep.1).contains(&key[0].clamp(kp.lo[0], kp.hi[0])) {
+        if keep != ALL_X && !(keep.0..=keep.1).contains(&key[0].clamp(kp.lo[0], kp.hi[0])) {
             skipped += 1;
             return;
         }
