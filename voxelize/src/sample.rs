@@ -414,6 +414,8 @@ struct KeyPack {
     lo: [i64; 3],
     hi: [i64; 3],
     bits: [u32; 3],
+    /// `bits[1] + bits[2]`.
+    shift_x: u32,
 }
 
 impl KeyPack {
@@ -431,16 +433,13 @@ impl KeyPack {
                 h[2].saturating_sub(l[2])
             ));
         }
-        Ok(KeyPack { lo: l, hi: h, bits })
-    }
-    fn total_bits(&self) -> u32 {
-        self.bits.iter().sum()
+        Ok(KeyPack { lo: l, hi: h, bits, shift_x: bits[1] + bits[2] })
     }
     #[inline]
     fn pack(&self, k: [i64; 3]) -> u64 {
         // Clamped so a rounding stray can never spill into a neighbouring field.
         let v: [u64; 3] = std::array::from_fn(|i| (k[i].clamp(self.lo[i], self.hi[i]) - self.lo[i]) as u64);
-        (v[0] << (self.bits[1] + self.bits[2])) | (v[1] << self.bits[2]) | v[2]
+        (v[0] << self.shift_x) | (v[1] << self.bits[2]) | v[2]
     }
     #[inline]
     fn unpack(&self, key: u64) -> [i64; 3] {
@@ -486,6 +485,47 @@ impl Poly2 {
     fn clip_axis_into(&self, axis: usize, lo: f64, hi: f64, tmp: &mut Poly2, out: &mut Poly2) {
         self.clip_half_into(|p| p[axis] - lo, Some((axis, lo)), tmp);
         tmp.clip_half_into(|p| hi - p[axis], Some((axis, hi)), out);
+    }
+    /// Splits at `x[axis] = c` into the parts `x[axis] ≤ c` (`below`) and `≥ c` (`above`) in
+    /// one pass: the polygons of the two clips, with each cut point computed once and shared,
+    /// so the parts meet exactly.
+    #[inline]
+    fn split_axis_into(&self, axis: usize, c: f64, below: &mut Poly2, above: &mut Poly2) {
+        below.n = 0;
+        above.n = 0;
+        if self.n == 0 {
+            return;
+        }
+        let mut prev = self.v[self.n - 1];
+        let mut fp = prev[axis] - c;
+        for i in 0..self.n {
+            let cur = self.v[i];
+            let fc = cur[axis] - c;
+            let (cross_above, cross_below) = ((fc >= 0.0) != (fp >= 0.0), (fc <= 0.0) != (fp <= 0.0));
+            if cross_above || cross_below {
+                let t = fp / (fp - fc);
+                let mut x = [prev[0] + t * (cur[0] - prev[0]), prev[1] + t * (cur[1] - prev[1])];
+                x[axis] = c;
+                if cross_above && above.n < MAXV {
+                    above.v[above.n] = x;
+                    above.n += 1;
+                }
+                if cross_below && below.n < MAXV {
+                    below.v[below.n] = x;
+                    below.n += 1;
+                }
+            }
+            if fc >= 0.0 && above.n < MAXV {
+                above.v[above.n] = cur;
+                above.n += 1;
+            }
+            if fc <= 0.0 && below.n < MAXV {
+                below.v[below.n] = cur;
+                below.n += 1;
+            }
+            prev = cur;
+            fp = fc;
+        }
     }
     /// Keeps the side `f(p) >= 0` of a line (`f` affine). `exact` = (axis, value) for
     /// axis-aligned lines: intersections get that coordinate exactly, so neighbouring clips
@@ -550,6 +590,12 @@ impl Poly2 {
             (lo.min(x), hi.max(x))
         })
     }
+}
+
+/// The polygon at `r` of a ping-pong pair (to read) and the other one (to write).
+fn ping(pair: &mut [Poly2; 2], r: usize) -> (&Poly2, &mut Poly2) {
+    let (a, b) = pair.split_at_mut(1);
+    if r == 0 { (&a[0], &mut b[0]) } else { (&b[0], &mut a[0]) }
 }
 
 /// Samples made at voxel size `h`, estimated before allocating. Before merging, a triangle
@@ -813,8 +859,8 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
     let h2 = h * h;
     struct Bufs {
         recs: Vec<Rec>,
-        items: Vec<(u64, u64)>,
-        tmp: Vec<(u64, u64)>,
+        items: Vec<u64>,
+        tmp: Vec<u64>,
     }
     // Slab buffers outlive rayon's jobs in a pool, so batches reuse them.
     let pool: std::sync::Mutex<Vec<Bufs>> = std::sync::Mutex::new(Vec::new());
@@ -831,7 +877,9 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
         }
     }
     // Slabs run in about 8 batches, each batch's output appended in slab order as it ends:
-    // the per-slab outputs of only one batch coexist with the result (not all of them).
+    // the per-slab outputs of only one batch coexist with the result (not all of them), and
+    // their buffers are reused by the next batch (no fresh pages to fault in and zero).
+    let outs: std::sync::Mutex<Vec<Vec<Node>>> = std::sync::Mutex::new(Vec::new());
     let batch = slab_x.len().div_ceil(8).max(8 * rayon::current_num_threads());
     let (mut nodes, mut before, mut dropped) = (Vec::new(), 0u64, 0u64);
     for (lists, slab_x) in lists.chunks(batch).zip(slab_x.chunks(batch)) {
@@ -864,18 +912,22 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
                     // Progress counts a triangle once, in its first slab.
                     progress(list.iter().filter(|&&gi| xr[gi as usize].0 >= x0).count() as u64);
                     let before = bufs.recs.len() as u64;
-                    bufs.items.clear();
-                    bufs.items.extend(bufs.recs.iter().enumerate().map(|(i, r)| (r.key, i as u64)));
-                    radix_sort_low(&mut bufs.items, &mut bufs.tmp, kp.total_bits());
-                    (merge_sorted(&bufs.items, &bufs.recs, kp, radius, h, h2, opts.merge), before, dropped)
+                    let idx_mask = sort_order(&bufs.recs, &mut bufs.items, &mut bufs.tmp);
+                    let mut out = outs.lock().ok().and_then(|mut o| o.pop()).unwrap_or_default();
+                    merge_sorted(&bufs.items, idx_mask, &bufs.recs, kp, radius, h, h2, opts.merge, &mut out);
+                    (out, before, dropped)
                 },
             )
             .collect();
         nodes.reserve(parts.iter().map(|p| p.0.len()).sum());
-        for (p, b, d) in parts {
-            nodes.extend(p);
+        for (mut p, b, d) in parts {
+            nodes.extend_from_slice(&p);
             before += b;
             dropped += d;
+            p.clear();
+            if let Ok(mut o) = outs.lock() {
+                o.push(p);
+            }
         }
     }
     (nodes, before, dropped)
@@ -894,11 +946,33 @@ fn slab_target() -> f64 {
     SLAB_TARGET.load(std::sync::atomic::Ordering::Relaxed) as f64
 }
 
-/// Turns sorted (key, record) pairs into nodes, merging records of one voxel (areas add;
-/// normal and colour are area-weighted means).
-fn merge_sorted(items: &[(u64, u64)], recs: &[Rec], kp: &KeyPack, r: f32, h: f64, h2: f64, merge: bool) -> Vec<Node> {
+/// Sorts `recs` by key, stably: fills `items` with their indices in key order, each in the
+/// low bits of an item under the returned mask. Normally an item is the key (relative to
+/// the smallest) above the index, so one radix sort of plain `u64`s by their key bits
+/// orders them; when the two do not fit in 64 bits, items are bare indices (comparison sort).
+fn sort_order(recs: &[Rec], items: &mut Vec<u64>, tmp: &mut Vec<u64>) -> u64 {
+    items.clear();
+    let (lo, hi) = recs.iter().fold((u64::MAX, 0), |(l, h), r| (l.min(r.key), h.max(r.key)));
+    let key_bits = 64 - hi.saturating_sub(lo).leading_zeros();
+    let idx_bits = 64 - (recs.len() as u64).leading_zeros();
+    if key_bits + idx_bits > 64 {
+        items.extend(0..recs.len() as u64);
+        items.sort_by_key(|&i| recs[i as usize].key);
+        return u64::MAX;
+    }
+    items.extend(recs.iter().enumerate().map(|(i, r)| ((r.key - lo) << idx_bits) | i as u64));
+    radix_sort_bits(items, tmp, idx_bits, key_bits);
+    (1u64 << idx_bits) - 1
+}
+
+/// Turns records into nodes in the order of `items` (record index = item & `idx_mask`, in key
+/// order), merging records of one voxel (areas add; normal and colour are area-weighted means).
+#[allow(clippy::too_many_arguments)]
+fn merge_sorted(items: &[u64], idx_mask: u64, recs: &[Rec], kp: &KeyPack, r: f32, h: f64, h2: f64, merge: bool, out: &mut Vec<Node>) {
+    let rec = |j: usize| &recs[(items[j] & idx_mask) as usize];
     let center = |key: u64| kp.unpack(key).map(|v| ((v as f64 + 0.5) * h) as f32);
-    let mut out = Vec::with_capacity(if merge { items.len() * 4 / 5 } else { items.len() });
+    out.clear();
+    out.reserve(if merge { items.len() * 4 / 5 } else { items.len() });
     // Neighbouring voxels mostly carry the same colour (always for untextured meshes without
     // vertex colours): encode a colour once for a run of equal ones.
     let mut memo = ([f32::NAN; 4], [0u8; 4]);
@@ -910,10 +984,10 @@ fn merge_sorted(items: &[(u64, u64)], recs: &[Rec], kp: &KeyPack, r: f32, h: f64
     };
     let mut i = 0;
     while i < items.len() {
-        let key = items[i].0;
-        let first = &recs[items[i].1 as usize];
+        let first = rec(i);
+        let key = first.key;
         let j = i + 1;
-        if !merge || j == items.len() || items[j].0 != key {
+        if !merge || j == items.len() || rec(j).key != key {
             // The common case: nothing to merge.
             out.push(Node { center: center(key), radius: r, normal: first.normal, cone: 0.0, area: (f64::from(first.area) * h2) as f32, color: enc(first.color) });
             i = j;
@@ -921,8 +995,8 @@ fn merge_sorted(items: &[(u64, u64)], recs: &[Rec], kp: &KeyPack, r: f32, h: f64
         }
         let (mut a, mut wsum, mut nn, mut c) = (0.0f64, 0.0f64, [0.0f64; 3], [0.0f64; 4]);
         let mut j = i;
-        while j < items.len() && items[j].0 == key {
-            let x = &recs[items[j].1 as usize];
+        while j < items.len() && rec(j).key == key {
+            let x = rec(j);
             // Zero-area pieces (edge slivers) still count a little so colour is defined.
             let w = f64::from(x.area).max(1e-12);
             a += f64::from(x.area);
@@ -940,51 +1014,47 @@ fn merge_sorted(items: &[(u64, u64)], recs: &[Rec], kp: &KeyPack, r: f32, h: f64
         out.push(Node { center: center(key), radius: r, normal, cone: 0.0, area: (a * h2) as f32, color: enc(c.map(|x| (x / wsum) as f32)) });
         i = j;
     }
-    out
 }
 
-/// Stable LSD radix sort of `items` by the low `bits` bits of their key (the bucket fixed the
-/// rest), 11 bits per pass; passes where every key has the same digit are skipped. The digit
-/// histograms of all passes are counted in one read of the data.
-fn radix_sort_low(items: &mut [(u64, u64)], tmp: &mut Vec<(u64, u64)>, bits: u32) {
-    type Item = (u64, u64);
-    if items.len() <= 64 || items.len() > u32::MAX as usize {
-        items.sort_by_key(|x| x.0); // stable
+/// Stable LSD radix sort of `items` by their bits `shift .. shift + bits` (the bits above are
+/// zero), in passes of at most 12 bits; passes where every item has the same digit are
+/// skipped. The digit histograms of all passes are counted in one read of the data.
+fn radix_sort_bits(items: &mut [u64], tmp: &mut Vec<u64>, shift: u32, bits: u32) {
+    if items.len() <= 64 || items.len() > u32::MAX as usize || bits == 0 {
+        items.sort_by_key(|&x| x >> shift.min(63)); // stable
         return;
     }
-    const D: u32 = 11;
-    const B: usize = 1 << D;
-    let passes = bits.min(64).div_ceil(D) as usize;
-    // Digit p: bits p·D .. min((p+1)·D, bits) of the key.
-    let masks: Vec<(u32, u64)> = (0..passes).map(|p| (p as u32 * D, (1u64 << D.min(bits - p as u32 * D)) - 1)).collect();
-    let mut counts = vec![[0u32; B]; passes];
-    for x in items.iter() {
+    let passes = bits.min(64).div_ceil(12);
+    let d = bits.div_ceil(passes);
+    // Digit p: bits shift + p·d .. of the item.
+    let masks: Vec<(u32, u64)> = (0..passes).map(|p| (shift + p * d, (1u64 << d.min(bits - p * d)) - 1)).collect();
+    let mut counts = vec![vec![0u32; 1 << d]; passes as usize];
+    for &x in items.iter() {
         for (c, &(sh, mask)) in counts.iter_mut().zip(&masks) {
-            c[((x.0 >> sh) & mask) as usize] += 1;
+            c[((x >> sh) & mask) as usize] += 1;
         }
     }
     // The scratch buffer is reused across calls: grown (zeroed) only when too short.
     if tmp.len() < items.len() {
-        tmp.resize(items.len(), (0, 0));
+        tmp.resize(items.len(), 0);
     }
     let tmp = &mut tmp[..items.len()];
     let mut in_items = true; // where the current data lives
-    for (p, count) in counts.iter_mut().enumerate() {
+    for (count, &(sh, mask)) in counts.iter_mut().zip(&masks) {
         if count.contains(&(items.len() as u32)) {
             continue;
         }
-        let (sh, mask) = masks[p];
-        let (src, dst): (&[Item], &mut [Item]) = if in_items { (items, &mut *tmp) } else { (&*tmp, items) };
+        let (src, dst): (&[u64], &mut [u64]) = if in_items { (items, &mut *tmp) } else { (&*tmp, items) };
         let mut pos = 0;
         for c in count.iter_mut() {
             let n = *c;
             *c = pos;
             pos += n;
         }
-        for x in src {
-            let d = ((x.0 >> sh) & mask) as usize;
-            dst[count[d] as usize] = *x;
-            count[d] += 1;
+        for &x in src {
+            let k = ((x >> sh) & mask) as usize;
+            dst[count[k] as usize] = x;
+            count[k] += 1;
         }
         in_items = !in_items;
     }
@@ -1100,16 +1170,23 @@ fn shade(t: &Tri, w: [f64; 3], mat: &Mat) -> (Option<[f32; 4]>, [f32; 3]) {
     let wf = w.map(|x| x as f32);
     let mix4 = |a: &[[f32; 4]; 3]| -> [f32; 4] { std::array::from_fn(|k| a[0][k] * wf[0] + a[1][k] * wf[1] + a[2][k] * wf[2]) };
     let mix2 = |a: &[[f32; 2]; 3]| -> [f32; 2] { std::array::from_fn(|k| a[0][k] * wf[0] + a[1][k] * wf[1] + a[2][k] * wf[2]) };
-    let vc = mix4(&t.c);
+    let n = std::array::from_fn(|k| t.n[0][k] * wf[0] + t.n[1][k] * wf[1] + t.n[2][k] * wf[2]);
+    (shade_color(mix4(&t.c), mix2(&t.uv), mix2(&t.uv2), mat), n)
+}
+
+/// The material colour for vertex colour `vc` and texture coordinates `uv` (colour texture),
+/// `uv2` (alpha texture); `None` = dropped by alpha.
+#[inline]
+fn shade_color(vc: [f32; 4], uv: [f32; 2], uv2: [f32; 2], mat: &Mat) -> Option<[f32; 4]> {
     let mut c: [f32; 4] = std::array::from_fn(|k| mat.base[k] * vc[k]);
     if let Some((img, tr)) = mat.tex {
-        let s = img.sample(tr.transform_uv(mix2(&t.uv)), tr.wrap_s, tr.wrap_t);
+        let s = img.sample(tr.transform_uv(uv), tr.wrap_s, tr.wrap_t);
         for k in 0..4 {
             c[k] *= s[k];
         }
     }
     if let Some((img, tr)) = mat.alpha_tex {
-        let s = img.sample(tr.transform_uv(mix2(&t.uv2)), tr.wrap_s, tr.wrap_t);
+        let s = img.sample(tr.transform_uv(uv2), tr.wrap_s, tr.wrap_t);
         c[3] *= 0.2126 * s[0] + 0.7152 * s[1] + 0.0722 * s[2];
     }
     let keep = match mat.alpha {
@@ -1125,8 +1202,94 @@ fn shade(t: &Tri, w: [f64; 3], mat: &Mat) -> (Option<[f32; 4]>, [f32; 3]) {
         // An alpha that rounds to 0 in 8 bits is fully transparent (thesis: removed).
         AlphaMode::Blend => c[3] >= 0.5 / 255.0,
     };
-    let n = std::array::from_fn(|k| t.n[0][k] * wf[0] + t.n[1][k] * wf[1] + t.n[2][k] * wf[2]);
-    (keep.then_some(c), n)
+    keep.then_some(c)
+}
+
+/// A triangle's attributes as affine functions of the projection-plane point (a, b): set up
+/// once per triangle, so a sample costs a few multiply-adds instead of barycentric weights
+/// (three divisions) and mixing. Channel planes are `[value at o, d/da, d/db]`. Colour and
+/// normal that do not vary over the triangle are shaded once.
+struct Planes<'m> {
+    o: [f64; 2],
+    n: [[f32; 3]; 3],
+    c: [[f32; 3]; 4],
+    uv: [[f32; 3]; 2],
+    uv2: [[f32; 3]; 2],
+    /// The colour when it is the same everywhere (no texture, equal vertex colours).
+    flat_c: Option<Option<[f32; 4]>>,
+    /// The unit normal when the corner normals are equal (and not zero).
+    flat_n: Option<[f32; 3]>,
+    /// Unit face normal, for interpolated normals of (near) zero length.
+    face_n: [f32; 3],
+    mat: &'m Mat<'m>,
+}
+
+impl<'m> Planes<'m> {
+    fn new(t: &Tri, q: &[[f64; 2]; 3], fnrm: [f64; 3], mat: &'m Mat<'m>) -> Self {
+        let det = (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]);
+        // Gradients of the barycentric weights w1, w2 (w0 = 1 − w1 − w2); a triangle that
+        // projects to a line gets the mean of its corners everywhere.
+        let (w1, w2) = if det != 0.0 {
+            let inv = 1.0 / det;
+            ([(q[2][1] - q[0][1]) * inv, -(q[2][0] - q[0][0]) * inv], [-(q[1][1] - q[0][1]) * inv, (q[1][0] - q[0][0]) * inv])
+        } else {
+            ([0.0; 2], [0.0; 2])
+        };
+        let plane = |v: [f32; 3]| -> [f32; 3] {
+            let v = v.map(f64::from);
+            if det == 0.0 {
+                return [((v[0] + v[1] + v[2]) / 3.0) as f32, 0.0, 0.0];
+            }
+            let (d1, d2) = (v[1] - v[0], v[2] - v[0]);
+            [v[0] as f32, (d1 * w1[0] + d2 * w2[0]) as f32, (d1 * w1[1] + d2 * w2[1]) as f32]
+        };
+        let fl = norm(fnrm);
+        let face_n = fnrm.map(|x| (x / fl) as f32);
+        let flat_n = (t.n[0] == t.n[1] && t.n[0] == t.n[2]).then(|| unit_or(t.n[0], face_n));
+        let flat_c = (mat.tex.is_none() && mat.alpha_tex.is_none() && t.c[0] == t.c[1] && t.c[0] == t.c[2])
+            .then(|| shade_color(t.c[0], [0.0; 2], [0.0; 2], mat));
+        // Only the varying attributes need planes.
+        let varies = flat_c.is_none();
+        Planes {
+            o: q[0],
+            n: if flat_n.is_none() { std::array::from_fn(|k| plane(t.n.map(|n| n[k]))) } else { [[0.0; 3]; 3] },
+            c: if varies { std::array::from_fn(|k| plane(t.c.map(|c| c[k]))) } else { [[0.0; 3]; 4] },
+            uv: if varies && mat.tex.is_some() { std::array::from_fn(|k| plane(t.uv.map(|c| c[k]))) } else { [[0.0; 3]; 2] },
+            uv2: if varies && mat.alpha_tex.is_some() { std::array::from_fn(|k| plane(t.uv2.map(|c| c[k]))) } else { [[0.0; 3]; 2] },
+            flat_c,
+            flat_n,
+            face_n,
+            mat,
+        }
+    }
+
+    /// (colour or `None` = dropped by alpha, unit normal) at projection-plane point `p`.
+    #[inline(always)]
+    fn shade(&self, p: [f64; 2]) -> (Option<[f32; 4]>, [f32; 3]) {
+        let (da, db) = ((p[0] - self.o[0]) as f32, (p[1] - self.o[1]) as f32);
+        let at = |pl: &[f32; 3]| pl[0] + pl[1] * da + pl[2] * db;
+        let c = match self.flat_c {
+            Some(c) => c,
+            None => shade_color(self.c.each_ref().map(at), self.uv.each_ref().map(at), self.uv2.each_ref().map(at), self.mat),
+        };
+        let n = match self.flat_n {
+            Some(n) => n,
+            None => unit_or(self.n.each_ref().map(at), self.face_n),
+        };
+        (c, n)
+    }
+}
+
+/// `n` scaled to unit length, or `fallback` when it is (nearly) zero.
+#[inline]
+fn unit_or(n: [f32; 3], fallback: [f32; 3]) -> [f32; 3] {
+    let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    if l > 1e-12 {
+        let inv = 1.0 / l;
+        n.map(|x| x * inv)
+    } else {
+        fallback
+    }
 }
 
 fn face_axes(t: &Tri) -> ([f64; 3], usize, usize, usize) {
@@ -1136,17 +1299,6 @@ fn face_axes(t: &Tri) -> ([f64; 3], usize, usize, usize) {
     (fnrm, d, (d + 1) % 3, (d + 2) % 3)
 }
 
-#[inline]
-fn push_rec(out: &mut Vec<Rec>, key: u64, area: f64, col: [f32; 4], n: [f32; 3], fnrm: [f64; 3]) {
-    let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-    let normal = if l > 1e-12 {
-        n.map(|x| x / l)
-    } else {
-        let fl = norm(fnrm);
-        fnrm.map(|x| (x / fl) as f32)
-    };
-    out.push(Rec { key, area: area as f32, normal, color: col });
-}
 
 /// Conservative voxelization of one triangle; returns the number of alpha-dropped samples.
 ///
@@ -1199,21 +1351,9 @@ fn voxel_triangle_axis<const D: usize>(
         let (ea, eb) = (-(p1[1] - p0[1]) * orient, (p1[0] - p0[0]) * orient);
         [ea, eb, -(ea * p0[0] + eb * p0[1])]
     });
-    let inv_det = {
-        let det = (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]);
-        if det != 0.0 { 1.0 / det } else { 0.0 }
-    };
-    let bary2 = |p: [f64; 2]| -> [f64; 3] {
-        if inv_det == 0.0 {
-            return [1.0 / 3.0; 3];
-        }
-        let w1 = ((p[0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (p[1] - q[0][1])) * inv_det;
-        let w2 = ((q[1][0] - q[0][0]) * (p[1] - q[0][1]) - (p[0] - q[0][0]) * (q[1][1] - q[0][1])) * inv_det;
-        // Clamp: centroids lie inside, rounding may put them a hair outside.
-        let w = [(1.0 - w1 - w2).clamp(0.0, 1.0), w1.clamp(0.0, 1.0), w2.clamp(0.0, 1.0)];
-        let s = w[0] + w[1] + w[2];
-        w.map(|x| x / s)
-    };
+    // Attributes at a piece's centroid (inside the triangle up to rounding, so the planes
+    // need no clamping).
+    let planes = Planes::new(t, &q, fnrm, mat);
     let start = out.len();
     let mut dropped = 0;
     let mut skipped = 0u64;
@@ -1222,14 +1362,13 @@ fn voxel_triangle_axis<const D: usize>(
         key[a] = ia;
         key[b] = ib;
         key[d] = k;
-        if !(keep.0..=keep.1).contains(&key[0].clamp(kp.lo[0], kp.hi[0])) {
+        if keep != ALL_X && !(keep.0..=keep.1).contains(&key[0].clamp(kp.lo[0], kp.hi[0])) {
             skipped += 1;
             return;
         }
-        let (c, n) = shade(t, bary2(cen), mat);
-        match c {
-            Some(c) => push_rec(out, kp.pack(key), area2 * ascale, c, n, fnrm),
-            None => dropped += 1,
+        match planes.shade(cen) {
+            (Some(color), normal) => out.push(Rec { key: kp.pack(key), area: (area2 * ascale) as f32, normal, color }),
+            (None, _) => dropped += 1,
         }
     };
     let mut tri = Poly2 { v: [[0.0; 2]; MAXV], n: 3 };
@@ -1257,11 +1396,25 @@ fn voxel_triangle_axis<const D: usize>(
     }
     let half = 0.5 * (ga.abs() + gb.abs());
     const EPS: f64 = 1e-9;
-    // Reused polygon buffers: strip, column piece, lower depth part, and clip temporaries.
+    // The triangle is swept: each strip is split off the rest of the triangle (one pass, the
+    // cut shared by both sides), each boundary column off the rest of its strip. Reused
+    // buffers: the rest of the triangle and of the strip (ping-pong pairs), the strip, the
+    // column piece, the lower depth part and a clip temporary.
+    let mut rest = [tri, Poly2::empty()];
+    let mut r = 0;
     let (mut strip, mut col, mut lower, mut tmp) = (Poly2::empty(), Poly2::empty(), Poly2::empty(), Poly2::empty());
+    let mut srest = [Poly2::empty(), Poly2::empty()];
     for ia in lo_a..=hi_a {
         let (x0, x1) = (ia as f64, ia as f64 + 1.0);
-        tri.clip_axis_into(0, x0, x1, &mut tmp, &mut strip);
+        if x1 >= ahi {
+            // The rest lies below x1: it is the strip (the split would copy it).
+            std::mem::swap(&mut strip, &mut rest[r]);
+            rest[r].n = 0;
+        } else {
+            let (src, dst) = ping(&mut rest, r);
+            src.split_axis_into(0, x1, &mut strip, dst);
+            r ^= 1;
+        }
         if strip.n < 3 {
             continue;
         }
@@ -1284,6 +1437,9 @@ fn voxel_triangle_axis<const D: usize>(
         if b == 0 {
             (blo, bhi) = (blo.max(xr.0), bhi.min(xr.1));
         }
+        // The rest of the strip lies above `cut` (interior columns are skipped, not split off).
+        std::mem::swap(&mut srest[0], &mut strip);
+        let (mut sr, mut cut) = (0, blo as f64);
         for ib in blo..=bhi {
             let y = ib as f64;
             let interior = y >= first_in && y <= last_in;
@@ -1292,7 +1448,19 @@ fn voxel_triangle_axis<const D: usize>(
                 let dc = depth(&cen);
                 (1.0, cen, dc - half, dc + half)
             } else {
-                strip.clip_axis_into(1, y, y + 1.0, &mut tmp, &mut col);
+                if y > cut {
+                    srest[sr].clip_half_into(|p| p[1] - y, Some((1, y)), &mut tmp);
+                    std::mem::swap(&mut srest[sr], &mut tmp);
+                }
+                if y + 1.0 >= bmax {
+                    std::mem::swap(&mut col, &mut srest[sr]);
+                    srest[sr].n = 0;
+                } else {
+                    let (src, dst) = ping(&mut srest, sr);
+                    src.split_axis_into(1, y + 1.0, &mut col, dst);
+                    sr ^= 1;
+                }
+                cut = y + 1.0;
                 if col.n < 3 {
                     continue;
                 }
@@ -1373,6 +1541,10 @@ fn scanline_triangle(t: &Tri, mat: &Mat, kp: &KeyPack, keep: (i64, i64), out: &m
     let lo_b = pb.iter().fold(f64::INFINITY, |m, &v| m.min(v));
     let hi_b = pb.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v));
     let depth = |w: [f64; 3]| w[0] * t.p[0][d] + w[1] * t.p[1][d] + w[2] * t.p[2][d];
+    let face_n = {
+        let l = norm(fnrm);
+        fnrm.map(|x| (x / l) as f32)
+    };
     let emit = |out: &mut Vec<Rec>, dropped: &mut u64, skipped: &mut u64, ia: i64, ib: i64, w: [f64; 3]| {
         let mut key = [0i64; 3];
         key[a] = ia;
@@ -1382,10 +1554,9 @@ fn scanline_triangle(t: &Tri, mat: &Mat, kp: &KeyPack, keep: (i64, i64), out: &m
             *skipped += 1;
             return;
         }
-        let (c, n) = shade(t, w, mat);
-        match c {
-            Some(c) => push_rec(out, kp.pack(key), 0.0, c, n, fnrm),
-            None => *dropped += 1,
+        match shade(t, w, mat) {
+            (Some(color), n) => out.push(Rec { key: kp.pack(key), area: 0.0, normal: unit_or(n, face_n), color }),
+            (None, _) => *dropped += 1,
         }
     };
     let det = (pa[1] - pa[0]) * (pb[2] - pb[0]) - (pa[2] - pa[0]) * (pb[1] - pb[0]);
@@ -1779,18 +1950,46 @@ mod tests {
         }
     }
 
+    /// One-pass splitting gives the polygons of the two clips bit for bit (vertices on the cut
+    /// line included), so swept strips and columns meet exactly.
+    #[test]
+    fn split_equals_two_clips() {
+        let mut rng = sct_format::rng::SplitMix64(5);
+        for i in 0..20_000 {
+            // Random triangles, some with vertices on the cut line.
+            let mut p = Poly2::empty();
+            p.n = 3;
+            for v in &mut p.v[..3] {
+                *v = [(rng.next_f64() * 8.0).floor() / 2.0, rng.next_f64() * 4.0];
+            }
+            let (axis, c) = (i % 2, if i % 3 == 0 { 2.0 } else { rng.next_f64() * 4.0 });
+            let (mut below, mut above) = (Poly2::empty(), Poly2::empty());
+            p.split_axis_into(axis, c, &mut below, &mut above);
+            let want_below = p.clip_half(|q| c - q[axis], Some((axis, c)));
+            let want_above = p.clip_half(|q| q[axis] - c, Some((axis, c)));
+            for (got, want) in [(below, want_below), (above, want_above)] {
+                assert_eq!(got.n, want.n);
+                assert_eq!(got.v[..got.n], want.v[..want.n]);
+            }
+        }
+    }
+
     #[test]
     fn radix_sort_is_a_stable_sort() {
         let mut rng = sct_format::rng::SplitMix64(3);
         let mut tmp = Vec::new();
-        for (n, bits) in [(10, 5), (1000, 3), (5000, 40), (70_000, 23), (3000, 64), (4000, 33), (4000, 22)] {
-            // Bits above `bits` are equal (the bucket's), and ignored.
-            let high = if bits < 64 { 0x5au64 << bits } else { 0 };
-            let mut v: Vec<(u64, u64)> = (0..n as u64).map(|i| ((rng.next_u64() >> (64 - bits)) | high, i)).collect();
+        for (n, shift, bits) in [(10, 4, 5), (1000, 10, 3), (5000, 0, 40), (70_000, 17, 23), (3000, 0, 64), (4000, 30, 33), (4000, 12, 22), (300, 5, 0)] {
+            // The low `shift` bits are payload (not sorted on: stability shows).
+            let mut v: Vec<u64> = (0..n as u64)
+                .map(|_| {
+                    let key = if bits == 0 { 0 } else { rng.next_u64() >> (64 - bits) };
+                    key.checked_shl(shift).unwrap_or(0) | (rng.next_u64() & ((1u64 << shift) - 1))
+                })
+                .collect();
             let mut want = v.clone();
-            want.sort_by_key(|x| x.0);
-            radix_sort_low(&mut v, &mut tmp, bits);
-            assert_eq!(v, want, "n {n}, bits {bits}");
+            want.sort_by_key(|&x| x.checked_shr(shift).unwrap_or(0));
+            radix_sort_bits(&mut v, &mut tmp, shift, bits);
+            assert_eq!(v, want, "n {n}, shift {shift}, bits {bits}");
         }
     }
 }

@@ -2,6 +2,7 @@
 //! backslash line continuations, texture paths with backslashes/spaces/options, and CDT
 //! triangulation of n-gons (tobj's own triangulation is a fan).
 
+use std::borrow::Cow;
 use std::cell::RefCell;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -34,7 +35,7 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
             }
         };
         let text = match decode_text(&found, &bytes) {
-            Ok(t) => join_continuations(&t),
+            Ok(t) => join_continuations(&t).into_owned(),
             Err(e) => {
                 warnings.borrow_mut().push(format!("{e}; using default colour"));
                 return Err(tobj::LoadError::ReadError);
@@ -115,7 +116,12 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
         let mut normals = Vec::new();
         let mut colors = Vec::new();
         // Corner (position, uv, normal) triple -> vertex: OBJ indexes attributes separately.
-        let mut vmap: HashMap<(u32, u32, u32), u32> = HashMap::new();
+        // The vertices of one position form a chain (first per position, next per vertex)
+        // holding their (uv, normal) pair: positions rarely have more than a few, and a
+        // hash map of triples cost more than the OBJ parse.
+        let mut first = vec![u32::MAX; npos];
+        let mut next: Vec<u32> = Vec::new();
+        let mut tn: Vec<(u32, u32)> = Vec::new();
         let mut corner_vertex = |c: usize, prim: &mut Primitive| -> Result<u32, LoadError> {
             let p = mesh.indices[c];
             let t = if has_uv { mesh.texcoord_indices[c] } else { u32::MAX };
@@ -136,11 +142,18 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
             if has_n && n as usize >= nn {
                 return Err(oor("face normal index", n, nn));
             }
-            if let Some(&v) = vmap.get(&(p, t, n)) {
-                return Ok(v);
+            let pi = p as usize;
+            let mut v = first[pi];
+            while v != u32::MAX {
+                if tn[v as usize] == (t, n) {
+                    return Ok(v);
+                }
+                v = next[v as usize];
             }
             let v = prim.positions.len() as u32;
-            let pi = p as usize;
+            next.push(first[pi]);
+            first[pi] = v;
+            tn.push((t, n));
             prim.positions.push([mesh.positions[3 * pi], mesh.positions[3 * pi + 1], mesh.positions[3 * pi + 2]]);
             if has_uv {
                 let ti = t as usize;
@@ -159,7 +172,6 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
                     1.0,
                 ]);
             }
-            vmap.insert((p, t, n), v);
             Ok(v)
         };
         let arities: Vec<u32> = if mesh.face_arities.is_empty() {
@@ -237,7 +249,11 @@ pub(super) fn decode_text(path: &Path, bytes: &[u8]) -> Result<String, LoadError
 
 /// Joins lines ending in a backslash with the next line (an OBJ/MTL continuation).
 /// Also drops `usemtl`/`mtllib` lines without a name (Rhino writes them; tobj refuses them).
-pub(super) fn join_continuations(text: &str) -> String {
+pub(super) fn join_continuations(text: &str) -> Cow<'_, str> {
+    // Most files have neither (a substring search is far cheaper than a copy line by line).
+    if !text.contains('\\') && !text.contains("usemtl") && !text.contains("mtllib") {
+        return Cow::Borrowed(text);
+    }
     let mut out = String::with_capacity(text.len());
     for line in text.split_inclusive('\n') {
         let trimmed = line.trim_end_matches(['\n', '\r']);
@@ -250,7 +266,7 @@ pub(super) fn join_continuations(text: &str) -> String {
             out.push_str(line);
         }
     }
-    out
+    Cow::Owned(out)
 }
 
 /// Finds a file referenced from an OBJ/MTL: as written, with backslashes as separators,
