@@ -62,34 +62,39 @@ impl SectionOut {
 /// Writes header, section table and sections; returns the number of bytes written and
 /// the absolute offset of each section.
 pub fn write_container<W: Write>(magic: [u8; 8], sections: &[SectionOut], mut w: W) -> Result<(u64, Vec<u64>)> {
-    let table_len = sections.len() * SECTION_ENTRY_LEN;
-    let mut offset = (FILE_HEADER_LEN + table_len) as u64;
-    let mut table = Vec::with_capacity(table_len);
-    let mut offsets = Vec::with_capacity(sections.len());
+    let mut offset = (FILE_HEADER_LEN + sections.len() * SECTION_ENTRY_LEN) as u64;
+    let mut entries = Vec::with_capacity(sections.len());
     for s in sections {
-        s.entry(offset).write(&mut table);
-        offsets.push(offset);
+        entries.push(s.entry(offset));
         offset += s.stored.len() as u64;
     }
-    let mut head = Vec::with_capacity(FILE_HEADER_LEN);
+    w.write_all(&header_and_table(magic, &entries, offset))?;
+    for s in sections {
+        w.write_all(&s.stored)?;
+    }
+    Ok((offset, entries.iter().map(|e| e.offset).collect()))
+}
+
+/// The file header followed by the section table of `entries`, for a file of `file_length`
+/// bytes (streaming writers reserve these bytes and fill them in last).
+pub(crate) fn header_and_table(magic: [u8; 8], entries: &[SectionEntry], file_length: u64) -> Vec<u8> {
+    let mut table = Vec::with_capacity(entries.len() * SECTION_ENTRY_LEN);
+    entries.iter().for_each(|e| e.write(&mut table));
+    let mut out = Vec::with_capacity(FILE_HEADER_LEN + table.len());
     FileHeader {
         magic,
         major: MAJOR,
         minor: MINOR,
         flags: 0,
-        section_count: sections.len() as u32,
+        section_count: entries.len() as u32,
         section_table_offset: FILE_HEADER_LEN as u64,
-        file_length: offset,
+        file_length,
         table_crc: crc32fast::hash(&table),
         header_crc: 0,
     }
-    .write(&mut head);
-    w.write_all(&head)?;
-    w.write_all(&table)?;
-    for s in sections {
-        w.write_all(&s.stored)?;
-    }
-    Ok((offset, offsets))
+    .write(&mut out);
+    out.extend_from_slice(&table);
+    out
 }
 
 /// A parsed container over borrowed bytes.

@@ -12,13 +12,13 @@ use std::path::Path;
 use rayon::prelude::*;
 
 use crate::codec::{encode_children, CodecParams, Profile};
-use crate::container::{write_container, SectionOut, MAJOR, MINOR};
+use crate::container::{header_and_table, write_container, SectionOut};
 use crate::error::{Error, Result};
 use crate::graph::{Generator, GraphNode, Propagation, SceneGraph};
 use crate::node::Node;
 use crate::raw::cursor::Put;
 use crate::raw::{
-    tags, BlockEntry, FileHeader, LevelEntry, SectionEntry, TreeHeader, BLOCK_ENTRY_LEN, FILE_HEADER_LEN, LEVEL_ENTRY_LEN, SCT_MAGIC,
+    tags, BlockEntry, LevelEntry, SectionEntry, TreeHeader, BLOCK_ENTRY_LEN, FILE_HEADER_LEN, LEVEL_ENTRY_LEN, SCT_MAGIC,
     SECTION_ENTRY_LEN, TREE_HEADER_LEN,
 };
 use crate::samples::put_similarity;
@@ -229,24 +229,8 @@ fn stream_scene<'a, W: Write + Seek>(
         offset += st.stats.section_bytes;
         tree_stats.push(st.stats);
     }
-    let mut table = Vec::with_capacity(table_len);
-    entries.iter().for_each(|e| e.write(&mut table));
-    let mut head = Vec::with_capacity(FILE_HEADER_LEN);
-    FileHeader {
-        magic: SCT_MAGIC,
-        major: MAJOR,
-        minor: MINOR,
-        flags: 0,
-        section_count: section_count as u32,
-        section_table_offset: FILE_HEADER_LEN as u64,
-        file_length: offset,
-        table_crc: crc32fast::hash(&table),
-        header_crc: 0,
-    }
-    .write(&mut head);
     w.seek(SeekFrom::Start(start))?;
-    w.write_all(&head)?;
-    w.write_all(&table)?;
+    w.write_all(&header_and_table(SCT_MAGIC, &entries, offset))?;
     w.seek(SeekFrom::Start(start + offset))?;
     Ok(WriteStats {
         bytes: offset,
