@@ -225,14 +225,44 @@ pub(crate) fn slice<'d>(data: &'d [u8], offset: u64, len: u64, what: &str) -> Re
     Ok(&data[offset as usize..end as usize])
 }
 
-/// Decompresses one zstd frame that must inflate to exactly `raw_len` bytes. Memory grows
-/// with the data actually produced, never with the claimed length alone.
+/// Decompresses one zstd frame that must inflate to exactly `raw_len` bytes (what follows
+/// the frame is ignored). Memory grows with the data actually produced, never with the
+/// claimed length alone: a frame whose claim is plausible (at most 8 times its stored size)
+/// is decompressed in one pass straight into a buffer of the claimed size, which bounds it;
+/// any other streams into a buffer that grows as data comes out.
 pub(crate) fn decompress(stored: &[u8], raw_len: u64, offset: u64, limits: &Limits) -> Result<Vec<u8>> {
     Limits::check("decompressed size", raw_len, limits.max_decompressed_bytes)?;
+    let plausible = stored.len() as u64 * 8 + 4096;
+    if raw_len <= plausible {
+        let corrupt = |code: usize| Error::malformed(offset, format!("zstd data is corrupt: {}", zstd::zstd_safe::get_error_name(code)));
+        let frame_len = zstd::zstd_safe::find_frame_compressed_size(stored).map_err(corrupt)?;
+        let frame = stored.get(..frame_len).ok_or_else(|| Error::malformed(offset, "zstd frame is longer than its section"))?;
+        let mut out = Vec::with_capacity(raw_len as usize);
+        thread_local! {
+            /// One decompression context per thread, reused (blocks are decompressed by the
+            /// thousand).
+            static DCTX: std::cell::RefCell<Option<zstd::zstd_safe::DCtx<'static>>> = const { std::cell::RefCell::new(None) };
+        }
+        DCTX.with(|cell| -> Result<()> {
+            let mut cell = cell.borrow_mut();
+            let dctx = match &mut *cell {
+                Some(d) => d,
+                slot => slot.insert(
+                    zstd::zstd_safe::DCtx::try_create().ok_or_else(|| Error::Io { path: None, source: std::io::ErrorKind::OutOfMemory.into() })?,
+                ),
+            };
+            dctx.decompress(&mut out, frame).map_err(corrupt)?;
+            Ok(())
+        })?;
+        if out.len() as u64 != raw_len {
+            return Err(Error::malformed(offset, format!("decompressed to {} bytes, expected {raw_len}", out.len())));
+        }
+        return Ok(out);
+    }
     let mut dec = zstd::stream::read::Decoder::with_buffer(stored)
         .map_err(|e| Error::malformed(offset, format!("zstd: {e}")))?
         .single_frame();
-    let mut out = Vec::with_capacity(raw_len.min(stored.len() as u64 * 8 + 4096) as usize);
+    let mut out = Vec::with_capacity(plausible as usize);
     (&mut dec)
         .take(raw_len.saturating_add(1))
         .read_to_end(&mut out)

@@ -337,8 +337,21 @@ impl SamplesFile {
     /// decoded from the (decompressed) column section, so the peak is columns + samples
     /// (76 bytes a sample), not file + columns + samples (92).
     pub fn read_file(path: &Path, limits: &Limits) -> Result<Self> {
+        Ok(Self::read_file_impl(path, limits, false)?.0)
+    }
+
+    /// [`Self::read_file`], also returning the BLAKE3 hash (lowercase hex) of the bytes read,
+    /// computed while the samples are decompressed: provenance without reading the file
+    /// twice, and of exactly the bytes the samples came from.
+    pub fn read_file_hashed(path: &Path, limits: &Limits) -> Result<(Self, String)> {
+        let (file, hash) = Self::read_file_impl(path, limits, true)?;
+        Ok((file, hash.unwrap_or_default()))
+    }
+
+    fn read_file_impl(path: &Path, limits: &Limits, hash: bool) -> Result<(Self, Option<String>)> {
         let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-        let (mut file, smpl, offset, at) = Self::read_tables(&data, limits)?;
+        let (hash, tables) = rayon::join(|| hash.then(|| blake3::hash(&data).to_hex().to_string()), || Self::read_tables(&data, limits));
+        let (mut file, smpl, offset, at) = tables?;
         file.samples = match smpl {
             Cow::Borrowed(b) => decode_samples(b, offset, limits)?,
             Cow::Owned(columns) => {
@@ -347,7 +360,7 @@ impl SamplesFile {
             }
         };
         file.check_tables(&at)?;
-        Ok(file)
+        Ok((file, hash))
     }
 
     /// Samples of mesh `m`.
@@ -729,6 +742,8 @@ mod tests {
         let path = std::env::temp_dir().join(format!("sct-samples-rt-{}.samples", std::process::id()));
         f.write_file(&path).unwrap();
         assert_eq!(SamplesFile::read_file(&path, &Limits::default()).unwrap(), f);
+        let (g, hash) = SamplesFile::read_file_hashed(&path, &Limits::default()).unwrap();
+        assert_eq!((g, hash), (f.clone(), crate::atomic::hash_file(&path).unwrap()));
         let mut bad = f.clone();
         bad.meshes[0].count += 1;
         let mut bytes = Vec::new();
