@@ -239,7 +239,9 @@ impl SamplesFile {
             entries.push(s.entry(offset));
             offset += s.stored.len() as u64;
         }
-        let workers = u32::try_from(rayon::current_num_threads()).unwrap_or(u32::MAX);
+        // Each zstd worker holds about two jobs' buffers (8 MiB of input each at this level):
+        // more than a few cost memory and outrun the disk.
+        let workers = rayon::current_num_threads().clamp(1, MAX_ZSTD_WORKERS) as u32;
         let smpl = SectionEntry { offset, ..stream_samples(&self.samples, workers, w)? };
         offset += smpl.stored_len;
         entries.push(smpl);
@@ -442,6 +444,8 @@ pub(crate) fn read_similarity(c: &mut Cursor<'_>) -> Result<Similarity> {
     Ok(Similarity { translation: [v[0], v[1], v[2]], rotation: [v[3], v[4], v[5], v[6]], scale: v[7] })
 }
 
+/// Most zstd threads compressing the column section.
+const MAX_ZSTD_WORKERS: usize = 4;
 /// Samples laid out per chunk of the column section before compression.
 const CHUNK_SAMPLES: usize = 1 << 16;
 
