@@ -111,11 +111,12 @@ pub struct Phases {
 pub fn run(cfg: &Config, phase: &mut dyn FnMut(&str)) -> Result<Report, BuildError> {
     let t0 = Instant::now();
     phase("reading samples");
-    let samples = SamplesFile::read_file(&cfg.samples, &Limits::default()).map_err(|e| match e {
+    let (samples, blake3) = SamplesFile::read_file_hashed(&cfg.samples, &Limits::default()).map_err(|e| match e {
         sct_format::Error::Io { .. } => BuildError::Io(e.to_string()),
         other => BuildError::Input(format!("{}: {other}", cfg.samples.display())),
     })?;
-    let upstream = Upstream::SamplesFile(source(&cfg.samples)?, Box::new(samples.generator.clone()));
+    let source = SourceRef { path: cfg.samples.display().to_string(), blake3 };
+    let upstream = Upstream::SamplesFile(source, Box::new(samples.generator.clone()));
     run_samples(cfg, samples, upstream, t0, phase)
 }
 

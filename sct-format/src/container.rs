@@ -62,34 +62,39 @@ impl SectionOut {
 /// Writes header, section table and sections; returns the number of bytes written and
 /// the absolute offset of each section.
 pub fn write_container<W: Write>(magic: [u8; 8], sections: &[SectionOut], mut w: W) -> Result<(u64, Vec<u64>)> {
-    let table_len = sections.len() * SECTION_ENTRY_LEN;
-    let mut offset = (FILE_HEADER_LEN + table_len) as u64;
-    let mut table = Vec::with_capacity(table_len);
-    let mut offsets = Vec::with_capacity(sections.len());
+    let mut offset = (FILE_HEADER_LEN + sections.len() * SECTION_ENTRY_LEN) as u64;
+    let mut entries = Vec::with_capacity(sections.len());
     for s in sections {
-        s.entry(offset).write(&mut table);
-        offsets.push(offset);
+        entries.push(s.entry(offset));
         offset += s.stored.len() as u64;
     }
-    let mut head = Vec::with_capacity(FILE_HEADER_LEN);
+    w.write_all(&header_and_table(magic, &entries, offset))?;
+    for s in sections {
+        w.write_all(&s.stored)?;
+    }
+    Ok((offset, entries.iter().map(|e| e.offset).collect()))
+}
+
+/// The file header followed by the section table of `entries`, for a file of `file_length`
+/// bytes (streaming writers reserve these bytes and fill them in last).
+pub(crate) fn header_and_table(magic: [u8; 8], entries: &[SectionEntry], file_length: u64) -> Vec<u8> {
+    let mut table = Vec::with_capacity(entries.len() * SECTION_ENTRY_LEN);
+    entries.iter().for_each(|e| e.write(&mut table));
+    let mut out = Vec::with_capacity(FILE_HEADER_LEN + table.len());
     FileHeader {
         magic,
         major: MAJOR,
         minor: MINOR,
         flags: 0,
-        section_count: sections.len() as u32,
+        section_count: entries.len() as u32,
         section_table_offset: FILE_HEADER_LEN as u64,
-        file_length: offset,
+        file_length,
         table_crc: crc32fast::hash(&table),
         header_crc: 0,
     }
-    .write(&mut head);
-    w.write_all(&head)?;
-    w.write_all(&table)?;
-    for s in sections {
-        w.write_all(&s.stored)?;
-    }
-    Ok((offset, offsets))
+    .write(&mut out);
+    out.extend_from_slice(&table);
+    out
 }
 
 /// A parsed container over borrowed bytes.
@@ -220,14 +225,44 @@ pub(crate) fn slice<'d>(data: &'d [u8], offset: u64, len: u64, what: &str) -> Re
     Ok(&data[offset as usize..end as usize])
 }
 
-/// Decompresses one zstd frame that must inflate to exactly `raw_len` bytes. Memory grows
-/// with the data actually produced, never with the claimed length alone.
+/// Decompresses one zstd frame that must inflate to exactly `raw_len` bytes (what follows
+/// the frame is ignored). Memory grows with the data actually produced, never with the
+/// claimed length alone: a frame whose claim is plausible (at most 8 times its stored size)
+/// is decompressed in one pass straight into a buffer of the claimed size, which bounds it;
+/// any other streams into a buffer that grows as data comes out.
 pub(crate) fn decompress(stored: &[u8], raw_len: u64, offset: u64, limits: &Limits) -> Result<Vec<u8>> {
     Limits::check("decompressed size", raw_len, limits.max_decompressed_bytes)?;
+    let plausible = stored.len() as u64 * 8 + 4096;
+    if raw_len <= plausible {
+        let corrupt = |code: usize| Error::malformed(offset, format!("zstd data is corrupt: {}", zstd::zstd_safe::get_error_name(code)));
+        let frame_len = zstd::zstd_safe::find_frame_compressed_size(stored).map_err(corrupt)?;
+        let frame = stored.get(..frame_len).ok_or_else(|| Error::malformed(offset, "zstd frame is longer than its section"))?;
+        let mut out = Vec::with_capacity(raw_len as usize);
+        thread_local! {
+            /// One decompression context per thread, reused (blocks are decompressed by the
+            /// thousand).
+            static DCTX: std::cell::RefCell<Option<zstd::zstd_safe::DCtx<'static>>> = const { std::cell::RefCell::new(None) };
+        }
+        DCTX.with(|cell| -> Result<()> {
+            let mut cell = cell.borrow_mut();
+            let dctx = match &mut *cell {
+                Some(d) => d,
+                slot => slot.insert(
+                    zstd::zstd_safe::DCtx::try_create().ok_or_else(|| Error::Io { path: None, source: std::io::ErrorKind::OutOfMemory.into() })?,
+                ),
+            };
+            dctx.decompress(&mut out, frame).map_err(corrupt)?;
+            Ok(())
+        })?;
+        if out.len() as u64 != raw_len {
+            return Err(Error::malformed(offset, format!("decompressed to {} bytes, expected {raw_len}", out.len())));
+        }
+        return Ok(out);
+    }
     let mut dec = zstd::stream::read::Decoder::with_buffer(stored)
         .map_err(|e| Error::malformed(offset, format!("zstd: {e}")))?
         .single_frame();
-    let mut out = Vec::with_capacity(raw_len.min(stored.len() as u64 * 8 + 4096) as usize);
+    let mut out = Vec::with_capacity(plausible as usize);
     (&mut dec)
         .take(raw_len.saturating_add(1))
         .read_to_end(&mut out)

@@ -8,17 +8,17 @@
 //! refuses the file instead of silently dropping those placements).
 
 use std::borrow::Cow;
-use std::io::Write;
+use std::io::{Seek, SeekFrom, Write};
 use std::path::Path;
 
 use rayon::prelude::*;
 
-use crate::container::{write_container, Container, SectionOut};
+use crate::container::{header_and_table, Container, SectionOut};
 use crate::error::{Error, Result};
 use crate::graph::{Generator, Similarity};
 use crate::limits::Limits;
 use crate::node::Node;
-use crate::raw::{cursor::Put, tags, Cursor, SAMPLES_MAGIC};
+use crate::raw::{cursor::Put, tags, Cursor, SectionEntry, FILE_HEADER_LEN, SAMPLES_MAGIC, SECTION_ENTRY_LEN};
 
 /// Bytes per sample in the `SMPL` section (centre 12, radius 4, normal 12, area 4, RGBA 4).
 pub const SAMPLE_BYTES: usize = 36;
@@ -185,7 +185,22 @@ impl SamplesFile {
     }
 
     /// [`Self::write_to`] without [`Self::check`] (tests write files the reader must refuse).
-    fn write_unchecked<W: Write>(&self, w: W) -> Result<u64> {
+    fn write_unchecked<W: Write>(&self, mut w: W) -> Result<u64> {
+        let mut buf = std::io::Cursor::new(Vec::new());
+        let n = self.write_seekable(&mut buf)?;
+        w.write_all(buf.get_ref())?;
+        Ok(n)
+    }
+
+    /// Writes the file atomically (temporary file + rename).
+    pub fn write_file(&self, path: &Path) -> Result<u64> {
+        self.check()?;
+        crate::atomic::write_atomic(path, |w| self.write_seekable(w))
+    }
+
+    /// Writes the sections in table order, streaming `SMPL` ([`stream_samples`]); the header
+    /// and section table, reserved as zeros, are filled in last by seeking back.
+    fn write_seekable<W: Write + Seek>(&self, w: &mut W) -> Result<u64> {
         let genr = serde_json::to_vec(&self.generator).map_err(|e| Error::Misuse(format!("generator: {e}")))?;
         let mut mesh = Vec::new();
         mesh.put_u64(self.meshes.len() as u64);
@@ -200,28 +215,45 @@ impl SamplesFile {
             inst.put_u32(i.mesh);
             put_similarity(&mut inst, &i.transform);
         }
-        let mut sections = vec![
-            SectionOut::plain(tags::GENR, genr),
-            SectionOut::plain(tags::MESH, mesh),
-            SectionOut::zstd(tags::INST, &inst, ZSTD_LEVEL)?,
-            SectionOut::zstd(tags::SMPL, &encode_samples(&self.samples), ZSTD_LEVEL)?,
-        ];
+        let before = [SectionOut::plain(tags::GENR, genr), SectionOut::plain(tags::MESH, mesh), SectionOut::zstd(tags::INST, &inst, ZSTD_LEVEL)?];
         // Only when needed, so files without such placements stay readable by 1.0 readers.
-        if !self.affine_instances.is_empty() {
+        let affi = if self.affine_instances.is_empty() {
+            None
+        } else {
             let mut affi = Vec::with_capacity(8 + self.affine_instances.len() * AFFI_ENTRY_BYTES);
             affi.put_u64(self.affine_instances.len() as u64);
             for a in &self.affine_instances {
                 affi.put_u32(a.mesh);
                 a.matrix.iter().flatten().for_each(|v| affi.put_f64(*v));
             }
-            sections.push(SectionOut::zstd(AFFI, &affi, ZSTD_LEVEL)?);
+            Some(SectionOut::zstd(AFFI, &affi, ZSTD_LEVEL)?)
+        };
+        let count = before.len() + 1 + affi.iter().len();
+        let start = w.stream_position()?;
+        let head_len = FILE_HEADER_LEN + count * SECTION_ENTRY_LEN;
+        w.write_all(&vec![0u8; head_len])?;
+        let mut offset = head_len as u64;
+        let mut entries = Vec::with_capacity(count);
+        for s in &before {
+            w.write_all(&s.stored)?;
+            entries.push(s.entry(offset));
+            offset += s.stored.len() as u64;
         }
-        Ok(write_container(SAMPLES_MAGIC, &sections, w)?.0)
-    }
-
-    /// Writes the file atomically (temporary file + rename).
-    pub fn write_file(&self, path: &Path) -> Result<u64> {
-        crate::atomic::write_atomic(path, |w| self.write_to(w))
+        // Each zstd worker holds about two jobs' buffers (8 MiB of input each at this level):
+        // more than a few cost memory and outrun the disk.
+        let workers = rayon::current_num_threads().clamp(1, MAX_ZSTD_WORKERS) as u32;
+        let smpl = SectionEntry { offset, ..stream_samples(&self.samples, workers, w)? };
+        offset += smpl.stored_len;
+        entries.push(smpl);
+        if let Some(s) = &affi {
+            w.write_all(&s.stored)?;
+            entries.push(s.entry(offset));
+            offset += s.stored.len() as u64;
+        }
+        w.seek(SeekFrom::Start(start))?;
+        w.write_all(&header_and_table(SAMPLES_MAGIC, &entries, offset))?;
+        w.seek(SeekFrom::Start(start + offset))?;
+        Ok(offset)
     }
 
     /// Parses a samples file from bytes.
@@ -307,8 +339,21 @@ impl SamplesFile {
     /// decoded from the (decompressed) column section, so the peak is columns + samples
     /// (76 bytes a sample), not file + columns + samples (92).
     pub fn read_file(path: &Path, limits: &Limits) -> Result<Self> {
+        Ok(Self::read_file_impl(path, limits, false)?.0)
+    }
+
+    /// [`Self::read_file`], also returning the BLAKE3 hash (lowercase hex) of the bytes read,
+    /// computed while the samples are decompressed: provenance without reading the file
+    /// twice, and of exactly the bytes the samples came from.
+    pub fn read_file_hashed(path: &Path, limits: &Limits) -> Result<(Self, String)> {
+        let (file, hash) = Self::read_file_impl(path, limits, true)?;
+        Ok((file, hash.unwrap_or_default()))
+    }
+
+    fn read_file_impl(path: &Path, limits: &Limits, hash: bool) -> Result<(Self, Option<String>)> {
         let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-        let (mut file, smpl, offset, at) = Self::read_tables(&data, limits)?;
+        let (hash, tables) = rayon::join(|| hash.then(|| blake3::hash(&data).to_hex().to_string()), || Self::read_tables(&data, limits));
+        let (mut file, smpl, offset, at) = tables?;
         file.samples = match smpl {
             Cow::Borrowed(b) => decode_samples(b, offset, limits)?,
             Cow::Owned(columns) => {
@@ -317,7 +362,7 @@ impl SamplesFile {
             }
         };
         file.check_tables(&at)?;
-        Ok(file)
+        Ok((file, hash))
     }
 
     /// Samples of mesh `m`.
@@ -399,20 +444,73 @@ pub(crate) fn read_similarity(c: &mut Cursor<'_>) -> Result<Similarity> {
     Ok(Similarity { translation: [v[0], v[1], v[2]], rotation: [v[3], v[4], v[5], v[6]], scale: v[7] })
 }
 
-/// Column layout: count, then all centres, radii, normals, areas, colours.
-fn encode_samples(samples: &[Node]) -> Vec<u8> {
-    let mut out = Vec::with_capacity(8 + samples.len() * SAMPLE_BYTES);
-    out.put_u64(samples.len() as u64);
-    for s in samples {
-        s.center.iter().for_each(|v| out.put_f32(*v));
+/// Most zstd threads compressing the column section.
+const MAX_ZSTD_WORKERS: usize = 4;
+/// Samples laid out per chunk of the column section before compression.
+const CHUNK_SAMPLES: usize = 1 << 16;
+
+/// Streams the `SMPL` section to `w`: one zstd frame of the column layout (count, then all
+/// centres, radii, normals, areas, colours). The columns are laid out a chunk at a time and
+/// compressed by `workers` zstd threads while this thread lays out the next chunk and
+/// writes what is done, so neither the columns (36 bytes a sample) nor the compressed
+/// section is ever held whole. zstd's multithreaded frames are the same bytes for every
+/// worker count ≥ 1 (it cuts jobs by size, not by workers; a section smaller than one job
+/// is compressed on this thread, also for every count). Returns the section's entry (at
+/// offset 0).
+fn stream_samples(samples: &[Node], workers: u32, w: &mut dyn Write) -> Result<SectionEntry> {
+    use zstd::stream::raw::{Encoder, InBuffer, Operation, OutBuffer};
+    let raw_len = 8 + samples.len() as u64 * SAMPLE_BYTES as u64;
+    let mut enc = Encoder::new(ZSTD_LEVEL)?;
+    enc.set_parameter(zstd::zstd_safe::CParameter::NbWorkers(workers.max(1)))?;
+    enc.set_pledged_src_size(Some(raw_len))?;
+    let mut out = vec![0u8; zstd::zstd_safe::CCtx::out_size()];
+    let mut crc = crc32fast::Hasher::new();
+    let mut stored = 0u64;
+    let mut put = |b: &[u8]| -> Result<()> {
+        crc.update(b);
+        stored += b.len() as u64;
+        Ok(w.write_all(b)?)
+    };
+    // Feeds bytes to the encoder, passing on what comes out.
+    let mut feed = |enc: &mut Encoder, data: &[u8]| -> Result<()> {
+        let mut inb = InBuffer::around(data);
+        while inb.pos() < data.len() {
+            let mut ob = OutBuffer::around(&mut out[..]);
+            enc.run(&mut inb, &mut ob)?;
+            put(ob.as_slice())?;
+        }
+        Ok(())
+    };
+    feed(&mut enc, &(samples.len() as u64).to_le_bytes())?;
+    let columns: [fn(&Node, &mut Vec<u8>); 5] = [
+        |s, c| s.center.iter().for_each(|v| c.put_f32(*v)),
+        |s, c| c.put_f32(s.radius),
+        |s, c| s.normal.iter().for_each(|v| c.put_f32(*v)),
+        |s, c| c.put_f32(s.area),
+        |s, c| c.extend_from_slice(&s.color),
+    ];
+    let mut chunk: Vec<u8> = Vec::with_capacity(CHUNK_SAMPLES * 12);
+    let mut fed = 8u64;
+    for column in columns {
+        for part in samples.chunks(CHUNK_SAMPLES) {
+            chunk.clear();
+            part.iter().for_each(|s| column(s, &mut chunk));
+            feed(&mut enc, &chunk)?;
+            fed += chunk.len() as u64;
+        }
     }
-    samples.iter().for_each(|s| out.put_f32(s.radius));
-    for s in samples {
-        s.normal.iter().for_each(|v| out.put_f32(*v));
+    loop {
+        let mut ob = OutBuffer::around(&mut out[..]);
+        let left = enc.finish(&mut ob, true)?;
+        put(ob.as_slice())?;
+        if left == 0 {
+            break;
+        }
     }
-    samples.iter().for_each(|s| out.put_f32(s.area));
-    samples.iter().for_each(|s| out.extend_from_slice(&s.color));
-    out
+    if fed != raw_len {
+        return Err(Error::Misuse(format!("sample columns are {fed} bytes, {raw_len} expected (bug)")));
+    }
+    Ok(SectionEntry { tag: tags::SMPL, flags: SectionEntry::REQUIRED | SectionEntry::ZSTD, offset: 0, stored_len: stored, raw_len, crc: crc.finalize() })
 }
 
 fn decode_samples(bytes: &[u8], offset: u64, limits: &Limits) -> Result<Vec<Node>> {
@@ -616,6 +714,26 @@ mod tests {
         assert!(cr[0] * nb[0] + cr[1] * nb[1] + cr[2] * nb[2] > 0.0);
     }
 
+    /// The column section is the same bytes for every zstd worker count, over several of
+    /// zstd's jobs (8 MiB of input each at this level), and decodes to the samples.
+    #[test]
+    fn samples_section_does_not_depend_on_workers() {
+        let samples: Vec<Node> = (0..600_000u32).map(|i| Node { radius: (i as f32).sqrt(), ..sample(i) }).collect();
+        let mut first: Option<Vec<u8>> = None;
+        for workers in [1, 2, 3] {
+            let mut out = Vec::new();
+            let e = stream_samples(&samples, workers, &mut out).unwrap();
+            assert_eq!((e.stored_len as usize, e.crc), (out.len(), crc32fast::hash(&out)));
+            assert_eq!(e.raw_len, 8 + 36 * samples.len() as u64);
+            match &first {
+                None => first = Some(out),
+                Some(f) => assert!(*f == out, "{workers} workers"),
+            }
+        }
+        let raw = zstd::stream::decode_all(&first.unwrap()[..]).unwrap();
+        assert_eq!(decode_samples(&raw, 0, &Limits::default()).unwrap(), samples);
+    }
+
     #[test]
     fn round_trip() {
         let f = file();
@@ -628,6 +746,8 @@ mod tests {
         let path = std::env::temp_dir().join(format!("sct-samples-rt-{}.samples", std::process::id()));
         f.write_file(&path).unwrap();
         assert_eq!(SamplesFile::read_file(&path, &Limits::default()).unwrap(), f);
+        let (g, hash) = SamplesFile::read_file_hashed(&path, &Limits::default()).unwrap();
+        assert_eq!((g, hash), (f.clone(), crate::atomic::hash_file(&path).unwrap()));
         let mut bad = f.clone();
         bad.meshes[0].count += 1;
         let mut bytes = Vec::new();

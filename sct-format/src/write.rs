@@ -12,13 +12,13 @@ use std::path::Path;
 use rayon::prelude::*;
 
 use crate::codec::{encode_children, CodecParams, Profile};
-use crate::container::{write_container, SectionOut, MAJOR, MINOR};
+use crate::container::{header_and_table, write_container, SectionOut};
 use crate::error::{Error, Result};
 use crate::graph::{Generator, GraphNode, Propagation, SceneGraph};
 use crate::node::Node;
 use crate::raw::cursor::Put;
 use crate::raw::{
-    tags, BlockEntry, FileHeader, LevelEntry, SectionEntry, TreeHeader, BLOCK_ENTRY_LEN, FILE_HEADER_LEN, LEVEL_ENTRY_LEN, SCT_MAGIC,
+    tags, BlockEntry, LevelEntry, SectionEntry, TreeHeader, BLOCK_ENTRY_LEN, FILE_HEADER_LEN, LEVEL_ENTRY_LEN, SCT_MAGIC,
     SECTION_ENTRY_LEN, TREE_HEADER_LEN,
 };
 use crate::samples::put_similarity;
@@ -161,8 +161,7 @@ pub fn write_scene_file(path: &Path, scene: &Scene, opts: &WriteOptions) -> Resu
 pub fn write_scene_file_owned(path: &Path, scene: Scene, opts: &WriteOptions) -> Result<WriteStats> {
     check_graph(&scene)?;
     let Scene { generator, graph, trees } = scene;
-    let block_nodes = block_nodes(opts);
-    let trees = trees.into_iter().map(move |t| TreeInput::owned(t, block_nodes));
+    let trees = trees.into_iter().map(TreeInput::owned);
     crate::atomic::write_atomic(path, |w| stream_scene(&generator, &graph, trees, opts, w).map_err(|e| with_path(e, path)))
 }
 
@@ -183,7 +182,7 @@ fn with_path(e: Error, path: &Path) -> Error {
 /// The streaming writer behind [`write_scene_file`]. Mirrors [`write_container`]'s layout
 /// (header, section table, sections in order), which needs every section in memory.
 /// The graph must have been checked ([`check_graph`]).
-fn stream_scene<'a, W: Write + Seek>(
+fn stream_scene<'a, W: Write + Seek + Send>(
     generator: &Generator,
     graph: &SceneGraph,
     trees: impl ExactSizeIterator<Item = TreeInput<'a>>,
@@ -229,24 +228,8 @@ fn stream_scene<'a, W: Write + Seek>(
         offset += st.stats.section_bytes;
         tree_stats.push(st.stats);
     }
-    let mut table = Vec::with_capacity(table_len);
-    entries.iter().for_each(|e| e.write(&mut table));
-    let mut head = Vec::with_capacity(FILE_HEADER_LEN);
-    FileHeader {
-        magic: SCT_MAGIC,
-        major: MAJOR,
-        minor: MINOR,
-        flags: 0,
-        section_count: section_count as u32,
-        section_table_offset: FILE_HEADER_LEN as u64,
-        file_length: offset,
-        table_crc: crc32fast::hash(&table),
-        header_crc: 0,
-    }
-    .write(&mut head);
     w.seek(SeekFrom::Start(start))?;
-    w.write_all(&head)?;
-    w.write_all(&table)?;
+    w.write_all(&header_and_table(SCT_MAGIC, &entries, offset))?;
     w.seek(SeekFrom::Start(start + offset))?;
     Ok(WriteStats {
         bytes: offset,
@@ -366,11 +349,39 @@ fn encode_graph(g: &SceneGraph) -> Vec<u8> {
 /// Any zstd decoder reads it as before (a frame of several blocks); only the bytes shrink.
 /// Also returns the stored bytes of each stream (the frame's end goes to the last).
 fn compress_streams(payload: &[u8], lens: &[usize], level: i32) -> Result<(Vec<u8>, Vec<usize>)> {
-    use zstd::stream::raw::{Encoder, InBuffer, Operation, OutBuffer};
-    let mut enc = Encoder::new(level)?;
+    use zstd::stream::raw::{Encoder, Operation};
+    thread_local! {
+        /// Each worker's zstd context (with its level) and output buffer, reused from block
+        /// to block: a fresh context per block costs its allocation and first-touch page
+        /// faults. zstd's output depends only on the parameters, not on the context's past.
+        static CONTEXT: std::cell::RefCell<Option<(i32, Encoder<'static>, Vec<u8>)>> = const { std::cell::RefCell::new(None) };
+    }
+    CONTEXT.with(|cell| {
+        let mut cell = cell.borrow_mut();
+        let (enc, buf) = match &mut *cell {
+            Some((l, enc, buf)) if *l == level => (enc, buf),
+            slot => {
+                let ctx = (level, Encoder::new(level)?, vec![0u8; zstd::zstd_safe::CCtx::out_size().max(1 << 17)]);
+                let (_, enc, buf) = slot.insert(ctx);
+                (enc, buf)
+            }
+        };
+        // A block that failed half way must not leave its frame open.
+        enc.reinit()?;
+        compress_streams_with(enc, buf, payload, lens)
+    })
+}
+
+/// [`compress_streams`] with a given context and output buffer.
+fn compress_streams_with(
+    enc: &mut zstd::stream::raw::Encoder<'static>,
+    buf: &mut [u8],
+    payload: &[u8],
+    lens: &[usize],
+) -> Result<(Vec<u8>, Vec<usize>)> {
+    use zstd::stream::raw::{InBuffer, Operation, OutBuffer};
     enc.set_pledged_src_size(Some(payload.len() as u64))?;
     let mut out: Vec<u8> = Vec::with_capacity(payload.len() / 2 + 1024);
-    let mut buf = vec![0u8; zstd::zstd_safe::CCtx::out_size().max(1 << 17)];
     let mut sizes = Vec::with_capacity(lens.len());
     let mut at = 0usize;
     let mut done = 0usize;
@@ -378,14 +389,14 @@ fn compress_streams(payload: &[u8], lens: &[usize], level: i32) -> Result<(Vec<u
         let end = (at + len).min(payload.len());
         let mut inb = InBuffer::around(&payload[at..end]);
         while inb.pos() < inb.src.len() {
-            let mut ob = OutBuffer::around(&mut buf[..]);
+            let mut ob = OutBuffer::around(&mut *buf);
             enc.run(&mut inb, &mut ob)?;
             out.extend_from_slice(ob.as_slice());
         }
         at = end;
         let last = k + 1 == lens.len();
         loop {
-            let mut ob = OutBuffer::around(&mut buf[..]);
+            let mut ob = OutBuffer::around(&mut *buf);
             let left = if last { enc.finish(&mut ob, true)? } else { enc.flush(&mut ob)? };
             out.extend_from_slice(ob.as_slice());
             if left == 0 {
@@ -404,6 +415,8 @@ fn compress_streams(payload: &[u8], lens: &[usize], level: i32) -> Result<(Vec<u
 /// One encoded block, as a worker returns it.
 struct EncodedBlock {
     stored: Vec<u8>,
+    /// CRC-32 of `stored`.
+    crc: u32,
     flags: u32,
     mask_len: u64,
     payload_len: u64,
@@ -473,7 +486,7 @@ fn encode_block(
         let slot = slots.next().ok_or_else(|| Error::Misuse("more internal nodes than reserved (bug)".into()))?;
         *slot = *n;
     }
-    Ok(EncodedBlock { stored, flags: bflags, mask_len: mask_len as u64, payload_len: (raw_len - mask_len) as u64, attribute_bytes })
+    Ok(EncodedBlock { crc: crc32fast::hash(&stored), stored, flags: bflags, mask_len: mask_len as u64, payload_len: (raw_len - mask_len) as u64, attribute_bytes })
 }
 
 /// Blocks encoded at once per level, per worker thread: enough to keep every worker busy
@@ -481,7 +494,7 @@ fn encode_block(
 const BLOCKS_IN_FLIGHT_PER_THREAD: usize = 2;
 
 /// A tree as the streaming writer consumes it: its shape, and its nodes either borrowed or
-/// owned as one vector per block, which is dropped once the block is encoded.
+/// owned, in which case they are released batch by batch as they are encoded.
 struct TreeInput<'a> {
     flags: std::borrow::Cow<'a, [bool]>,
     /// Node index range of every level.
@@ -492,12 +505,13 @@ struct TreeInput<'a> {
     nodes: NodeSource<'a>,
 }
 
-/// Where [`stream_tree`] gets each block's nodes.
+/// Where [`stream_tree`] gets each batch's nodes.
 enum NodeSource<'a> {
     /// All nodes, breadth first.
     Borrowed(&'a [Node]),
-    /// The nodes of every block, in file order (blocks of level 1 first).
-    Owned(std::collections::VecDeque<Vec<Node>>),
+    /// The nodes not yet encoded, in reverse breadth-first order: those encoded next are at
+    /// the end, so they are released by shrinking the vector, without copying the rest.
+    Reversed { rest: Vec<Node>, total: usize },
 }
 
 impl<'a> TreeInput<'a> {
@@ -512,27 +526,16 @@ impl<'a> TreeInput<'a> {
         TreeInput { flags: tree.internal_flags().into(), levels, leaves, root, alpha, nodes: NodeSource::Borrowed(tree.nodes()) }
     }
 
-    /// Splits the tree's nodes into one vector per block, from the last block back, giving
-    /// the emptied tail of the big vector back to the allocator as it goes, so the split
-    /// itself needs only about one block more than the tree.
-    fn owned(tree: SceneTree, block_nodes: usize) -> Self {
+    /// Takes the tree's nodes, reversed in place (no second allocation); the root, which
+    /// the tree header holds, is dropped.
+    fn owned(tree: SceneTree) -> Self {
         let (levels, leaves, root, alpha) = Self::shape(&tree);
-        let (mut nodes, flags) = tree.into_parts();
-        let mut blocks = std::collections::VecDeque::new();
-        // Shrinking costs a realloc (for a large vector an mremap that frees the pages);
-        // once per this many bytes of surplus capacity.
-        const SHRINK_BYTES: usize = 4 << 20;
-        for r in levels.iter().skip(1).rev() {
-            let starts: Vec<usize> = (r.start..r.end).step_by(block_nodes).collect();
-            for &s in starts.iter().rev() {
-                blocks.push_front(nodes.split_off(s));
-                if (nodes.capacity() - nodes.len()) * std::mem::size_of::<Node>() >= SHRINK_BYTES {
-                    nodes.shrink_to_fit();
-                }
-            }
-        }
-        drop(nodes);
-        TreeInput { flags: flags.into(), levels, leaves, root, alpha, nodes: NodeSource::Owned(blocks) }
+        let (mut rest, flags) = tree.into_parts();
+        let total = rest.len();
+        let (front, back) = rest.split_at_mut(total / 2);
+        front.par_iter_mut().zip(back.par_iter_mut().rev()).with_min_len(1 << 12).for_each(|(a, b)| std::mem::swap(a, b));
+        rest.pop();
+        TreeInput { flags: flags.into(), levels, leaves, root, alpha, nodes: NodeSource::Reversed { rest, total } }
     }
 
     fn len(&self) -> usize {
@@ -547,18 +550,29 @@ impl<'a> TreeInput<'a> {
     }
 }
 
-impl<'a> NodeSource<'a> {
-    /// Nodes `range` (breadth-first indices) of one block; blocks are asked for in file order.
-    fn block(&mut self, range: std::ops::Range<usize>) -> Result<std::borrow::Cow<'a, [Node]>> {
+impl NodeSource<'_> {
+    /// Nodes `range` (breadth-first indices) of one batch; batches are asked for in file
+    /// order. Owned nodes are moved into `buf` and released from the tree.
+    fn batch<'b>(&'b mut self, range: std::ops::Range<usize>, buf: &'b mut Vec<Node>) -> Result<&'b [Node]> {
+        let bug = || Error::Misuse(format!("nodes {range:?} requested out of order (bug)"));
         match self {
-            NodeSource::Borrowed(all) => {
-                let all: &'a [Node] = all;
-                all.get(range.clone()).map(Into::into).ok_or_else(|| Error::Misuse(format!("nodes {range:?} out of range (bug)")))
+            NodeSource::Borrowed(all) => all.get(range.clone()).ok_or_else(bug),
+            NodeSource::Reversed { rest, total } => {
+                if rest.len() + range.start != *total || range.end > *total {
+                    return Err(bug());
+                }
+                let keep = *total - range.end;
+                buf.clear();
+                buf.par_extend(rest[keep..].par_iter().rev().copied());
+                rest.truncate(keep);
+                // Shrinking costs a realloc (for a large vector an mremap that frees the
+                // pages); once per this many bytes of surplus capacity.
+                const SHRINK_BYTES: usize = 4 << 20;
+                if (rest.capacity() - rest.len()) * std::mem::size_of::<Node>() >= SHRINK_BYTES {
+                    rest.shrink_to_fit();
+                }
+                Ok(buf)
             }
-            NodeSource::Owned(blocks) => match blocks.pop_front() {
-                Some(b) if b.len() == range.len() => Ok(b.into()),
-                _ => Err(Error::Misuse(format!("no block of nodes {range:?} (bug)"))),
-            },
         }
     }
 }
@@ -619,7 +633,7 @@ struct StreamedTree {
 /// batch at a time and levels in order, so memory holds at most one batch of stored blocks
 /// besides the tree, and of decoded nodes with children, the part of one level not yet used
 /// as parents and the part of the next already written (see [`ParentQueue`]).
-fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut dyn FnMut(&[u8]) -> Result<()>) -> Result<StreamedTree> {
+fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnMut(&[u8]) -> Result<()> + Send)) -> Result<StreamedTree> {
     let profile = opts.profile;
     let params = CodecParams { alpha: tree.alpha };
     let block_nodes = block_nodes(opts);
@@ -640,6 +654,10 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut dyn FnMu
     let mut parents = ParentQueue::default();
     // The parents of one batch, contiguous as the codec wants them.
     let mut batch_parents: Vec<Node> = Vec::new();
+    // The nodes of one batch when they are owned (see [`NodeSource::batch`]).
+    let mut batch_nodes: Vec<Node> = Vec::new();
+    // Stored blocks of the last batch encoded, not yet handed to the sink.
+    let mut pending: Vec<Vec<u8>> = Vec::new();
     if let (true, Some(root)) = (levels > 0, tree.root) {
         level_table[0] = LevelEntry { node_count: 1, first_block: 0, block_count: 0 };
         if flags[0] {
@@ -674,18 +692,22 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut dyn FnMu
                 rest = tail;
             }
             let p0 = first / 2;
-            // This batch's nodes; owned ones are freed when the batch is encoded.
-            let batch_nodes =
-                batch_chunks.iter().map(|&(s, e)| tree.nodes.block(range.start + s..range.start + e)).collect::<Result<Vec<_>>>()?;
-            let encoded: Vec<Result<EncodedBlock>> = batch_chunks
-                .par_iter()
-                .zip(batch_nodes.par_iter())
-                .zip(parts.into_par_iter())
-                .map(|((&(s, e), level_nodes), part)| {
-                    encode_block(opts, params, &batch_parents[s / 2 - p0..e / 2 - p0], level_nodes, &level_flags[s..e], part)
-                })
-                .collect();
-            drop(batch_nodes);
+            let level_nodes = tree.nodes.batch(range.start + first..range.start + last, &mut batch_nodes)?;
+            // The previous batch goes to the sink while this one is encoded.
+            let (written, encoded) = rayon::join(
+                || pending.drain(..).try_for_each(|b| sink(&b)),
+                || {
+                    batch_chunks
+                        .par_iter()
+                        .zip(parts.into_par_iter())
+                        .map(|(&(s, e), part)| {
+                            let nodes = &level_nodes[s - first..e - first];
+                            encode_block(opts, params, &batch_parents[s / 2 - p0..e / 2 - p0], nodes, &level_flags[s..e], part)
+                        })
+                        .collect::<Vec<Result<EncodedBlock>>>()
+                },
+            );
+            written?;
             next_parents.segments.push_back(segment);
             for ((&(s, e), r), &k) in batch_chunks.iter().zip(encoded).zip(batch_internal) {
                 let b = r?;
@@ -694,20 +716,21 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut dyn FnMu
                 for (t, v) in attribute_bytes.iter_mut().zip(b.attribute_bytes) {
                     *t += v;
                 }
+                let len = b.stored.len() as u64;
                 blocks.push(BlockEntry {
                     level: d as u32,
                     node_count: (e - s) as u32,
                     first_node: s as u64,
                     internal_before,
                     offset: at,
-                    stored_len: b.stored.len() as u32,
+                    stored_len: len as u32,
                     raw_len: (b.mask_len + b.payload_len) as u32,
-                    crc: crc32fast::hash(&b.stored),
+                    crc: b.crc,
                     flags: b.flags,
                 });
-                blocks_crc.update(&b.stored);
-                sink(&b.stored)?;
-                at += b.stored.len() as u64;
+                blocks_crc.combine(&crc32fast::Hasher::new_with_initial_len(b.crc, len));
+                pending.push(b.stored);
+                at += len;
                 internal_before += k as u64;
             }
         }
@@ -716,6 +739,7 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut dyn FnMu
         }
         parents = next_parents;
     }
+    pending.drain(..).try_for_each(|b| sink(&b))?;
     drop(parents);
     drop(batch_parents);
     let mut index = Vec::with_capacity(index_len);
