@@ -250,8 +250,8 @@ mod tests {
         // Truncated to its first levels: the bottom level's internal nodes have no children.
         let cut = t.level(5).end;
         let tt = SceneTree::from_bfs(vec![n(); cut], internal[..cut].to_vec()).unwrap();
-        for i in 0..cut {
-            let want = if i < t.level(4).end { expect[i] } else { None };
+        for (i, &e) in expect[..cut].iter().enumerate() {
+            let want = if i < t.level(4).end { e } else { None };
             assert_eq!(tt.children(i), want, "node {i}");
         }
         assert!(tt.parents()[t.level(4).start..cut].iter().all(|&p| p != NO_CHILD));
