@@ -130,6 +130,15 @@ impl Aabb {
         }
     }
 
+    /// The box holding both (the same compare-and-select as [`Aabb::add`]).
+    fn union(mut self, o: Aabb) -> Aabb {
+        for k in 0..3 {
+            self.min[k] = if o.min[k] < self.min[k] { o.min[k] } else { self.min[k] };
+            self.max[k] = if o.max[k] > self.max[k] { o.max[k] } else { self.max[k] };
+        }
+        self
+    }
+
     fn of(items: &[Item]) -> Aabb {
         let mut b = Aabb::EMPTY;
         for it in items {
@@ -281,7 +290,11 @@ fn build_tree_impl(
         samples.par_iter().enumerate().map(|(i, s)| Item { c: s.center, idx: i as u32 }).collect();
     let mut slots = vec![0u32; 2 * n - 1];
     let ctx = Ctx { tol, weld: !matches!(opts.weld, Weld::Off), max_depth: ceil_log2(n) + opts.depth_slack };
-    let bbox = Aabb::of(&items);
+    // In parallel: the root's box is the one pass over all items that no split shares.
+    let bbox = items
+        .par_chunks(PAR_ITEMS)
+        .map(Aabb::of)
+        .reduce(|| Aabb::EMPTY, Aabb::union);
     let (forced, max_depth) = partition(&ctx, &mut items, &mut slots, 0, bbox, 0);
     stats.forced_splits = forced;
     stats.partition_s = t0.elapsed().as_secs_f64();
