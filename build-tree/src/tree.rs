@@ -215,6 +215,21 @@ fn spread(out: &mut [Node], flags: &[bool], leaves: &[Node], first: usize) {
     }
 }
 
+/// Every chunk's slices of `all`, an array in breadth-first order over the nodes (`at` 0)
+/// or the leaves (`at == levels`): per level, the chunks' shares in chunk order.
+fn split_levels<'a, T>(all: &'a mut [T], counts: &[Vec<u32>], at: usize, levels: usize) -> Vec<Vec<&'a mut [T]>> {
+    let mut parts: Vec<Vec<&mut [T]>> = counts.iter().map(|_| Vec::with_capacity(levels)).collect();
+    let mut rest = all;
+    for d in 0..levels {
+        for (c, p) in counts.iter().zip(&mut parts) {
+            let (a, b) = std::mem::take(&mut rest).split_at_mut(c[at + d] as usize);
+            p.push(a);
+            rest = b;
+        }
+    }
+    parts
+}
+
 /// A piece of the tree numbered by one task: the whole subtree over the items `[lo, hi)`
 /// whose root is slot `slot` at `depth`, or (`whole == false`) only that root, an internal
 /// node above the chunks.
@@ -339,19 +354,8 @@ fn build_tree_impl(
     // item of every leaf gets the `LEAF` bit in `src`, which ends the previous range.
     let mut internal = vec![false; total];
     let mut leaf_src = vec![0u32; leaves];
-    let mut flag_parts: Vec<Vec<&mut [bool]>> = chunks.iter().map(|_| Vec::with_capacity(levels)).collect();
-    let mut leaf_parts: Vec<Vec<&mut [u32]>> = chunks.iter().map(|_| Vec::with_capacity(levels)).collect();
-    let (mut flags_rest, mut leaves_rest) = (internal.as_mut_slice(), leaf_src.as_mut_slice());
-    for d in 0..levels {
-        for ((c, fp), lp) in counts.iter().zip(&mut flag_parts).zip(&mut leaf_parts) {
-            let (a, b) = std::mem::take(&mut flags_rest).split_at_mut(c[d] as usize);
-            fp.push(a);
-            flags_rest = b;
-            let (a, b) = std::mem::take(&mut leaves_rest).split_at_mut(c[levels + d] as usize);
-            lp.push(a);
-            leaves_rest = b;
-        }
-    }
+    let flag_parts = split_levels(&mut internal, &counts, 0, levels);
+    let leaf_parts = split_levels(&mut leaf_src, &counts, levels, levels);
     let mut src_parts: Vec<&mut [u32]> = Vec::with_capacity(chunks.len());
     let mut src_rest = src.as_mut_slice();
     for c in &chunks {
@@ -379,22 +383,36 @@ fn build_tree_impl(
     );
     drop(slots);
 
-    // 2c: every leaf welded in its breadth-first leaf place (in parallel; a welded leaf's
-    // members in item order). Only the leaves are made now; the vector's capacity is the
-    // whole tree's, so growing it once the samples are freed neither copies nor overlaps
-    // them. Peak here: samples 40 + leaves 40 + src 4 + leaf sources 4 + flags 2 bytes per
-    // sample.
+    // 2c: every leaf welded in its breadth-first leaf place (in parallel over the chunks;
+    // a welded leaf's members in item order). Only the leaves are made now; the vector's
+    // capacity is the whole tree's, so growing it once the samples are freed neither copies
+    // nor overlaps them. Peak here: samples 40 + leaves 40 + src 4 + leaf sources 4 + flags
+    // 2 bytes per sample.
     let mut nodes: Vec<Node> = Vec::with_capacity(total);
-    nodes.par_extend(leaf_src.par_iter().map_init(Vec::new, |members, &v| {
-        if v & LEAF == 0 {
-            return samples[v as usize];
-        }
-        let lo = (v & !LEAF) as usize;
-        members.clear();
-        members.push(samples[(src[lo] & !LEAF) as usize]);
-        members.extend(src[lo + 1..].iter().take_while(|&&i| i & LEAF == 0).map(|&i| samples[i as usize]));
-        weld(members)
-    }));
+    nodes.resize(leaves, Node::default());
+    // By chunk (each chunk's leaves level by level): a chunk's samples lie close together
+    // in memory far more often than a whole level's.
+    chunks
+        .par_iter()
+        .zip(split_levels(&mut nodes, &counts, levels, levels))
+        .zip(split_levels(&mut leaf_src, &counts, levels, levels))
+        .for_each_init(Vec::new, |members, ((_, np), lp)| {
+            for (out, from) in np.into_iter().zip(lp) {
+                for (node, &v) in out.iter_mut().zip(from.iter()) {
+                    *node = if v & LEAF == 0 {
+                        samples[v as usize]
+                    } else {
+                        let lo = (v & !LEAF) as usize;
+                        members.clear();
+                        members.push(samples[(src[lo] & !LEAF) as usize]);
+                        members.extend(
+                            src[lo + 1..].iter().take_while(|&&i| i & LEAF == 0).map(|&i| samples[i as usize]),
+                        );
+                        weld(members)
+                    };
+                }
+            }
+        });
     let mut map = Vec::new();
     if want_map {
         map = vec![u32::MAX; n];
