@@ -15,12 +15,17 @@
 //!   `m` items `[lo, hi)` whose root is slot `s` owns slots `[s, s + 2m - 1)`; its left
 //!   child over `[lo, mid)` is slot `s + 1` and its right child slot `s + 2(mid - lo)`. The
 //!   root slot stores `mid` for an internal node and `hi` for a leaf (possibly welded), so
-//!   disjoint subtrees write disjoint slices and rayon needs no synchronisation. A
-//!   depth-first walk over the slots keeps only each leaf's breadth-first index in item
-//!   order (4 bytes a leaf, plus a bit per item marking range starts), so the slots are
-//!   freed before the leaves exist;
-//! - the output nodes in breadth-first order, whose internal nodes are filled level by
-//!   level from the bottom.
+//!   disjoint subtrees write disjoint slices and rayon needs no synchronisation;
+//! - the layout numbers the nodes breadth first without a breadth-first walk: within a
+//!   level, breadth-first order is depth-first order, so chunks of the tree (subtrees, and
+//!   single nodes above them) count their nodes per level, the counts give every chunk its
+//!   own slices of every level, and the chunks number themselves in parallel. It keeps only
+//!   each leaf's source in breadth-first leaf order (4 bytes a leaf; the first item of
+//!   every leaf range is marked in the source indices), so the slots are freed before the
+//!   leaves exist;
+//! - the output nodes in breadth-first order: the leaves welded in parallel at the front,
+//!   then spread to their node indices, then the internal nodes filled level by level from
+//!   the bottom.
 //!
 //! Everything is deterministic: the partition of a range depends only on its contents, so
 //! the result is identical for any number of threads.
@@ -37,6 +42,10 @@ use crate::error::BuildError;
 const PAR_ITEMS: usize = 16 * 1024;
 /// Parents computed per rayon task in the bottom-up pass.
 const PAR_NODES: usize = 8 * 1024;
+/// Subtrees of at most this many items are numbered by one task in the layout.
+const CHUNK_ITEMS: usize = 16 * 1024;
+/// Nodes per task when the leaves move to their node places.
+const SPREAD: usize = 4096;
 
 /// How close samples must be to be welded into one leaf.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -121,6 +130,15 @@ impl Aabb {
         }
     }
 
+    /// The box holding both (the same compare-and-select as [`Aabb::add`]).
+    fn union(mut self, o: Aabb) -> Aabb {
+        for k in 0..3 {
+            self.min[k] = if o.min[k] < self.min[k] { o.min[k] } else { self.min[k] };
+            self.max[k] = if o.max[k] > self.max[k] { o.max[k] } else { self.max[k] };
+        }
+        self
+    }
+
     fn of(items: &[Item]) -> Aabb {
         let mut b = Aabb::EMPTY;
         for it in items {
@@ -183,19 +201,74 @@ pub(crate) fn build_tree_with_map_owned(
 /// breadth-first index (both are below 2^31, see the size check).
 const LEAF: u32 = 1 << 31;
 
-/// Positions of the set bits of a word, lowest first.
-struct BitIter(u64);
-
-impl Iterator for BitIter {
-    type Item = usize;
-    #[inline]
-    fn next(&mut self) -> Option<usize> {
-        if self.0 == 0 {
-            return None;
+/// Fills `out` (nodes whose flags start `flags`): internal nodes with the default, leaves
+/// from `leaves[first..]` in order.
+fn spread(out: &mut [Node], flags: &[bool], leaves: &[Node], first: usize) {
+    let mut j = first;
+    for (node, &f) in out.iter_mut().zip(flags) {
+        if f {
+            *node = Node::default();
+        } else {
+            *node = leaves[j];
+            j += 1;
         }
-        let b = self.0.trailing_zeros() as usize;
-        self.0 &= self.0 - 1;
-        Some(b)
+    }
+}
+
+/// Every chunk's slices of `all`, an array in breadth-first order over the nodes (`at` 0)
+/// or the leaves (`at == levels`): per level, the chunks' shares in chunk order.
+fn split_levels<'a, T>(all: &'a mut [T], counts: &[Vec<u32>], at: usize, levels: usize) -> Vec<Vec<&'a mut [T]>> {
+    let mut parts: Vec<Vec<&mut [T]>> = counts.iter().map(|_| Vec::with_capacity(levels)).collect();
+    let mut rest = all;
+    for d in 0..levels {
+        for (c, p) in counts.iter().zip(&mut parts) {
+            let (a, b) = std::mem::take(&mut rest).split_at_mut(c[at + d] as usize);
+            p.push(a);
+            rest = b;
+        }
+    }
+    parts
+}
+
+/// A piece of the tree numbered by one task: the whole subtree over the items `[lo, hi)`
+/// whose root is slot `slot` at `depth`, or (`whole == false`) only that root, an internal
+/// node above the chunks.
+struct Chunk {
+    lo: u32,
+    hi: u32,
+    slot: u32,
+    depth: u32,
+    whole: bool,
+}
+
+/// The chunks of the subtree at `slot`, depth first.
+fn collect_chunks(slots: &[u32], lo: u32, hi: u32, slot: u32, depth: u32, out: &mut Vec<Chunk>) {
+    let v = slots[slot as usize];
+    let whole = v == hi || (hi - lo) as usize <= CHUNK_ITEMS;
+    out.push(Chunk { lo, hi, slot, depth, whole });
+    if !whole {
+        collect_chunks(slots, lo, v, slot + 1, depth + 1, out);
+        collect_chunks(slots, v, hi, slot + 2 * (v - lo), depth + 1, out);
+    }
+}
+
+/// Visits the nodes of chunk `c` depth first: `visit(depth, lo, hi, internal)`.
+fn walk(slots: &[u32], c: &Chunk, stack: &mut Vec<(u32, u32, u32, u32)>, mut visit: impl FnMut(u32, u32, u32, bool)) {
+    if !c.whole {
+        visit(c.depth, c.lo, c.hi, true);
+        return;
+    }
+    stack.clear();
+    stack.push((c.lo, c.hi, c.slot, c.depth));
+    while let Some((lo, hi, slot, d)) = stack.pop() {
+        let v = slots[slot as usize];
+        if v == hi {
+            visit(d, lo, hi, false);
+        } else {
+            visit(d, lo, hi, true);
+            stack.push((v, hi, slot + 2 * (v - lo), d + 1));
+            stack.push((lo, v, slot + 1, d + 1));
+        }
     }
 }
 
@@ -232,132 +305,168 @@ fn build_tree_impl(
         samples.par_iter().enumerate().map(|(i, s)| Item { c: s.center, idx: i as u32 }).collect();
     let mut slots = vec![0u32; 2 * n - 1];
     let ctx = Ctx { tol, weld: !matches!(opts.weld, Weld::Off), max_depth: ceil_log2(n) + opts.depth_slack };
-    let bbox = Aabb::of(&items);
-    let forced = partition(&ctx, &mut items, &mut slots, 0, bbox, 0);
+    // In parallel: the root's box is the one pass over all items that no split shares.
+    let bbox = items
+        .par_chunks(PAR_ITEMS)
+        .map(Aabb::of)
+        .reduce(|| Aabb::EMPTY, Aabb::union);
+    let (forced, max_depth) = partition(&ctx, &mut items, &mut slots, 0, bbox, 0);
     stats.forced_splits = forced;
     stats.partition_s = t0.elapsed().as_secs_f64();
 
     // Pass 2: layout. Only the source indices of the partition are needed from here on (4
     // of the 16 bytes per item).
     let t1 = Instant::now();
-    let src: Vec<u32> = items.par_iter().map(|it| it.idx).collect();
+    let mut src: Vec<u32> = items.par_iter().map(|it| it.idx).collect();
     drop(items);
 
-    // 2a: breadth-first walk: internal flags; every leaf's root slot becomes `LEAF | j`, `j`
-    // its breadth-first leaf index.
-    let mut internal: Vec<bool> = Vec::new();
-    // (lo, hi, slot) of every node of the current and the next level.
-    let mut level: Vec<(u32, u32, u32)> = vec![(0, n as u32, 0)];
-    let mut next: Vec<(u32, u32, u32)> = Vec::new();
-    let mut depth = 0u32;
-    let mut leaves = 0u32;
-    loop {
-        for &(lo, hi, slot) in &level {
-            let v = slots[slot as usize];
-            if v == hi {
-                slots[slot as usize] = LEAF | leaves;
-                leaves += 1;
-                internal.push(false);
-            } else {
-                internal.push(true);
-                next.push((lo, v, slot + 1));
-                next.push((v, hi, slot + 2 * (v - lo)));
-            }
-        }
-        if next.is_empty() {
-            break;
-        }
-        depth += 1;
-        std::mem::swap(&mut level, &mut next);
-        next.clear();
+    // 2a: cut the tree into chunks numbered by one task each, and count every chunk's nodes
+    // and leaves per level (a level's nodes are in depth-first order within it, so the
+    // chunks' counts place every chunk's share of a level).
+    let levels = max_depth as usize + 1;
+    let mut chunks = Vec::new();
+    collect_chunks(&slots, 0, n as u32, 0, 0, &mut chunks);
+    let counts: Vec<Vec<u32>> = chunks
+        .par_iter()
+        .map_init(Vec::new, |stack, c| {
+            let mut count = vec![0u32; 2 * levels];
+            walk(&slots, c, stack, |d, _, _, internal| {
+                count[d as usize] += 1;
+                if !internal {
+                    count[levels + d as usize] += 1;
+                }
+            });
+            count
+        })
+        .collect();
+    let (mut total, mut leaves) = (0usize, 0usize);
+    for c in &counts {
+        total += c[..levels].iter().map(|&k| k as usize).sum::<usize>();
+        leaves += c[levels..].iter().map(|&k| k as usize).sum::<usize>();
     }
-    drop(level);
-    drop(next);
-    let total = internal.len();
-    if total != 2 * leaves as usize - 1 {
+    if total != 2 * leaves - 1 {
         return Err(BuildError::Internal(format!("layout gave {total} nodes for {leaves} leaves")));
     }
 
-    // 2b: depth-first walk over the slots: the breadth-first index of every leaf in item
-    // order, and a bit per item marking where each leaf's range starts (ranges tile the
-    // items). That is all the welding needs, so the slots are freed before the leaves exist.
-    let mut bfs_of_dfs: Vec<u32> = Vec::with_capacity(leaves as usize);
-    let mut starts = vec![0u64; n.div_ceil(64)];
-    let mut stack: Vec<(u32, u32, u32)> = vec![(0, n as u32, 0)];
-    while let Some((lo, hi, slot)) = stack.pop() {
-        let v = slots[slot as usize];
-        if v & LEAF != 0 {
-            bfs_of_dfs.push(v & !LEAF);
-            starts[lo as usize / 64] |= 1 << (lo % 64);
-        } else {
-            stack.push((v, hi, slot + 2 * (v - lo)));
-            stack.push((lo, v, slot + 1));
-        }
+    // 2b: every chunk gets, per level, its own slices of the breadth-first flags and of the
+    // leaves' sources, and its own items; so the chunks number themselves in parallel. A
+    // leaf's source is its sample (one member) or `LEAF | lo`, its first item; the first
+    // item of every leaf gets the `LEAF` bit in `src`, which ends the previous range.
+    let mut internal = vec![false; total];
+    let mut leaf_src = vec![0u32; leaves];
+    let flag_parts = split_levels(&mut internal, &counts, 0, levels);
+    let leaf_parts = split_levels(&mut leaf_src, &counts, levels, levels);
+    let mut src_parts: Vec<&mut [u32]> = Vec::with_capacity(chunks.len());
+    let mut src_rest = src.as_mut_slice();
+    for c in &chunks {
+        let k = if c.whole { (c.hi - c.lo) as usize } else { 0 };
+        let (a, b) = std::mem::take(&mut src_rest).split_at_mut(k);
+        src_parts.push(a);
+        src_rest = b;
     }
-    drop(stack);
+    chunks.par_iter().zip(flag_parts).zip(leaf_parts).zip(src_parts).for_each_init(
+        Vec::new,
+        |stack, (((c, mut fp), mut lp), sp)| {
+            let mut at = vec![0usize; 2 * levels];
+            walk(&slots, c, stack, |d, lo, hi, internal| {
+                let d = d as usize;
+                fp[d][at[d]] = internal;
+                at[d] += 1;
+                if !internal {
+                    let k = (lo - c.lo) as usize;
+                    lp[d][at[levels + d]] = if hi - lo == 1 { sp[k] } else { LEAF | lo };
+                    at[levels + d] += 1;
+                    sp[k] |= LEAF;
+                }
+            });
+        },
+    );
     drop(slots);
 
-    // 2c: every leaf welded straight into its breadth-first leaf place, in item order (the
-    // members are read through `src` sequentially). Only the leaves are touched now; the
-    // vector's capacity is the whole tree's, so growing it once the samples are freed
-    // neither copies nor overlaps them. Peak here: samples 40 + leaves 40 + src 4 + leaf
-    // order 4 + flags 2 bytes per sample.
+    // 2c: every leaf welded in its breadth-first leaf place (in parallel over the chunks;
+    // a welded leaf's members in item order). Only the leaves are made now; the vector's
+    // capacity is the whole tree's, so growing it once the samples are freed neither copies
+    // nor overlaps them. Peak here: samples 40 + leaves 40 + src 4 + leaf sources 4 + flags
+    // 2 bytes per sample.
     let mut nodes: Vec<Node> = Vec::with_capacity(total);
-    nodes.resize(leaves as usize, Node::default());
-    // Breadth-first node index of every leaf, for the map.
-    let node_of_leaf: Vec<u32> = if want_map {
-        internal.iter().enumerate().filter(|(_, &f)| !f).map(|(i, _)| i as u32).collect()
-    } else {
-        Vec::new()
-    };
-    let mut map = if want_map { vec![u32::MAX; n] } else { Vec::new() };
-    let mut members: Vec<Node> = Vec::new();
-    // Range starts in item order: set bits of `starts`, then `n`.
-    let mut bounds = starts
-        .iter()
-        .enumerate()
-        .flat_map(|(w, &word)| BitIter(word).map(move |b| w * 64 + b))
-        .chain(std::iter::once(n))
-        .peekable();
-    for &j in &bfs_of_dfs {
-        let (Some(lo), Some(&hi)) = (bounds.next(), bounds.peek()) else {
-            return Err(BuildError::Internal("leaf ranges do not match the leaves".into()));
-        };
-        let ids = &src[lo..hi];
-        let node = &mut nodes[j as usize];
-        if let [one] = ids {
-            *node = samples[*one as usize];
-        } else {
-            members.clear();
-            members.extend(ids.iter().map(|&i| samples[i as usize]));
-            *node = weld(&members);
-        }
-        if want_map {
-            for &i in ids {
-                map[i as usize] = node_of_leaf[j as usize];
+    nodes.resize(leaves, Node::default());
+    // By chunk (each chunk's leaves level by level): a chunk's samples lie close together
+    // in memory far more often than a whole level's.
+    chunks
+        .par_iter()
+        .zip(split_levels(&mut nodes, &counts, levels, levels))
+        .zip(split_levels(&mut leaf_src, &counts, levels, levels))
+        .for_each_init(Vec::new, |members, ((_, np), lp)| {
+            for (out, from) in np.into_iter().zip(lp) {
+                for (node, &v) in out.iter_mut().zip(from.iter()) {
+                    *node = if v & LEAF == 0 {
+                        samples[v as usize]
+                    } else {
+                        let lo = (v & !LEAF) as usize;
+                        members.clear();
+                        members.push(samples[(src[lo] & !LEAF) as usize]);
+                        members.extend(
+                            src[lo + 1..].iter().take_while(|&&i| i & LEAF == 0).map(|&i| samples[i as usize]),
+                        );
+                        weld(members)
+                    };
+                }
+            }
+        });
+    let mut map = Vec::new();
+    if want_map {
+        map = vec![u32::MAX; n];
+        let node_of_leaf = internal.iter().enumerate().filter(|(_, &f)| !f).map(|(i, _)| i as u32);
+        for (node, &v) in node_of_leaf.zip(&leaf_src) {
+            if v & LEAF == 0 {
+                map[v as usize] = node;
+            } else {
+                let lo = (v & !LEAF) as usize;
+                map[(src[lo] & !LEAF) as usize] = node;
+                for &i in src[lo + 1..].iter().take_while(|&&i| i & LEAF == 0) {
+                    map[i as usize] = node;
+                }
             }
         }
     }
-    drop(members);
-    drop(node_of_leaf);
-    drop(bfs_of_dfs);
-    drop(starts);
+    drop(leaf_src);
     drop(src);
     drop(samples);
 
-    // 2d: grow to the whole tree and move every leaf back to its node index: leaf `j` lands
-    // at index >= j, so walking from the end moves each leaf before its old place is
-    // overwritten.
-    nodes.resize(total, Node::default());
-    let mut j = leaves as usize;
-    for pos in (0..total).rev() {
-        if internal[pos] {
-            nodes[pos] = Node::default();
-        } else {
-            j -= 1;
-            nodes[pos] = nodes[j];
-        }
+    // 2d: grow to the whole tree and move every leaf to its node index. Leaf `j` lands at
+    // index >= j: the leaves bound for `[f(e), e)` (`f(p)`: leaves before index `p`) come
+    // from `[f(f(e)), f(e))`, wholly before it, so that span is filled in parallel, then
+    // the one before it, about halving each time.
+    nodes.par_extend(rayon::iter::repeat_n(Node::default(), total - leaves));
+    // Leaves before every SPREAD-th index.
+    let mut leaf_before: Vec<usize> = Vec::with_capacity(total / SPREAD + 2);
+    leaf_before.push(0);
+    for k in internal.par_chunks(SPREAD).map(|b| b.iter().filter(|&&f| !f).count()).collect::<Vec<_>>() {
+        leaf_before.push(leaf_before[leaf_before.len() - 1] + k);
     }
+    let leaves_before = |p: usize| {
+        let b = p / SPREAD;
+        leaf_before[b] + internal[b * SPREAD..p].iter().filter(|&&f| !f).count()
+    };
+    let mut end = total;
+    loop {
+        let start = leaves_before(end);
+        if start >= end {
+            break;
+        }
+        let (head, tail) = nodes.split_at_mut(start);
+        // Up to the next multiple of SPREAD here, then whole blocks in parallel.
+        let aligned = start.next_multiple_of(SPREAD).min(end);
+        let (first, rest) = tail[..end - start].split_at_mut(aligned - start);
+        spread(first, &internal[start..], head, leaves_before(start));
+        rest.par_chunks_mut(SPREAD).enumerate().for_each(|(k, out)| {
+            let p = aligned + k * SPREAD;
+            spread(out, &internal[p..], head, leaf_before[p / SPREAD]);
+        });
+        end = start;
+    }
+    let depth = max_depth;
+    let leaves = leaves as u32;
     stats.layout_s = t1.elapsed().as_secs_f64();
 
     // Pass 3: parents bottom-up, one level at a time (a level depends only on the next).
@@ -443,19 +552,20 @@ fn weld(members: &[Node]) -> Node {
 }
 
 /// Partitions `items` (global offset `lo`) into the subtree whose slots are `slots`
-/// (`slots.len() == 2 * items.len() - 1`); returns the number of forced splits.
-fn partition(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: Aabb, depth: u32) -> u64 {
+/// (`slots.len() == 2 * items.len() - 1`); returns the number of forced splits and the
+/// depth of the deepest leaf.
+fn partition(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: Aabb, depth: u32) -> (u64, u32) {
     let m = items.len();
     let hi = (lo + m) as u32;
     if m == 1 {
         slots[0] = hi;
-        return 0;
+        return (0, depth);
     }
     let ext = bbox.extent();
     let widest = ext[0].max(ext[1]).max(ext[2]);
     if ctx.weld && widest <= ctx.tol {
         slots[0] = hi;
-        return 0;
+        return (0, depth);
     }
     let axis = if ext[0] >= ext[1] && ext[0] >= ext[2] {
         0
@@ -490,7 +600,7 @@ fn partition(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: 
     slots[0] = (lo + l) as u32;
     let (li, ri) = items.split_at_mut(l);
     let (ls, rs) = slots[1..].split_at_mut(2 * l - 1);
-    let (fa, fb) = if m >= PAR_ITEMS {
+    let ((fa, da), (fb, db)) = if m >= PAR_ITEMS {
         rayon::join(
             || partition(ctx, li, ls, lo, lb, depth + 1),
             || partition(ctx, ri, rs, lo + l, rb, depth + 1),
@@ -498,7 +608,7 @@ fn partition(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: 
     } else {
         (partition(ctx, li, ls, lo, lb, depth + 1), partition(ctx, ri, rs, lo + l, rb, depth + 1))
     };
-    forced + fa + fb
+    (forced + fa + fb, da.max(db))
 }
 
 /// In-place two-pointer partition: centres below `mid` on `axis` first. Returns the left

@@ -5,6 +5,8 @@
 //! `2k + 1` of the next level, so no child pointers are needed: one "has children" bit per
 //! node is the whole topology (spec §6).
 
+use rayon::prelude::*;
+
 use crate::error::{Error, Result};
 use crate::node::Node;
 
@@ -54,10 +56,28 @@ impl SceneTree {
         if nodes.is_empty() {
             return Ok(SceneTree { nodes, internal, level_starts, bits: Vec::new(), rank: Vec::new() });
         }
+        // The rank directory first (in parallel: a few passes over every flag otherwise),
+        // so each level's internal nodes are counted in constant time.
+        let bits: Vec<u64> = internal
+            .par_chunks(64)
+            .map(|w| w.iter().enumerate().fold(0u64, |b, (k, &f)| b | (f as u64) << k))
+            .collect();
+        let rank: Vec<u32> = bits
+            .iter()
+            .scan(0u32, |acc, &w| {
+                let before = *acc;
+                *acc += w.count_ones();
+                Some(before)
+            })
+            .collect();
+        let before = |i: usize| match bits.get(i / 64) {
+            Some(&w) => rank[i / 64] as usize + (w & ((1u64 << (i % 64)) - 1)).count_ones() as usize,
+            None => rank.last().map_or(0, |&r| r as usize) + bits.last().map_or(0, |w| w.count_ones() as usize),
+        };
         let (mut start, mut end) = (0usize, 1usize);
         loop {
             level_starts.push(end);
-            let parents = internal[start..end].iter().filter(|&&b| b).count();
+            let parents = before(end) - before(start);
             let next_end = end + 2 * parents;
             if parents == 0 || end == nodes.len() {
                 if end != nodes.len() {
@@ -78,16 +98,6 @@ impl SceneTree {
             start = end;
             end = next_end;
         }
-        let bits: Vec<u64> =
-            internal.chunks(64).map(|w| w.iter().enumerate().fold(0u64, |b, (k, &f)| b | (f as u64) << k)).collect();
-        let rank: Vec<u32> = bits
-            .iter()
-            .scan(0u32, |acc, &w| {
-                let before = *acc;
-                *acc += w.count_ones();
-                Some(before)
-            })
-            .collect();
         Ok(SceneTree { nodes, internal, level_starts, bits, rank })
     }
 
@@ -250,8 +260,8 @@ mod tests {
         // Truncated to its first levels: the bottom level's internal nodes have no children.
         let cut = t.level(5).end;
         let tt = SceneTree::from_bfs(vec![n(); cut], internal[..cut].to_vec()).unwrap();
-        for i in 0..cut {
-            let want = if i < t.level(4).end { expect[i] } else { None };
+        for (i, &e) in expect[..cut].iter().enumerate() {
+            let want = if i < t.level(4).end { e } else { None };
             assert_eq!(tt.children(i), want, "node {i}");
         }
         assert!(tt.parents()[t.level(4).start..cut].iter().all(|&p| p != NO_CHILD));
