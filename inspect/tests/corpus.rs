@@ -257,9 +257,13 @@ fn group_leaf_must_bound_instanced_child() {
         GraphNode::Instance { child: 0, transform: tr, attrs: InstanceAttrs::default() },
         GraphNode::Group { children: vec![0, 1], tree: 1 },
     ];
-    write(&f, SceneGraph { nodes, root: 2 }, vec![t, gt], Profile::Raw);
-    expect(&f, false, &[]);
-    let (code, ids) = check_ids(&f, true);
-    assert_eq!(code, 1);
-    assert!(ids.contains(&"child-outside-parent".to_string()) && ids.contains(&"area-sum".to_string()), "{ids:?}");
+    // The default profile's group-leaf area slack (its coding bound) must not hide a leaf
+    // that lacks the instance's scale² (area off by 4×).
+    for profile in [Profile::Raw, Profile::Default] {
+        write(&f, SceneGraph { nodes: nodes.clone(), root: 2 }, vec![t.clone(), gt.clone()], profile);
+        expect(&f, false, &[]);
+        let (code, ids) = check_ids(&f, true);
+        assert_eq!(code, 1);
+        assert!(ids.contains(&"child-outside-parent".to_string()) && ids.contains(&"area-sum".to_string()), "{profile:?}: {ids:?}");
+    }
 }

@@ -27,6 +27,9 @@
 //! - Area ([`CheckId::AreaSum`]): `|parent - (a + b)| <= AREA_REL_TOL * max(parent, a + b)`.
 //!   A builder sums in f64 and rounds once (0.5 ulp ≈ 6e-8); the margin leaves room for
 //!   codecs that quantize area relative to the parent, while real inconsistencies are ≥ 1e-3.
+//!   A group leaf is compared with the child it stands for; in a profile that codes area
+//!   relative to the parent, it may also differ by [`area_level_tolerance`] × the decoded
+//!   area of each of its ancestors (the profile's documented bound, accumulated with depth).
 //! - Cone ([`CheckId::ConeContainment`]): [`cone_tolerance`] radians (raw 1e-6; lossy profiles
 //!   0.05 rad ≈ 2.9°: the decoded axis moves ≤ 0.64° and the decoded cone widens by < 1.35°).
 //! - Colour ([`CheckId::ColorMean`]): each channel of the parent within [`color_tolerance`]
@@ -63,6 +66,15 @@ pub const AREA_REL_TOL: f64 = 1e-4;
 pub const QUATERNION_TOL: f64 = 1e-6;
 /// Unit-length tolerance of cone axes.
 pub const NORMAL_TOL: f64 = 1e-3;
+
+/// Most a level of a profile's tree may move a child's area, as a fraction of its decoded
+/// parent's area (0 where area is stored exactly).
+pub fn area_level_tolerance(p: Profile) -> f64 {
+    match p {
+        Profile::Raw | Profile::Canopy => 0.0,
+        Profile::Default => crate::codec::default::AREA_FRACTION_ERROR,
+    }
+}
 
 /// Cone containment tolerance of a profile, radians.
 pub fn cone_tolerance(p: Profile) -> f32 {
@@ -448,8 +460,13 @@ fn check_contained(p: &Node, c: &Node, slack: f32, cone_tol: f32, at: u64, out: 
 }
 
 fn area_ok(parent: f32, sum: f64) -> bool {
+    area_ok_within(parent, sum, 0.0)
+}
+
+/// [`area_ok`] with `slack` more absolute difference allowed.
+fn area_ok_within(parent: f32, sum: f64, slack: f64) -> bool {
     let p = parent as f64;
-    (p - sum).abs() <= AREA_REL_TOL * p.abs().max(sum.abs()) + 1e-30
+    (p - sum).abs() <= AREA_REL_TOL * p.abs().max(sum.abs()) + slack + 1e-30
 }
 
 fn color_ok(a: [u8; 4], b: [u8; 4], tol: [u8; 4]) -> bool {
@@ -805,6 +822,16 @@ impl<'o> Validator<'o> {
     fn check_group(&mut self, g: &SceneGraph, trees: &[Option<TreeIndex>], gt: &SceneTree, children: &[u32], paths: &[String], profile: Profile, label: &str) {
         let leaves: Vec<usize> = gt.leaves().collect();
         let slack = Profile::Raw.containment_slack().max(profile.containment_slack());
+        // Area error each node may carry from its ancestors' coding (breadth first: parents
+        // come before their children).
+        let per_level = area_level_tolerance(profile);
+        let mut area_slack = vec![0f64; gt.len()];
+        for i in 0..gt.len() {
+            if let Some(kids) = gt.children(i) {
+                let s = area_slack[i] + per_level * f64::from(gt.nodes()[i].area).abs();
+                kids.iter().for_each(|&k| area_slack[k] = s);
+            }
+        }
         for (j, &c) in children.iter().enumerate() {
             let (Some(&li), Some(cb)) = (leaves.get(j), bound_of(g, trees, c)) else { continue };
             let leaf = gt.nodes()[li];
@@ -813,7 +840,7 @@ impl<'o> Validator<'o> {
             }
             let mut out = Vec::new();
             check_contained(&leaf, &cb, slack, cone_tolerance(profile), 0, &mut out);
-            if !area_ok(leaf.area, cb.area as f64) {
+            if !area_ok_within(leaf.area, cb.area as f64, area_slack[li]) {
                 out.push((0, CheckId::AreaSum, format!("group leaf area {:.6}, child {:.6} (instance scale² applied)", leaf.area, cb.area)));
             }
             if !color_ok(leaf.color, cb.color, color_tolerance(profile)) {

@@ -57,3 +57,23 @@ fn embedded_demo_model_goes_through_every_tool() {
         assert!(lit > 160 * 120 / 50, "{profile:?}: preview nearly blank ({lit} pixels drawn)");
     }
 }
+
+/// glTF files whose meshes are placed by several nodes become groups over instances; in
+/// every profile the group leaves must carry their children's areas within the profile's
+/// bound. Regression: the default profile's coarse area codes (within its documented bound)
+/// made deep validation report every group leaf of these files.
+#[test]
+fn instanced_gltf_scenes_validate_deep_in_every_profile() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let models = repo().join("../shared/models/gltf");
+    for name in ["VertexColorTest/glTF-Binary/VertexColorTest.glb", "SimpleInstancing/glTF-Binary/SimpleInstancing.glb"] {
+        let samples = dir.path().join("m.samples");
+        voxelize(&models.join(name), &samples);
+        for profile in [Profile::Default, Profile::Canopy, Profile::Raw] {
+            let sct = dir.path().join(format!("m-{}.sct", profile.name()));
+            build(&samples, &sct, profile);
+            let report = validate_file(&sct, &ValidateOptions { deep: true, limits: Limits::default() }).expect("validate");
+            assert!(report.issues.is_empty(), "{name} {profile:?}: {:?}", &report.issues[..report.issues.len().min(3)]);
+        }
+    }
+}

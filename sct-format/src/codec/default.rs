@@ -64,6 +64,10 @@ pub const CONTAINMENT_SLACK: f32 = super::canopy::CONTAINMENT_SLACK;
 /// Area fraction denominator.
 const AREA_ONE: u16 = 4096;
 
+/// Most a level moves a child's area fraction (of its decoded parent's area) in this
+/// encoder: half the coarsest step of [`area_code`], 8 codes of 4096 (see "Area bound").
+pub const AREA_FRACTION_ERROR: f64 = 4.0 / 4096.0;
+
 /// Zigzag of a `bits`-bit wrapped difference.
 fn zz(code: u8, pred: u8, bits: u32) -> u8 {
     let m = (1u32 << bits) - 1;
