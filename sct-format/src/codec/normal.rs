@@ -152,11 +152,7 @@ fn pick_precise(cand: &[(u16, f64, f64); 4]) -> usize {
 /// Decoded cone semi-angle of `code`.
 #[inline]
 pub fn cone_decode(code: u8) -> f32 {
-    cone_table()[code as usize]
-}
-
-fn cone_table() -> &'static [f32; 256] {
-    &CONE_TABLE
+    CONE_TABLE[code as usize]
 }
 
 /// Decoded cone angles, built at compile time (IEEE arithmetic, the same values as at run time;
@@ -176,7 +172,7 @@ static CONE_TABLE: [f32; 256] = {
 /// Smallest cone code whose decoded angle is at least `need` radians (code 255 = π covers
 /// any need, including ≥ π).
 pub fn cone_encode_up(need: f64) -> u8 {
-    let t = cone_table();
+    let t = &CONE_TABLE;
     // Also catches NaN.
     if need.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return 0;
@@ -221,7 +217,7 @@ fn cone_code_over(axis: [f32; 3], dec: [f32; 3], cone: f32) -> u8 {
             let code = cone_encode_up(base + lo);
             // Same code for the upper end iff it covers that too (the smallest code covering
             // `lo` is then the smallest covering anything in between); 255 covers all.
-            if code == 255 || cone_table()[code as usize] as f64 >= base + x + 1e-12 {
+            if code == 255 || CONE_TABLE[code as usize] as f64 >= base + x + 1e-12 {
                 return code;
             }
         }
