@@ -125,6 +125,7 @@ impl Aabb {
     /// made with them are the same for ±0). For the same reason the box of a set does not
     /// depend on the order its members are added in.
     #[inline]
+    #[allow(clippy::needless_range_loop)] // indexed: the four lanes become one packed op
     fn add(&mut self, c: &[f32; 3]) {
         let v = [c[0], c[1], c[2], c[2]];
         for k in 0..4 {
