@@ -139,6 +139,15 @@ fn degenerate_inputs() {
     assert!(build_tree(&[], &BuildOptions::default()).is_err());
     let bad = vec![Node { radius: f32::NAN, ..one[0] }];
     assert!(build_tree(&bad, &BuildOptions::default()).is_err());
+    // Among many good samples (the check runs in parallel chunks), the error names the
+    // first bad one.
+    let mut many: Vec<Node> = (0..6).flat_map(|k| chain.iter().map(move |n| Node { center: [n.center[0], k as f32, 0.0], ..*n })).collect();
+    many[4321].cone = 4.0;
+    many[9000].normal[1] = f32::INFINITY;
+    match build_tree(&many, &BuildOptions::default()) {
+        Err(e) => assert!(e.to_string().contains("sample 4321 "), "{e}"),
+        Ok(_) => panic!("a cone above π was accepted"),
+    }
 }
 
 #[test]
