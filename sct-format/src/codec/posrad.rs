@@ -180,6 +180,7 @@ fn radius_coef(q: i32) -> f32 {
 
 /// Smallest radius code `q` at grid point `g` (each coordinate in `-QP..=QP`) whose decoded
 /// sphere contains the child, and its state index; `None` when that `q` is not legal at `g`.
+#[inline]
 fn fit(t: &Tables, g: [i32; 3], pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Option<(u16, i32, f64)> {
     let gi = grid_index(g);
     let (base, qmax) = (*t.base.get(gi)?, *t.qmax.get(gi)? as i32);
