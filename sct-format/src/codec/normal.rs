@@ -282,9 +282,12 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
             return (pred, dec, cone_code_over(axis, dec, cone));
         }
     }
-    const D: [f32; 4] = [-1.0, 0.0, 1.0, 2.0];
-    let us = D.map(|d| (fu + d).clamp(0.0, 255.0) as u16);
-    let vs = D.map(|d| (fv + d).clamp(0.0, 255.0) as u16);
+    // fu, fv are whole numbers in [0, 255] (the projection of a usable axis), so clamping
+    // in integers gives the float clamp's codes.
+    const D: [i32; 4] = [-1, 0, 1, 2];
+    let (iu, iv) = (fu as i32, fv as i32);
+    let us = D.map(|d| (iu + d).clamp(0, 255) as u16);
+    let vs = D.map(|d| (iv + d).clamp(0, 255) as u16);
     let xs = us.map(|u| u as f32 / 255.0 * 2.0 - 1.0);
     let ys = vs.map(|v| v as f32 / 255.0 * 2.0 - 1.0);
     let cu = us.map(|u| zz(u as u8, pred as u8));
