@@ -177,6 +177,23 @@ pub fn cone_encode_up(need: f64) -> u8 {
     if need.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return 0;
     }
+    // Start at ⌊need / step⌋ (a multiplication and a truncating cast): the code below it
+    // decodes a whole step (far more than the rounding of `t` or of the product) under
+    // `need`, so the walk up still stops at the smallest covering code.
+    let mut c = ((need * (255.0 / PI)) as usize).min(255);
+    while c < 255 && (t[c] as f64) < need {
+        c += 1;
+    }
+    c as u8
+}
+
+/// [`cone_encode_up`] as first written (division and `ceil`), kept for an identity test.
+#[cfg(test)]
+fn cone_encode_up_reference(need: f64) -> u8 {
+    let t = &CONE_TABLE;
+    if need.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return 0;
+    }
     let mut c = (super::rounding::ceil_f64(need / CONE_STEP).clamp(0.0, 255.0) as usize).saturating_sub(1);
     while c < 255 && (t[c] as f64) < need {
         c += 1;
@@ -265,9 +282,12 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
             return (pred, dec, cone_code_over(axis, dec, cone));
         }
     }
-    const D: [f32; 4] = [-1.0, 0.0, 1.0, 2.0];
-    let us = D.map(|d| (fu + d).clamp(0.0, 255.0) as u16);
-    let vs = D.map(|d| (fv + d).clamp(0.0, 255.0) as u16);
+    // fu, fv are whole numbers in [0, 255] (the projection of a usable axis), so clamping
+    // in integers gives the float clamp's codes.
+    const D: [i32; 4] = [-1, 0, 1, 2];
+    let (iu, iv) = (fu as i32, fv as i32);
+    let us = D.map(|d| (iu + d).clamp(0, 255) as u16);
+    let vs = D.map(|d| (iv + d).clamp(0, 255) as u16);
     let xs = us.map(|u| u as f32 / 255.0 * 2.0 - 1.0);
     let ys = vs.map(|v| v as f32 / 255.0 * 2.0 - 1.0);
     let cu = us.map(|u| zz(u as u8, pred as u8));
@@ -315,13 +335,23 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
     if k0c > 0 {
         let mut best_cos = d0 / (n2 * l0).sqrt();
         for i in 0..4 {
+            // Costs are sums of non-negative row and column terms: a whole row can cost too much.
+            if cu[i] > best.0 {
+                continue;
+            }
             for j in 0..4 {
                 let k = cu[i] + cv[j];
                 let code = us[i] | vs[j] << 8;
                 if k > best.0 || code == best.1 {
                     continue;
                 }
-                let (d, l2) = dl(i, j);
+                // The inner 2×2 were worked out for the precise code already.
+                let (d, l2) = if (1..=2).contains(&i) && (1..=2).contains(&j) {
+                    let c = cand[((i - 1) << 1) | (j - 1)];
+                    (c.1, c.2)
+                } else {
+                    dl(i, j)
+                };
                 if d <= 0.0 || d * d < bound * l2 {
                     continue;
                 }
@@ -472,6 +502,27 @@ mod tests {
             assert_eq!(v.to_bits(), ((i as f64 * step) as f32).to_bits(), "{i}");
         }
         assert_eq!(CONE_TABLE[255], std::f32::consts::PI);
+    }
+
+    /// The multiply-and-walk cone code equals the division-and-ceil one, around every code
+    /// boundary and at random.
+    #[test]
+    fn cone_encode_up_matches_reference() {
+        let mut needs = vec![f64::NAN, -1.0, 0.0, -0.0, 1e-300, 3.2, 4.0, 1e300, f64::INFINITY, PI, std::f32::consts::PI as f64];
+        for &b in CONE_TABLE.iter() {
+            let b = b as f64;
+            let (mut up, mut down) = (b, b);
+            for _ in 0..4 {
+                needs.extend([up, down]);
+                up = up.next_up();
+                down = down.next_down();
+            }
+        }
+        let mut rng = crate::rng::SplitMix64(0x1234_5678_9ABC_DEF1);
+        needs.extend((0..1_000_000).map(|_| rng.next_f64() * 3.3));
+        for need in needs {
+            assert_eq!(cone_encode_up(need), cone_encode_up_reference(need), "{need}");
+        }
     }
 
     #[test]

@@ -164,12 +164,30 @@ pub fn contains(c_out: [f32; 3], r_out: f32, c_in: [f32; 3], r_in: f32) -> bool 
     dist64(c_out, c_in) + r_in as f64 <= r_out as f64
 }
 
-/// Smallest radius code `q` at grid point `g` whose decoded sphere contains the child, and
-/// its state index; `None` when that `q` is not legal at `g`.
+/// The decoded centre of grid point `g` in parent `(pc, pr)`: the same f32 operations as
+/// [`decode_state`] on the table's offset `g / QP`, without the table lookups.
+#[inline]
+fn grid_center(g: [i32; 3], pc: [f32; 3], pr: f32) -> [f32; 3] {
+    let f = |a: usize| pc[a] + pr * (g[a] as f32 / QP as f32);
+    [f(0), f(1), f(2)]
+}
+
+/// Decoded radius coefficient of radius code `q`: the table's `q / QR`.
+#[inline]
+fn radius_coef(q: i32) -> f32 {
+    q as f32 / QR as f32
+}
+
+/// Smallest radius code `q` at grid point `g` (each coordinate in `-QP..=QP`) whose decoded
+/// sphere contains the child, and its state index; `None` when that `q` is not legal at `g`.
+#[inline]
 fn fit(t: &Tables, g: [i32; 3], pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Option<(u16, i32, f64)> {
-    let s1 = t.index(g, 1)? as usize;
-    let (dc, _) = decode_state(t, s1, pc, pr)?;
-    let dist = dist64(dc, cc);
+    let gi = grid_index(g);
+    let (base, qmax) = (*t.base.get(gi)?, *t.qmax.get(gi)? as i32);
+    if base == NONE {
+        return None;
+    }
+    let dist = dist64(grid_center(g, pc, pr), cc);
     let need = dist + cr as f64;
     // First guess from the exact ratio; then walk up until the f32 radius really covers it.
     let guess = super::rounding::ceil_f64(need / pr as f64 * QR as f64);
@@ -181,14 +199,13 @@ fn fit(t: &Tables, g: [i32; 3], pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) ->
     if q > 1 {
         q -= 1;
     }
-    loop {
-        let s = t.index(g, q)?;
-        let r = pr * t.radius[s as usize];
-        if (r as f64) >= need {
-            return Some((s, q, dist));
+    while q <= qmax {
+        if (pr * radius_coef(q)) as f64 >= need {
+            return Some((base + (q - 1) as u16, q, dist));
         }
         q += 1;
     }
+    None
 }
 
 /// Encodes a child sphere `(cc, cr)` against decoded parent `(pc, pr)`: the legal state of
@@ -263,7 +280,7 @@ fn search(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: bool) -> Opti
             if !want_ties {
                 return Some(ties);
             }
-            let r = pr * t.radius[s as usize];
+            let r = pr * radius_coef(q);
             // Room left for the centre error, in grid steps, with a generous margin for the f32
             // rounding of decoded centres: the exact test below decides.
             let room = (r as f64 - cr as f64) / pr as f64 * QP as f64 * 1.01 + 0.01;
@@ -278,6 +295,13 @@ fn search(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: bool) -> Opti
                 })
             };
             let (s0, s1, s2) = (sq(0), sq(1), sq(2));
+            // No neighbour can fit when moving any one axis to its nearer neighbour already
+            // leaves no room (rounded sums are monotone and every neighbour moves some axis):
+            // the common case, decided without the loops below.
+            let near = |e: [f64; 3]| e[0].min(e[2]);
+            if near(s0) + s1[1] + s2[1] > room2 && s0[1] + near(s1) + s2[1] > room2 && s0[1] + s1[1] + near(s2) > room2 {
+                return Some(ties);
+            }
             for (di, &e0) in s0.iter().enumerate() {
                 if e0 + s1[1] + s2[1] > room2 {
                     continue;
@@ -292,8 +316,8 @@ fn search(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: bool) -> Opti
                         }
                         let g2 = [g[0] + di as i32 - 1, g[1] + dj as i32 - 1, g[2] + dk as i32 - 1];
                         let Some(s2) = t.index(g2, q) else { continue };
-                        let Some((dc, dr)) = decode_state(t, s2 as usize, pc, pr) else { continue };
-                        if dist64(dc, cc) + cr as f64 <= dr as f64 && (ties.len as usize) < MAX_TIES {
+                        // Same radius code, so the decoded radius is `r`.
+                        if dist64(grid_center(g2, pc, pr), cc) + cr as f64 <= r as f64 && (ties.len as usize) < MAX_TIES {
                             ties.states[ties.len as usize] = s2;
                             ties.len += 1;
                         }
@@ -316,6 +340,33 @@ fn search(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: bool) -> Opti
     best.map(|b| Ties::one(b.0))
 }
 
+/// [`fit`] as first written (table lookups per step), kept for [`search_reference`].
+#[cfg(test)]
+fn fit_reference(t: &Tables, g: [i32; 3], pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Option<(u16, i32, f64)> {
+    let s1 = t.index(g, 1)? as usize;
+    let (dc, _) = decode_state(t, s1, pc, pr)?;
+    let dist = dist64(dc, cc);
+    let need = dist + cr as f64;
+    // First guess from the exact ratio; then walk up until the f32 radius really covers it.
+    let guess = super::rounding::ceil_f64(need / pr as f64 * QR as f64);
+    if !guess.is_finite() || guess > (Q_MAX + 1) as f64 {
+        return None;
+    }
+    let mut q = (guess as i32).max(1);
+    // One step down too, in case the f32 product rounds above the exact ratio.
+    if q > 1 {
+        q -= 1;
+    }
+    loop {
+        let s = t.index(g, q)?;
+        let r = pr * t.radius[s as usize];
+        if (r as f64) >= need {
+            return Some((s, q, dist));
+        }
+        q += 1;
+    }
+}
+
 /// The search as first written (`round_f64` and a float range test), kept as a reference.
 #[cfg(test)]
 fn search_reference(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: bool) -> Option<Ties> {
@@ -326,7 +377,7 @@ fn search_reference(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: boo
     // Fast path: the nearest grid point overall minimises the error, hence the radius.
     if g0.iter().all(|a| a.abs() <= QP as f64) {
         let g = [g0[0] as i32, g0[1] as i32, g0[2] as i32];
-        if let Some((s, q, _)) = fit(t, g, pc, pr, cc, cr) {
+        if let Some((s, q, _)) = fit_reference(t, g, pc, pr, cc, cr) {
             let mut ties = Ties::one(s);
             if !want_ties {
                 return Some(ties);
@@ -375,7 +426,7 @@ fn search_reference(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: boo
     let mut best: Option<(u16, i32, f64)> = None;
     for g in &t.inside {
         let g = [g[0] as i32, g[1] as i32, g[2] as i32];
-        if let Some(c) = fit(t, g, pc, pr, cc, cr) {
+        if let Some(c) = fit_reference(t, g, pc, pr, cc, cr) {
             if best.is_none_or(|b| (c.1, c.2) < (b.1, b.2)) {
                 best = Some(c);
             }
