@@ -1445,19 +1445,21 @@ fn voxel_triangle_axis<const D: usize>(
     // column piece, the lower depth part and a clip temporary.
     let mut rest = [tri, Poly2::empty()];
     let mut r = 0;
-    let (mut strip, mut col, mut lower, mut tmp) = (Poly2::empty(), Poly2::empty(), Poly2::empty(), Poly2::empty());
+    let (mut col, mut lower, mut tmp) = (Poly2::empty(), Poly2::empty(), Poly2::empty());
+    // The strip is split off into `srest[0]`, where the rest of the strip starts.
     let mut srest = [Poly2::empty(), Poly2::empty()];
     for ia in lo_a..=hi_a {
         let (x0, x1) = (ia as f64, ia as f64 + 1.0);
         if x1 >= ahi {
             // The rest lies below x1: it is the strip (the split would copy it).
-            std::mem::swap(&mut strip, &mut rest[r]);
+            srest[0] = rest[r]; // a copy: a third of a swap's moves
             rest[r].n = 0;
         } else {
             let (src, dst) = ping(&mut rest, r);
-            src.split_axis_into(0, x1, &mut strip, dst);
+            src.split_axis_into(0, x1, &mut srest[0], dst);
             r ^= 1;
         }
+        let strip = &srest[0];
         if strip.n < 3 {
             continue;
         }
@@ -1481,7 +1483,6 @@ fn voxel_triangle_axis<const D: usize>(
             (blo, bhi) = (blo.max(xr.0), bhi.min(xr.1));
         }
         // The rest of the strip lies above `cut` (interior columns are skipped, not split off).
-        std::mem::swap(&mut srest[0], &mut strip);
         let (mut sr, mut cut) = (0, blo as f64);
         for ib in blo..=bhi {
             let y = ib as f64;
@@ -1492,11 +1493,12 @@ fn voxel_triangle_axis<const D: usize>(
                 (1.0, cen, dc - half, dc + half)
             } else {
                 if y > cut {
-                    srest[sr].clip_half_into(|p| p[1] - y, Some((1, y)), &mut tmp);
-                    std::mem::swap(&mut srest[sr], &mut tmp);
+                    let (src, dst) = ping(&mut srest, sr);
+                    src.clip_half_into(|p| p[1] - y, Some((1, y)), dst);
+                    sr ^= 1;
                 }
                 if y + 1.0 >= bmax {
-                    std::mem::swap(&mut col, &mut srest[sr]);
+                    col = srest[sr];
                     srest[sr].n = 0;
                 } else {
                     let (src, dst) = ping(&mut srest, sr);
