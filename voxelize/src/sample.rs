@@ -437,8 +437,9 @@ impl KeyPack {
     }
     #[inline]
     fn pack(&self, k: [i64; 3]) -> u64 {
-        // Clamped so a rounding stray can never spill into a neighbouring field.
-        let v: [u64; 3] = std::array::from_fn(|i| (k[i].clamp(self.lo[i], self.hi[i]) - self.lo[i]) as u64);
+        // Clamped so a rounding stray can never spill into a neighbouring field (max then min:
+        // `clamp` would also check lo ≤ hi, which `new` guarantees, on every sample).
+        let v: [u64; 3] = std::array::from_fn(|i| (k[i].max(self.lo[i]).min(self.hi[i]) - self.lo[i]) as u64);
         (v[0] << self.shift_x) | (v[1] << self.bits[2]) | v[2]
     }
     #[inline]
@@ -1893,6 +1894,7 @@ mod tests {
         assert_eq!(by_key, lex);
         // Out-of-range coordinates clamp instead of spilling into another field.
         assert_eq!(kp.unpack(kp.pack([i64::MAX, 0, 1000])), [301, 0, 1000]);
+        assert_eq!(kp.unpack(kp.pack([i64::MIN, 9, i64::MIN])), [-7, 3, 999]);
         assert!(KeyPack::new([0.0; 3], [3e6; 3]).is_err(), "3 × 22 bits do not fit");
         assert!(KeyPack::new([-1e300; 3], [1e300; 3]).is_err(), "saturates, then refuses");
     }
