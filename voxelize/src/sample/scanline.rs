@@ -8,7 +8,7 @@
 //! voxels. Counting and emitting read the same spans, so every slab divides by the same
 //! count and the slabs' samples partition the triangle's.
 
-use super::{face_axes, KeyPack, Mat, Planes, Rec, Tri};
+use super::{face_axes, shade_color, unit_or, KeyPack, Mat, Planes, Rec, Tri};
 use crate::mesh::{floor_i64, norm};
 
 /// `x.ceil() as i64` (saturating, NaN → 0) without a libm call, like [`floor_i64`].
@@ -100,6 +100,73 @@ impl Spans {
     }
 }
 
+/// [`Planes::shade`] along one row (fixed a): each varying channel's part up to the a term
+/// (`value at o + d/da·Δa`) is taken once per row, so a sample adds only `d/db·Δb` — the same
+/// operations in the same order, hence the same values bit for bit. Channels the material
+/// ignores (texture coordinates without a texture) are not evaluated, and vertex colours
+/// equal at the three corners are used as they are (their planes are flat).
+struct RowShade<'p, 'm> {
+    planes: &'p Planes<'m>,
+    /// Per channel (value at the row's a, d/db).
+    n: [[f32; 2]; 3],
+    c: [[f32; 2]; 4],
+    uv: [[f32; 2]; 2],
+    uv2: [[f32; 2]; 2],
+    /// The vertex colour when the corners share it.
+    vc: Option<[f32; 4]>,
+}
+
+impl<'p, 'm> RowShade<'p, 'm> {
+    fn new(planes: &'p Planes<'m>, t: &Tri) -> Self {
+        let vc = (t.c[0] == t.c[1] && t.c[0] == t.c[2]).then_some(t.c[0]);
+        RowShade { planes, n: [[0.0; 2]; 3], c: [[0.0; 2]; 4], uv: [[0.0; 2]; 2], uv2: [[0.0; 2]; 2], vc }
+    }
+
+    /// Moves to the row through `a`.
+    #[inline]
+    fn row(&mut self, a: f64) {
+        let p = self.planes;
+        let da = (a - p.o[0]) as f32;
+        let rebase = |pl: &[f32; 3]| [pl[0] + pl[1] * da, pl[2]];
+        if p.flat_n.is_none() {
+            self.n = p.n.each_ref().map(rebase);
+        }
+        if p.flat_c.is_none() {
+            if self.vc.is_none() {
+                self.c = p.c.each_ref().map(rebase);
+            }
+            if p.mat.tex.is_some() {
+                self.uv = p.uv.each_ref().map(rebase);
+            }
+            if p.mat.alpha_tex.is_some() {
+                self.uv2 = p.uv2.each_ref().map(rebase);
+            }
+        }
+    }
+
+    /// (colour or `None` = dropped by alpha, unit normal) at `b` on the row.
+    #[inline(always)]
+    fn shade(&self, b: f64) -> (Option<[f32; 4]>, [f32; 3]) {
+        let p = self.planes;
+        let db = (b - p.o[1]) as f32;
+        let at = |r: &[f32; 2]| r[0] + r[1] * db;
+        let c = match p.flat_c {
+            Some(c) => c,
+            None => {
+                let vc = self.vc.unwrap_or_else(|| self.c.each_ref().map(at));
+                let uv = if p.mat.tex.is_some() { self.uv.each_ref().map(at) } else { [0.0; 2] };
+                let uv2 = if p.mat.alpha_tex.is_some() { self.uv2.each_ref().map(at) } else { [0.0; 2] };
+                shade_color(vc, uv, uv2, p.mat)
+            }
+        };
+        let n = match p.flat_n {
+            Some(n) => n,
+            None => unit_or(self.n.each_ref().map(at), p.face_n),
+        };
+        (c, n)
+    }
+}
+
 /// The first `i` in `lo..hi` where `pred` holds, `pred` being false then true along the
 /// range (`hi` when it never holds).
 fn partition_point(mut lo: i64, mut hi: i64, pred: impl Fn(i64) -> bool) -> i64 {
@@ -142,7 +209,7 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
     let planes = Planes::new(t, &q, fnrm, mat);
     let area = 0.5 * norm(fnrm);
     let mut dropped = 0;
-    let mut push = |out: &mut Vec<Rec>, key: [i64; 3], p: [f64; 2], each: f32| match planes.shade(p) {
+    let mut push = |out: &mut Vec<Rec>, key: [i64; 3], shaded: (Option<[f32; 4]>, [f32; 3]), each: f32| match shaded {
         (Some(color), normal) => out.push(Rec { key: kp.pack(key), area: each, normal, color }),
         (None, _) => dropped += 1,
     };
@@ -151,10 +218,11 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
         let mut key = cen.map(floor_i64);
         key[D] = key[D].clamp(klo, khi);
         if in_slab(key[0]) {
-            push(out, key, [cen[a], cen[b]], area as f32);
+            push(out, key, planes.shade([cen[a], cen[b]]), area as f32);
         }
         return dropped;
     }
+    let mut shade = RowShade::new(&planes, t);
     let each = (area / total as f64) as f32;
     // Depth plane through corner 0: depth = p0 + ga·(a − a0) + gb·(b − b0).
     let (ga, gb) = (-fnrm[a] / fnrm[D], -fnrm[b] / fnrm[D]);
@@ -187,12 +255,16 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
                 last = partition_point(first, end, |ib| depth_key(ib).clamp(kp.lo[0], kp.hi[0]) < keep.0) - 1;
             }
         }
+        if first > last {
+            continue;
+        }
+        shade.row(ca);
         for ib in first..=last {
             let mut key = [0i64; 3];
             key[a] = ia;
             key[b] = ib;
             key[D] = depth_key(ib);
-            push(out, key, [ca, ib as f64 + 0.5], each);
+            push(out, key, shade.shade(ib as f64 + 0.5), each);
         }
     }
     dropped
