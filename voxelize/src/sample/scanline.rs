@@ -29,7 +29,7 @@ enum Edge {
 
 /// The column centres inside a projected triangle, row by row (rows along a, columns along
 /// b; column `(ia, ib)` has its centre at `(ia + ½, ib + ½)`). A centre on an edge is inside.
-pub(super) struct Spans {
+struct Spans {
     edges: [Edge; 3],
     /// Rows whose centres lie within the triangle's a range (clamped to the key range).
     rows: (i64, i64),
@@ -41,7 +41,7 @@ impl Spans {
     /// The spans of triangle `q` (corners in the projection plane); `ra`, `rb` = the key
     /// range along a and b (loops never run beyond it, whatever the coordinates). A triangle
     /// that projects to a line or a point has no spans.
-    pub(super) fn new(q: &[[f64; 2]; 3], ra: (i64, i64), rb: (i64, i64)) -> Spans {
+    fn new(q: &[[f64; 2]; 3], ra: (i64, i64), rb: (i64, i64)) -> Spans {
         let det = (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]);
         let orient = if det > 0.0 { 1.0 } else { -1.0 };
         let edges = std::array::from_fn(|i| {
@@ -70,7 +70,7 @@ impl Spans {
 
     /// The columns `first..=last` of row `ia` (empty when `first > last`).
     #[inline]
-    pub(super) fn row(&self, ia: i64) -> (i64, i64) {
+    fn row(&self, ia: i64) -> (i64, i64) {
         let a = ia as f64 + 0.5;
         let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
         for e in &self.edges {
@@ -90,13 +90,29 @@ impl Spans {
     }
 
     /// Rows `first..=last` (empty when `first > last`).
-    pub(super) fn rows(&self) -> (i64, i64) {
+    fn rows(&self) -> (i64, i64) {
         self.rows
     }
 
     /// The number of inside column centres.
-    pub(super) fn count(&self) -> u64 {
-        (self.rows.0..=self.rows.1).map(|ia| self.row(ia)).map(|(f, l)| if l >= f { (l - f + 1) as u64 } else { 0 }).sum()
+    #[cfg(test)]
+    fn count(&self) -> u64 {
+        self.count_keeping(&mut [])
+    }
+
+    /// [`Spans::count`], keeping the spans of the first rows in `first_rows` (row
+    /// `rows().0 + i` at `i`), so the emission need not compute them again.
+    fn count_keeping(&self, first_rows: &mut [(i64, i64)]) -> u64 {
+        let mut kept = first_rows.iter_mut();
+        let mut n = 0;
+        for ia in self.rows.0..=self.rows.1 {
+            let (f, l) = self.row(ia);
+            if let Some(k) = kept.next() {
+                *k = (f, l);
+            }
+            n += if l >= f { (l - f + 1) as u64 } else { 0 };
+        }
+        n
     }
 }
 
@@ -200,7 +216,9 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
     let (a, b) = ((D + 1) % 3, (D + 2) % 3);
     let q = t.p.map(|p| [p[a], p[b]]);
     let spans = Spans::new(&q, (kp.lo[a], kp.hi[a]), (kp.lo[b], kp.hi[b]));
-    let total = spans.count();
+    // Small triangles (most of them) are rasterized once: counting keeps their spans.
+    let mut kept = [(0i64, 0i64); 32];
+    let total = spans.count_keeping(&mut kept);
     let in_slab = |x: i64| (keep.0..=keep.1).contains(&x.clamp(kp.lo[0], kp.hi[0]));
     // A column centre inside the triangle has its depth within the corners' (up to
     // rounding, which must not move a sample out of the slabs that hold the triangle).
@@ -232,7 +250,7 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
         rows = (rows.0.max(keep.0), rows.1.min(keep.1));
     }
     for ia in rows.0..=rows.1 {
-        let (mut first, mut last) = spans.row(ia);
+        let (mut first, mut last) = usize::try_from(ia - spans.rows().0).ok().and_then(|i| kept.get(i)).copied().unwrap_or_else(|| spans.row(ia));
         if first > last {
             continue;
         }
