@@ -110,7 +110,9 @@ impl Spans {
             if let Some(k) = kept.next() {
                 *k = (f, l);
             }
-            n += if l >= f { (l - f + 1) as u64 } else { 0 };
+            if l >= f {
+                n += l.abs_diff(f).saturating_add(1);
+            }
         }
         n
     }
@@ -183,12 +185,14 @@ impl<'p, 'm> RowShade<'p, 'm> {
     }
 }
 
-/// The first `i` in `lo..hi` where `pred` holds, `pred` being false then true along the
-/// range (`hi` when it never holds).
-fn partition_point(mut lo: i64, mut hi: i64, pred: impl Fn(i64) -> bool) -> i64 {
+/// The first `i` in `lo..=hi` where `pred` holds, `pred` being false then true along the
+/// range (`hi + 1` when it never holds; i128 so that no bound of a key range overflows).
+fn partition_point(lo: i64, hi: i64, pred: impl Fn(i64) -> bool) -> i128 {
+    let (mut lo, mut hi) = (i128::from(lo), i128::from(hi) + 1);
     while lo < hi {
         let mid = lo + (hi - lo) / 2;
-        if pred(mid) {
+        // `lo ≤ mid < hi ≤ i64::MAX + 1`: `mid` is an i64.
+        if pred(mid as i64) {
             hi = mid;
         } else {
             lo = mid + 1;
@@ -250,7 +254,7 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
         rows = (rows.0.max(keep.0), rows.1.min(keep.1));
     }
     for ia in rows.0..=rows.1 {
-        let (mut first, mut last) = usize::try_from(ia - spans.rows().0).ok().and_then(|i| kept.get(i)).copied().unwrap_or_else(|| spans.row(ia));
+        let (mut first, mut last) = usize::try_from(ia.abs_diff(spans.rows().0)).ok().and_then(|i| kept.get(i)).copied().unwrap_or_else(|| spans.row(ia));
         if first > last {
             continue;
         }
@@ -264,14 +268,17 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
             // Depth is x here: the slab's columns are those whose depth voxel lies in it. The
             // computed depth is monotone along the row (rounding is monotone), so they form
             // one run, found by bisection on the exact keys.
-            let end = last + 1;
-            if gb >= 0.0 {
-                first = partition_point(first, end, |ib| depth_key(ib).clamp(kp.lo[0], kp.hi[0]) >= keep.0);
-                last = partition_point(first, end, |ib| depth_key(ib).clamp(kp.lo[0], kp.hi[0]) > keep.1) - 1;
+            let x = |ib: i64| depth_key(ib).clamp(kp.lo[0], kp.hi[0]);
+            let (from, to) = if gb >= 0.0 {
+                (partition_point(first, last, |ib| x(ib) >= keep.0), partition_point(first, last, |ib| x(ib) > keep.1))
             } else {
-                first = partition_point(first, end, |ib| depth_key(ib).clamp(kp.lo[0], kp.hi[0]) <= keep.1);
-                last = partition_point(first, end, |ib| depth_key(ib).clamp(kp.lo[0], kp.hi[0]) < keep.0) - 1;
+                (partition_point(first, last, |ib| x(ib) <= keep.1), partition_point(first, last, |ib| x(ib) < keep.0))
+            };
+            if from >= to {
+                continue;
             }
+            // `first ≤ from < to ≤ last + 1`: both fit in i64.
+            (first, last) = (from as i64, (to - 1) as i64);
         }
         if first > last {
             continue;
