@@ -251,6 +251,8 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
     // Depth plane through corner 0: depth = p0 + ga·(a − a0) + gb·(b − b0).
     let (ga, gb) = (-fnrm[a] / fnrm[D], -fnrm[b] / fnrm[D]);
     let p0 = t.p[0];
+    // Most triangles lie in one slab: no row needs cutting to it.
+    let whole_in_slab = in_slab(cells[0].0) && in_slab(cells[0].1);
     let mut rows = spans.rows();
     if a == 0 {
         rows = (rows.0.max(keep.0), rows.1.min(keep.1));
@@ -266,7 +268,7 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
         let depth_key = |ib: i64| floor_i64(drow + gb * ((ib as f64 + 0.5) - p0[b])).clamp(klo, khi);
         if b == 0 {
             (first, last) = (first.max(keep.0), last.min(keep.1));
-        } else if D == 0 {
+        } else if D == 0 && !whole_in_slab {
             // Depth is x here: the slab's columns are those whose depth voxel lies in it. The
             // computed depth is monotone along the row (rounding is monotone), so they form
             // one run, found by bisection on the exact keys.
