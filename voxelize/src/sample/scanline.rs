@@ -271,9 +271,16 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
         } else if D == 0 && !whole_in_slab {
             // Depth is x here: the slab's columns are those whose depth voxel lies in it. The
             // computed depth is monotone along the row (rounding is monotone), so they form
-            // one run, found by bisection on the exact keys.
+            // one run: the whole row or none of it when its ends say so, else found by
+            // bisection on the exact keys.
             let x = |ib: i64| depth_key(ib).clamp(kp.lo[0], kp.hi[0]);
-            let (from, to) = if gb >= 0.0 {
+            let (x_first, x_last) = (x(first), x(last));
+            if x_first.max(x_last) < keep.0 || x_first.min(x_last) > keep.1 {
+                continue;
+            }
+            let (from, to) = if x_first.min(x_last) >= keep.0 && x_first.max(x_last) <= keep.1 {
+                (i128::from(first), i128::from(last) + 1) // the whole run
+            } else if gb >= 0.0 {
                 (partition_point(first, last, |ib| x(ib) >= keep.0), partition_point(first, last, |ib| x(ib) > keep.1))
             } else {
                 (partition_point(first, last, |ib| x(ib) <= keep.1), partition_point(first, last, |ib| x(ib) < keep.0))
