@@ -31,6 +31,8 @@ use sct_format::Node;
 
 use crate::mesh::*;
 
+mod scanline;
+
 /// Which sampler.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Method {
@@ -906,10 +908,10 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
                         let mat = p.mat.view();
                         dropped += match (opts.method, opts.area) {
                             (Method::Voxel, AreaMode::Exact) => voxel_triangle(&t, &mat, AreaMode::Exact, kp, (x0, x1), ALL_X, &mut bufs.recs),
-                            // Per-triangle areas (EQ 17, scan-line) need the whole triangle's sample
-                            // count: walk it whole, but shade and keep only this slab's voxels
-                            // (each voxel, hence each alpha drop, belongs to one slab).
-                            (Method::Scanline, _) => scanline_triangle(&t, &mat, kp, (x0, x1), &mut bufs.recs),
+                            // Per-triangle areas (EQ 17) need the whole triangle's sample count:
+                            // counted row by row, while only this slab's voxels are shaded and
+                            // kept (each voxel, hence each alpha drop, belongs to one slab).
+                            (Method::Scanline, _) => scanline::scanline_triangle(&t, &mat, kp, (x0, x1), &mut bufs.recs),
                             _ => voxel_triangle(&t, &mat, opts.area, kp, ALL_X, (x0, x1), &mut bufs.recs),
                         };
                     }
@@ -1567,65 +1569,6 @@ fn voxel_triangle_axis<const D: usize>(
     let made = out.len() - start;
     if area_mode == AreaMode::Eq17 && made > 0 {
         let each = (tri_area_grid / (made as u64 + dropped + skipped) as f64) as f32;
-        for r in &mut out[start..] {
-            r.area = each;
-        }
-    }
-    dropped
-}
-
-/// The thesis' scan-line: one sample per column centre inside the projected triangle. Only
-/// voxels whose x index (clamped to the key range) lies in `keep` are shaded and emitted; the
-/// others count in the triangle's EQ 17 area.
-fn scanline_triangle(t: &Tri, mat: &Mat, kp: &KeyPack, keep: (i64, i64), out: &mut Vec<Rec>) -> u64 {
-    let (fnrm, d, a, b) = face_axes(t);
-    let start = out.len();
-    let mut dropped = 0;
-    let mut skipped = 0u64;
-    let (pa, pb) = (t.p.map(|p| p[a]), t.p.map(|p| p[b]));
-    let lo_a = pa.iter().fold(f64::INFINITY, |m, &v| m.min(v));
-    let hi_a = pa.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v));
-    let lo_b = pb.iter().fold(f64::INFINITY, |m, &v| m.min(v));
-    let hi_b = pb.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v));
-    let depth = |w: [f64; 3]| w[0] * t.p[0][d] + w[1] * t.p[1][d] + w[2] * t.p[2][d];
-    let face_n = {
-        let l = norm(fnrm);
-        fnrm.map(|x| (x / l) as f32)
-    };
-    let emit = |out: &mut Vec<Rec>, dropped: &mut u64, skipped: &mut u64, ia: i64, ib: i64, w: [f64; 3]| {
-        let mut key = [0i64; 3];
-        key[a] = ia;
-        key[b] = ib;
-        key[d] = depth(w).floor() as i64;
-        if !(keep.0..=keep.1).contains(&key[0].clamp(kp.lo[0], kp.hi[0])) {
-            *skipped += 1;
-            return;
-        }
-        match shade(t, w, mat) {
-            (Some(color), n) => out.push(Rec { key: kp.pack(key), area: 0.0, normal: unit_or(n, face_n), color }),
-            (None, _) => *dropped += 1,
-        }
-    };
-    let det = (pa[1] - pa[0]) * (pb[2] - pb[0]) - (pa[2] - pa[0]) * (pb[1] - pb[0]);
-    for ia in ((lo_a - 0.5).ceil() as i64)..=((hi_a - 0.5).floor() as i64) {
-        for ib in ((lo_b - 0.5).ceil() as i64)..=((hi_b - 0.5).floor() as i64) {
-            let (ca, cb) = (ia as f64 + 0.5, ib as f64 + 0.5);
-            let w1 = ((ca - pa[0]) * (pb[2] - pb[0]) - (pa[2] - pa[0]) * (cb - pb[0])) / det;
-            let w2 = ((pa[1] - pa[0]) * (cb - pb[0]) - (ca - pa[0]) * (pb[1] - pb[0])) / det;
-            let w0 = 1.0 - w1 - w2;
-            if w0 >= 0.0 && w1 >= 0.0 && w2 >= 0.0 {
-                emit(out, &mut dropped, &mut skipped, ia, ib, [w0, w1, w2]);
-            }
-        }
-    }
-    if out.len() == start && dropped == 0 && skipped == 0 {
-        let w = [1.0 / 3.0; 3];
-        let cen: [f64; 3] = std::array::from_fn(|k| (t.p[0][k] + t.p[1][k] + t.p[2][k]) / 3.0);
-        emit(out, &mut dropped, &mut skipped, cen[a].floor() as i64, cen[b].floor() as i64, w);
-    }
-    let made = out.len() - start;
-    if made > 0 {
-        let each = (0.5 * norm(fnrm) / (made as u64 + dropped + skipped) as f64) as f32;
         for r in &mut out[start..] {
             r.area = each;
         }
