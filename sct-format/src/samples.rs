@@ -27,7 +27,10 @@ const INST_ENTRY_BYTES: usize = 68;
 const AFFI_ENTRY_BYTES: usize = 100;
 /// Section tag of the affine instances (spec §8); local to the samples file.
 pub const AFFI: [u8; 4] = *b"AFFI";
-const ZSTD_LEVEL: i32 = 3;
+/// zstd level of the samples file's sections. The file is an intermediate between the
+/// toolchain's own tools, so speed wins: level 1 writes the bunny's 2.34 M samples in 0.24 s
+/// instead of level 3's 0.35 s for a 2.6 % larger file, and reads as fast.
+const ZSTD_LEVEL: i32 = 1;
 
 /// One mesh's samples: `samples[first .. first + count]`.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -239,7 +242,7 @@ impl SamplesFile {
             entries.push(s.entry(offset));
             offset += s.stored.len() as u64;
         }
-        // Each zstd worker holds about two jobs' buffers (8 MiB of input each at this level):
+        // Each zstd worker holds about two jobs' buffers (2 MiB of input each at level 1):
         // more than a few cost memory and outrun the disk.
         let workers = rayon::current_num_threads().clamp(1, MAX_ZSTD_WORKERS) as u32;
         let smpl = SectionEntry { offset, ..stream_samples(&self.samples, workers, w)? };
@@ -715,7 +718,7 @@ mod tests {
     }
 
     /// The column section is the same bytes for every zstd worker count, over several of
-    /// zstd's jobs (8 MiB of input each at this level), and decodes to the samples.
+    /// zstd's jobs (2 MiB of input each at level 1), and decodes to the samples.
     #[test]
     fn samples_section_does_not_depend_on_workers() {
         let samples: Vec<Node> = (0..600_000u32).map(|i| Node { radius: (i as f32).sqrt(), ..sample(i) }).collect();
