@@ -15,7 +15,7 @@ use crate::sample::{AreaMode, Density, Method, SampleOptions};
 pub enum MethodArg {
     /// Conservative scan-line voxelization: every voxel a triangle crosses (coverage guaranteed).
     Voxel,
-    /// The thesis' scan-line: one sample per covered grid-column centre.
+    /// The thesis' scan-line: one sample per covered grid-column centre (≈ 40 % fewer samples than voxel at one voxel size, each ≈ 1.6× cheaper; no coverage guarantee near triangle edges).
     Scanline,
     /// QSplat vertex patches: one sample per vertex, radius = longest incident edge.
     Vertex,
