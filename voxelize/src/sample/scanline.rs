@@ -31,7 +31,8 @@ enum Edge {
 /// b; column `(ia, ib)` has its centre at `(ia + ½, ib + ½)`). A centre on an edge is inside.
 struct Spans {
     edges: [Edge; 3],
-    /// Rows whose centres lie within the triangle's a range (clamped to the key range).
+    /// Rows `first..=last` whose centres lie within the triangle's a range (clamped to the key
+    /// range; empty when `first > last`).
     rows: (i64, i64),
     /// Columns within its b range (clamped to the key range).
     cols: (i64, i64),
@@ -89,11 +90,6 @@ impl Spans {
         (ceil_i64(lo - 0.5).max(self.cols.0), floor_i64(hi - 0.5).min(self.cols.1))
     }
 
-    /// Rows `first..=last` (empty when `first > last`).
-    fn rows(&self) -> (i64, i64) {
-        self.rows
-    }
-
     /// The number of inside column centres.
     #[cfg(test)]
     fn count(&self) -> u64 {
@@ -101,7 +97,7 @@ impl Spans {
     }
 
     /// [`Spans::count`], keeping the spans of the first rows in `first_rows` (row
-    /// `rows().0 + i` at `i`), so the emission need not compute them again.
+    /// `rows.0 + i` at `i`), so the emission need not compute them again.
     fn count_keeping(&self, first_rows: &mut [(i64, i64)]) -> u64 {
         let mut kept = first_rows.iter_mut();
         let mut n = 0;
@@ -253,12 +249,12 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
     let p0 = t.p[0];
     // Most triangles lie in one slab: no row needs cutting to it.
     let whole_in_slab = in_slab(cells[0].0) && in_slab(cells[0].1);
-    let mut rows = spans.rows();
+    let mut rows = spans.rows;
     if a == 0 {
         rows = (rows.0.max(keep.0), rows.1.min(keep.1));
     }
     for ia in rows.0..=rows.1 {
-        let (mut first, mut last) = usize::try_from(ia.abs_diff(spans.rows().0)).ok().and_then(|i| kept.get(i)).copied().unwrap_or_else(|| spans.row(ia));
+        let (mut first, mut last) = usize::try_from(ia.abs_diff(spans.rows.0)).ok().and_then(|i| kept.get(i)).copied().unwrap_or_else(|| spans.row(ia));
         if first > last {
             continue;
         }
@@ -356,7 +352,7 @@ mod tests {
                 ([l[0].min(p[0]), l[1].min(p[1])], [h[0].max(p[0]), h[1].max(p[1])])
             });
             for ia in lo[0].floor() as i64 - 1..=hi[0].floor() as i64 + 1 {
-                let (f, l) = if (spans.rows().0..=spans.rows().1).contains(&ia) { spans.row(ia) } else { (1, 0) };
+                let (f, l) = if (spans.rows.0..=spans.rows.1).contains(&ia) { spans.row(ia) } else { (1, 0) };
                 count += if l >= f { (l - f + 1) as u64 } else { 0 };
                 for ib in lo[1].floor() as i64 - 1..=hi[1].floor() as i64 + 1 {
                     let c = [ia as f64 + 0.5, ib as f64 + 0.5];
