@@ -4,13 +4,13 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use sct_format::samples::{AffineInstance, MeshEntry, SampleInstance, SamplesFile};
-use sct_format::{Generator, SourceRef};
+use sct_format::{Generator, Node, Similarity, SourceRef};
 use serde_json::json;
 
 use crate::error::{Error, LoadError};
 use crate::load::{load, LoadOptions};
 use crate::mesh::{Instance, LoadedScene};
-use crate::sample::{sample_points, sample_scene, AreaMode, Density, SampleOptions, Sampled, SampledMesh};
+use crate::sample::{sample_points_into, sample_scene_into, AreaMode, Density, SampleOptions, Sampled, StreamError, Streamed};
 
 /// Options of a run.
 #[derive(Clone, Debug)]
@@ -147,38 +147,67 @@ pub fn load_all(inputs: &[PathBuf], opts: &LoadOptions) -> Result<LoadedScene, E
     Ok(all)
 }
 
-/// Assembles the samples file of a sampled scene (plus an optional point cloud).
-pub fn to_samples_file(sampled: &Sampled, points: Vec<sct_format::Node>, generator: Generator) -> SamplesFile {
-    into_samples_file(sampled.meshes.clone(), points, generator)
+/// A samples file's tables: everything but its samples, which [`sample_into`]'s sink received
+/// in file order.
+#[derive(Clone, Debug)]
+pub struct Tables {
+    /// Provenance.
+    pub generator: Generator,
+    /// Meshes, in sample order.
+    pub meshes: Vec<MeshEntry>,
+    /// Similarity placements.
+    pub instances: Vec<SampleInstance>,
+    /// Affine placements.
+    pub affine_instances: Vec<AffineInstance>,
 }
 
-/// [`to_samples_file`] consuming the sampled meshes: the first mesh's samples are moved,
-/// not copied (a dense single-mesh run would otherwise hold its samples twice).
-pub fn into_samples_file(sampled: Vec<SampledMesh>, points: Vec<sct_format::Node>, generator: Generator) -> SamplesFile {
-    let mut meshes = Vec::new();
-    let mut instances = Vec::new();
-    let mut affine_instances = Vec::new();
-    let mut samples = Vec::new();
-    // A mesh without samples (only points/lines, or fully transparent) has nothing to build
-    // a tree from; it is left out (and reported by `sample_in_memory`).
-    for m in sampled.into_iter().filter(|m| !m.samples.is_empty()) {
-        let idx = meshes.len() as u32;
-        meshes.push(MeshEntry { name: m.name.clone(), first: samples.len() as u64, count: m.samples.len() as u64 });
-        if samples.is_empty() {
-            samples = m.samples;
-        } else {
-            samples.extend_from_slice(&m.samples);
-        }
-        instances.extend(m.instances.iter().map(|t| SampleInstance { mesh: idx, transform: *t }));
-        affine_instances.extend(m.affine.iter().map(|a| AffineInstance { mesh: idx, matrix: *a }));
+impl Tables {
+    /// The samples file of these tables with their samples.
+    pub fn with_samples(self, samples: Vec<Node>) -> SamplesFile {
+        let Tables { generator, meshes, instances, affine_instances } = self;
+        SamplesFile { generator, meshes, instances, affine_instances, samples }
     }
-    if !points.is_empty() {
-        let idx = meshes.len() as u32;
-        meshes.push(MeshEntry { name: "points".into(), first: samples.len() as u64, count: points.len() as u64 });
-        samples.extend(points);
-        instances.push(SampleInstance { mesh: idx, transform: sct_format::Similarity::IDENTITY });
+
+    /// Samples the tables describe.
+    pub fn sample_count(&self) -> u64 {
+        self.meshes.iter().map(|m| m.count).sum()
     }
-    SamplesFile { generator, meshes, instances, affine_instances, samples }
+}
+
+/// One sampled mesh as the tables see it: name, sample count, similarity and affine placements.
+type MeshRow<'a> = (&'a str, u64, &'a [Similarity], &'a [[[f64; 4]; 3]]);
+
+/// The tables of sampled meshes, in sample order, followed by `points` point-cloud samples.
+/// A mesh without samples (only points/lines, or fully transparent) has nothing to build a
+/// tree from; it is left out (and reported by [`sample_into`]).
+fn tables<'a>(meshes: impl Iterator<Item = MeshRow<'a>>, points: u64, generator: Generator) -> Tables {
+    let mut t = Tables { generator, meshes: Vec::new(), instances: Vec::new(), affine_instances: Vec::new() };
+    let mut first = 0u64;
+    for (name, count, sims, affine) in meshes.filter(|m| m.1 > 0) {
+        let idx = t.meshes.len() as u32;
+        t.meshes.push(MeshEntry { name: name.to_string(), first, count });
+        first += count;
+        t.instances.extend(sims.iter().map(|s| SampleInstance { mesh: idx, transform: *s }));
+        t.affine_instances.extend(affine.iter().map(|a| AffineInstance { mesh: idx, matrix: *a }));
+    }
+    if points > 0 {
+        let idx = t.meshes.len() as u32;
+        t.meshes.push(MeshEntry { name: "points".into(), first, count: points });
+        t.instances.push(SampleInstance { mesh: idx, transform: Similarity::IDENTITY });
+    }
+    t
+}
+
+/// Assembles the samples file of a sampled scene (plus an optional point cloud).
+pub fn to_samples_file(sampled: &Sampled, points: Vec<Node>, generator: Generator) -> SamplesFile {
+    let rows = sampled.meshes.iter().map(|m| (m.name.as_str(), m.samples.len() as u64, &m.instances[..], &m.affine[..]));
+    let t = tables(rows, points.len() as u64, generator);
+    let mut samples = Vec::with_capacity(t.sample_count() as usize);
+    for m in &sampled.meshes {
+        samples.extend_from_slice(&m.samples);
+    }
+    samples.extend(points);
+    t.with_samples(samples)
 }
 
 /// BLAKE3 of a source, streamed (no second copy of a big GLB in memory). A resource that
@@ -201,25 +230,48 @@ fn changed_since(f: &Path, started: std::time::SystemTime) -> bool {
     std::fs::metadata(f).and_then(|m| m.modified()).is_ok_and(|t| t > started && t <= now)
 }
 
-/// Runs the whole job: [`sample_in_memory`], then writes `opts.output` atomically (nothing for a dry
-/// run). `progress(done, total)` reports sampled triangles.
+/// Runs the whole job: samples `opts.inputs` into `opts.output`, written atomically; a dry
+/// run (no output) discards the samples as they are made. `progress(done, total)` reports
+/// sampled triangles.
 pub fn run(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summary, Error> {
     let t0 = Instant::now();
-    let (file, mut summary) = sample_in_memory(opts, progress)?;
-    let t2 = Instant::now();
-    summary.output_bytes = match &opts.output {
-        Some(path) => file.write_file(path).map_err(|source| Error::Write { path: path.clone(), source })?,
-        None => 0,
+    let mut summary = match &opts.output {
+        Some(path) => sample_to_file(opts, path, progress)?,
+        None => sample_into(opts, progress, &mut |_| Ok(()))?.1,
     };
     summary.output = opts.output.as_ref().map(|p| p.display().to_string());
-    summary.seconds_write = t2.elapsed().as_secs_f64();
     summary.seconds_total = t0.elapsed().as_secs_f64();
+    Ok(summary)
+}
+
+/// Samples into the samples file at `path` (collected in memory, then written atomically).
+fn sample_to_file(opts: &Options, path: &Path, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summary, Error> {
+    let (file, mut summary) = sample_in_memory(opts, progress)?;
+    let t = Instant::now();
+    summary.output_bytes = file.write_file(path).map_err(|source| Error::Write { path: path.to_path_buf(), source })?;
+    summary.seconds_write = t.elapsed().as_secs_f64();
     Ok(summary)
 }
 
 /// Loads and samples `opts.inputs` into a samples file in memory (`opts.output` is
 /// ignored): what `sct-build-tree` uses to convert a mesh in one step.
 pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<(SamplesFile, Summary), Error> {
+    let mut samples = Vec::new();
+    let (tables, summary) = sample_into(opts, progress, &mut |nodes| {
+        samples.extend_from_slice(nodes);
+        Ok(())
+    })?;
+    Ok((tables.with_samples(samples), summary))
+}
+
+/// Loads and samples `opts.inputs` (`opts.output` is ignored), handing the samples to `sink`
+/// in runs, in the order of the samples file whose tables it returns; a sink error stops it
+/// and is returned.
+pub fn sample_into(
+    opts: &Options,
+    progress: &(dyn Fn(u64, u64) + Sync),
+    sink: &mut dyn FnMut(&[Node]) -> Result<(), Error>,
+) -> Result<(Tables, Summary), Error> {
     let t0 = Instant::now();
     if opts.inputs.is_empty() {
         return Err(Error::Usage("no input file".into()));
@@ -249,15 +301,24 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
     let t1 = Instant::now();
     let has_tris = scene.meshes.iter().any(|m| m.triangle_count() > 0);
     let sampled = if has_tris || scene.points.is_none() {
-        sample_scene(&scene, &opts.sample, progress).map_err(Error::Sampling)?
+        sample_scene_into(&scene, &opts.sample, progress, &mut |_, nodes| sink(nodes)).map_err(|e| match e {
+            StreamError::Sampling(msg) => Error::Sampling(msg),
+            StreamError::Sink(e) => e,
+        })?
     } else {
-        Sampled {
+        Streamed {
             meshes: Vec::new(),
             voxel: crate::sample::VoxelChoice { size: 0.0, reason: "point cloud: no voxelization".into() },
             stats: Default::default(),
         }
     };
-    let points = scene.points.as_ref().map(sample_points).unwrap_or_default();
+    let mut n_points = 0u64;
+    if let Some(pc) = &scene.points {
+        sample_points_into(pc, &mut |nodes| {
+            n_points += nodes.len() as u64;
+            sink(nodes)
+        })?;
+    }
     let t_sample = t1.elapsed().as_secs_f64();
     let mut sources = Vec::new();
     let mut seen = std::collections::HashSet::new();
@@ -303,14 +364,13 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
     if let (Some(b), Some(map)) = (s.budget, generator.parameters.as_object_mut()) {
         map.insert("sample_budget".into(), json!(b));
     }
-    let n_points = points.len() as u64;
     let mut warnings = scene.warnings.clone();
-    for m in sampled.meshes.iter().filter(|m| m.samples.is_empty()) {
+    for m in sampled.meshes.iter().filter(|m| m.count == 0) {
         warnings.push(format!("mesh {:?} produced no samples (no triangles, or every sample transparent) and is left out", m.name));
     }
-    let Sampled { meshes: sampled_meshes, voxel, stats } = sampled;
-    let sampled = crate::sample::Sampled { meshes: Vec::new(), voxel, stats };
-    let file = into_samples_file(sampled_meshes, points, generator);
+    let rows = sampled.meshes.iter().map(|m| (m.name.as_str(), m.count, &m.instances[..], &m.affine[..]));
+    let tables = tables(rows, n_points, generator);
+    let n_samples = tables.sample_count();
     let st = &sampled.stats;
     let rel = if st.mesh_area > 0.0 { (st.sample_area - st.mesh_area) / st.mesh_area } else { 0.0 };
     if st.baked_non_similar > 0 {
@@ -328,11 +388,11 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
         polygons_triangulated: scene.stats.polygons_triangulated,
         primitives_skipped: scene.stats.skipped_primitives,
         triangles_instanced: scene.instanced_triangle_count(),
-        meshes: file.meshes.len() as u64,
-        instances: (file.instances.len() + file.affine_instances.len()) as u64,
-        affine_instances: file.affine_instances.len() as u64,
+        meshes: tables.meshes.len() as u64,
+        instances: (tables.instances.len() + tables.affine_instances.len()) as u64,
+        affine_instances: tables.affine_instances.len() as u64,
         samples_before_merge: st.samples_before_merge + n_points,
-        samples: file.samples.len() as u64,
+        samples: n_samples,
         samples_dropped_alpha: st.dropped_alpha,
         point_samples: n_points,
         voxel_size: sampled.voxel.size,
@@ -344,10 +404,10 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
         seconds_sample: t_sample,
         seconds_write: 0.0,
         seconds_total: t0.elapsed().as_secs_f64(),
-        samples_per_second: if t_sample > 0.0 { file.samples.len() as f64 / t_sample } else { 0.0 },
+        samples_per_second: if t_sample > 0.0 { n_samples as f64 / t_sample } else { 0.0 },
         warnings,
     };
-    Ok((file, summary))
+    Ok((tables, summary))
 }
 
 #[cfg(test)]

@@ -185,6 +185,42 @@ pub struct Sampled {
     pub stats: SampleStats,
 }
 
+/// One mesh of [`sample_scene_into`]: a [`SampledMesh`] whose samples went to the sink.
+#[derive(Clone, Debug)]
+pub struct StreamedMesh {
+    /// Name.
+    pub name: String,
+    /// Samples handed to the sink for this mesh.
+    pub count: u64,
+    /// Similarity placements (identity for meshes baked into world space).
+    pub instances: Vec<sct_format::Similarity>,
+    /// Affine placements, row-major 3 × 4.
+    pub affine: Vec<[[f64; 4]; 3]>,
+}
+
+/// Result of [`sample_scene_into`]: everything but the samples.
+#[derive(Clone, Debug)]
+pub struct Streamed {
+    /// Sampled meshes, in the order their samples reached the sink.
+    pub meshes: Vec<StreamedMesh>,
+    /// The voxel size.
+    pub voxel: VoxelChoice,
+    /// Counters.
+    pub stats: SampleStats,
+}
+
+/// Why [`sample_scene_into`] stopped.
+#[derive(Debug)]
+pub enum StreamError<E> {
+    /// Sampling is impossible (bad density, too many samples, grid too large).
+    Sampling(String),
+    /// The sink failed; sampling stopped there.
+    Sink(E),
+}
+
+/// A sink that never fails (collecting in memory, counting).
+pub type Never = std::convert::Infallible;
+
 /// Chooses the voxel size (EQ 16, explicit, or viewing needs).
 pub fn choose_voxel_size(scene: &LoadedScene, d: &Density) -> Result<VoxelChoice, String> {
     let c = match *d {
@@ -681,8 +717,101 @@ impl SampleEstimate {
     }
 }
 
-/// Samples a loaded scene.
+/// Samples a loaded scene into memory: [`sample_scene_into`] collecting each mesh's samples.
 pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Sampled, String> {
+    let mut samples: Vec<Vec<Node>> = Vec::new();
+    let streamed = sample_scene_into(scene, opts, progress, &mut |mesh, nodes| {
+        if samples.len() <= mesh {
+            samples.resize_with(mesh + 1, Vec::new);
+        }
+        samples[mesh].extend_from_slice(nodes);
+        Ok::<(), Never>(())
+    })
+    .map_err(|e| match e {
+        StreamError::Sampling(msg) => msg,
+        StreamError::Sink(never) => match never {},
+    })?;
+    samples.resize_with(streamed.meshes.len(), Vec::new);
+    let meshes = streamed
+        .meshes
+        .into_iter()
+        .zip(samples)
+        .map(|(m, samples)| SampledMesh { name: m.name, samples, instances: m.instances, affine: m.affine })
+        .collect();
+    Ok(Sampled { meshes, voxel: streamed.voxel, stats: streamed.stats })
+}
+
+/// Samples a loaded scene, handing the samples to `sink(mesh, samples)` in runs, mesh after
+/// mesh (`mesh` indexes the result's meshes) and in each mesh's final (voxel) order, as they
+/// are made: no result is held, only one batch of slabs. A sink error stops sampling and is
+/// returned.
+pub fn sample_scene_into<E>(
+    scene: &LoadedScene,
+    opts: &SampleOptions,
+    progress: &(dyn Fn(u64, u64) + Sync),
+    sink: &mut dyn FnMut(usize, &[Node]) -> Result<(), E>,
+) -> Result<Streamed, StreamError<E>> {
+    let (voxel, mut stats, units) = plan_sampling(scene, opts).map_err(StreamError::Sampling)?;
+    let total_tris: u64 = units.iter().map(|u| scene.meshes[u.mesh].triangle_count() as u64).sum();
+    let done = std::sync::atomic::AtomicU64::new(0);
+    let linear = decode_textures(scene);
+    let mut out = Vec::new();
+    for (ui, u) in units.iter().enumerate() {
+        let mesh = &scene.meshes[u.mesh];
+        let kp = unit_keys(mesh, u).map_err(StreamError::Sampling)?;
+        let prepared: Vec<Prepared> = mesh
+            .primitives
+            .iter()
+            .map(|prim| {
+                let material = scene.material(prim);
+                let tex_of = |t: &Option<TextureRef>| -> Option<(TexImage, TextureRef)> {
+                    t.as_ref().and_then(|t| {
+                        let linear = linear.get(t.image).and_then(|l| l.as_deref());
+                        scene.images.get(t.image).map(|img| (TexImage { img, linear }, t.clone()))
+                    })
+                };
+                let mat = MatOwned {
+                    base: material.base_color,
+                    tex: tex_of(&material.texture),
+                    alpha_tex: tex_of(&material.alpha_texture),
+                    alpha: material.alpha_mode,
+                };
+                Prepared::new(prim, u, mat, opts.crease_deg)
+            })
+            .collect();
+        let mut tally = AreaTally::new(&u.affine);
+        let mut emit = |nodes: &[Node]| {
+            tally.add(nodes);
+            sink(ui, nodes)
+        };
+        let (before, dropped) = if opts.method == Method::Vertex {
+            let mut dropped = 0;
+            for pp in &prepared {
+                let (v, d) = vertex_patches(pp.prim, &pp.pos, &pp.nrm, pp.computed.as_deref(), &pp.mat.view(), u.h);
+                emit(&v).map_err(StreamError::Sink)?;
+                dropped += d;
+            }
+            let n = mesh.triangle_count() as u64;
+            progress(done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n, total_tris);
+            (tally.count, dropped)
+        } else {
+            let progress = |n| progress((done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n).min(total_tris), total_tris);
+            sample_slabs(&prepared, &kp, u.h, opts, &progress, &mut emit).map_err(StreamError::Sink)?
+        };
+        stats.triangles += mesh.triangle_count() as u64;
+        stats.dropped_alpha += dropped;
+        stats.samples_before_merge += before;
+        stats.samples += tally.count;
+        stats.sample_area = tally.add_placed_area(stats.sample_area, &u.instances);
+        out.push(StreamedMesh { name: u.name.clone(), count: tally.count, instances: u.instances.clone(), affine: u.affine.clone() });
+    }
+    stats.mesh_area = scene.world_area();
+    Ok(Streamed { meshes: out, voxel, stats })
+}
+
+/// The voxel size, the units to sample and their counters so far: the density rule, the
+/// sample budget and the limits, checked before any sampling.
+fn plan_sampling(scene: &LoadedScene, opts: &SampleOptions) -> Result<(VoxelChoice, SampleStats, Vec<Unit>), String> {
     let mut voxel = choose_voxel_size(scene, &opts.density)?;
     let mut stats = SampleStats::default();
     let mut units = plan_units(scene, voxel.size, &mut stats);
@@ -717,64 +846,48 @@ pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn F
             opts.max_samples
         ));
     }
-    let total_tris: u64 = units.iter().map(|u| scene.meshes[u.mesh].triangle_count() as u64).sum();
-    let done = std::sync::atomic::AtomicU64::new(0);
-    let linear = decode_textures(scene);
-    let mut out = Vec::new();
-    for u in &units {
-        let mesh = &scene.meshes[u.mesh];
-        let kp = unit_keys(mesh, u)?;
-        let prepared: Vec<Prepared> = mesh
-            .primitives
+    Ok((voxel, stats, units))
+}
+
+/// A mesh's sample count and area sums, added run by run as its samples stream past, each
+/// sum in sample order (the order, hence the bits, of summing the whole mesh at once).
+struct AreaTally {
+    count: u64,
+    /// Σ area in the mesh's frame.
+    area: f64,
+    /// Per affine placement: the map, its stretch and Σ placed area.
+    affine: Vec<(sct_format::samples::AffineInstance, f64, f64)>,
+}
+
+impl AreaTally {
+    fn new(affine: &[[[f64; 4]; 3]]) -> Self {
+        let affine = affine
             .iter()
-            .map(|prim| {
-                let material = scene.material(prim);
-                let tex_of = |t: &Option<TextureRef>| -> Option<(TexImage, TextureRef)> {
-                    t.as_ref().and_then(|t| {
-                        let linear = linear.get(t.image).and_then(|l| l.as_deref());
-                        scene.images.get(t.image).map(|img| (TexImage { img, linear }, t.clone()))
-                    })
-                };
-                let mat = MatOwned {
-                    base: material.base_color,
-                    tex: tex_of(&material.texture),
-                    alpha_tex: tex_of(&material.alpha_texture),
-                    alpha: material.alpha_mode,
-                };
-                Prepared::new(prim, u, mat, opts.crease_deg)
+            .map(|m| {
+                let a = sct_format::samples::AffineInstance { mesh: 0, matrix: *m };
+                (a, a.max_stretch(), 0.0)
             })
             .collect();
-        let (nodes, before, dropped) = if opts.method == Method::Vertex {
-            let (mut nodes, mut dropped) = (Vec::new(), 0);
-            for pp in &prepared {
-                let (v, d) = vertex_patches(pp.prim, &pp.pos, &pp.nrm, pp.computed.as_deref(), &pp.mat.view(), u.h);
-                nodes.extend(v);
-                dropped += d;
-            }
-            let n = mesh.triangle_count() as u64;
-            progress(done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n, total_tris);
-            let before = nodes.len() as u64;
-            (nodes, before, dropped)
-        } else {
-            sample_slabs(&prepared, &kp, u.h, opts, &|n| {
-                progress((done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n).min(total_tris), total_tris)
-            })
-        };
-        stats.triangles += mesh.triangle_count() as u64;
-        stats.dropped_alpha += dropped;
-        stats.samples_before_merge += before;
-        stats.samples += nodes.len() as u64;
-        let area: f64 = nodes.iter().map(|n| f64::from(n.area)).sum();
-        stats.sample_area += u.instances.iter().map(|s| area * s.scale * s.scale).sum::<f64>();
-        for m in &u.affine {
-            let a = sct_format::samples::AffineInstance { mesh: 0, matrix: *m };
-            let st = a.max_stretch();
-            stats.sample_area += nodes.iter().map(|n| f64::from(a.transform_node(n, st).area)).sum::<f64>();
-        }
-        out.push(SampledMesh { name: u.name.clone(), samples: nodes, instances: u.instances.clone(), affine: u.affine.clone() });
+        AreaTally { count: 0, area: 0.0, affine }
     }
-    stats.mesh_area = scene.world_area();
-    Ok(Sampled { meshes: out, voxel, stats })
+
+    fn add(&mut self, nodes: &[Node]) {
+        self.count += nodes.len() as u64;
+        self.area = nodes.iter().fold(self.area, |s, n| s + f64::from(n.area));
+        for (a, stretch, sum) in &mut self.affine {
+            *sum = nodes.iter().fold(*sum, |s, n| s + f64::from(a.transform_node(n, *stretch).area));
+        }
+    }
+
+    /// `scene_area` plus the area over every placement (similarities scale areas by s²,
+    /// affine maps per sample), added in the order the whole-mesh sums were.
+    fn add_placed_area(&self, mut scene_area: f64, instances: &[sct_format::Similarity]) -> f64 {
+        scene_area += instances.iter().map(|s| self.area * s.scale * s.scale).sum::<f64>();
+        for (_, _, sum) in &self.affine {
+            scene_area += sum;
+        }
+        scene_area
+    }
 }
 
 /// The voxel-key packing of a unit: its vertices' bounds in grid units.
@@ -805,9 +918,17 @@ fn unit_keys(mesh: &Mesh, u: &Unit) -> Result<KeyPack, String> {
 /// radix-sorts and merges them in buffers reused by its thread. Voxel keys are x-major, so
 /// concatenating slabs in order gives the globally sorted result, and equal voxels (always in
 /// one slab) merge in triangle order whatever the thread count: deterministic output, no
-/// global sort, and memory per slab rather than per scene. Returns (nodes, samples before
-/// merging, alpha-dropped samples).
-fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, progress: &(dyn Fn(u64) + Sync)) -> (Vec<Node>, u64, u64) {
+/// global sort, and memory per batch of slabs rather than per scene: each batch's slab
+/// outputs go to `emit` in slab order, then their buffers serve the next batch. Returns
+/// (samples before merging, alpha-dropped samples), or the first error of `emit`.
+fn sample_slabs<E>(
+    pp: &[Prepared],
+    kp: &KeyPack,
+    h: f64,
+    opts: &SampleOptions,
+    progress: &(dyn Fn(u64) + Sync),
+    emit: &mut dyn FnMut(&[Node]) -> Result<(), E>,
+) -> Result<(u64, u64), E> {
     // Every triangle: (primitive, index), x-cell range, expected samples.
     let mut tris: Vec<(u32, u32)> = Vec::new();
     let mut xr: Vec<(i64, i64)> = Vec::new();
@@ -823,7 +944,7 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
         }
     }
     if tris.is_empty() {
-        return (Vec::new(), 0, 0);
+        return Ok((0, 0));
     }
     // Expected samples per x cell (difference array), cells of `cell` voxels (coarser only
     // for enormous grids), then slab boundaries at equal quantiles.
@@ -882,12 +1003,12 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
             }
         }
     }
-    // Slabs run in about 8 batches, each batch's output appended in slab order as it ends:
-    // the per-slab outputs of only one batch coexist with the result (not all of them), and
-    // their buffers are reused by the next batch (no fresh pages to fault in and zero).
+    // Slabs run in about 8 batches, each batch's output emitted in slab order as it ends:
+    // only one batch's per-slab outputs exist at a time, and their buffers are reused by the
+    // next batch (no fresh pages to fault in and zero).
     let outs: std::sync::Mutex<Vec<Vec<Node>>> = std::sync::Mutex::new(Vec::new());
     let batch = slab_x.len().div_ceil(8).max(8 * rayon::current_num_threads());
-    let (mut nodes, mut before, mut dropped) = (Vec::new(), 0u64, 0u64);
+    let (mut before, mut dropped) = (0u64, 0u64);
     for (lists, slab_x) in lists.chunks(batch).zip(slab_x.chunks(batch)) {
         let parts: Vec<(Vec<Node>, u64, u64)> = lists
             .par_iter()
@@ -925,11 +1046,8 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
                 },
             )
             .collect();
-        nodes.reserve(parts.iter().map(|p| p.0.len()).sum());
         for (mut p, b, d) in parts {
-            // Copied by the pool: the first touch of the result's fresh pages (a page fault
-            // each) is spread over the threads instead of stalling them all.
-            nodes.par_extend(p.par_iter().copied());
+            emit(&p)?;
             before += b;
             dropped += d;
             p.clear();
@@ -938,7 +1056,7 @@ fn sample_slabs(pp: &[Prepared], kp: &KeyPack, h: f64, opts: &SampleOptions, pro
             }
         }
     }
-    (nodes, before, dropped)
+    Ok((before, dropped))
 }
 
 /// Expected samples per slab (unit tests lower it to get many slabs and batches from small
@@ -1657,9 +1775,23 @@ fn srgb8(c: [f32; 4]) -> [u8; 4] {
 /// neighbours (so neighbouring spheres overlap), area = that distance squared (the area of
 /// a point's cell in a regular sampling of that spacing).
 pub fn sample_points(pc: &PointCloud) -> Vec<Node> {
+    let mut out = Vec::with_capacity(pc.positions.len());
+    let Ok(()) = sample_points_into(pc, &mut |nodes| {
+        out.extend_from_slice(nodes);
+        Ok::<(), Never>(())
+    });
+    out
+}
+
+/// Samples handed to a sink at a time by [`sample_points_into`].
+const POINT_RUN: usize = 1 << 16;
+
+/// [`sample_points`] handing the samples to `sink` in runs, in point order; a sink error
+/// stops it and is returned.
+pub fn sample_points_into<E>(pc: &PointCloud, sink: &mut dyn FnMut(&[Node]) -> Result<(), E>) -> Result<(), E> {
     let n = pc.positions.len();
     if n == 0 {
-        return Vec::new();
+        return Ok(());
     }
     let pts: Vec<[f64; 3]> = pc.positions.iter().map(|p| p.map(f64::from)).collect();
     let mut lo = [f64::INFINITY; 3];
@@ -1706,18 +1838,23 @@ pub fn sample_points(pc: &PointCloud) -> Vec<Node> {
             }
         })
         .collect();
-    (0..n)
-        .map(|i| {
-            let d = dist[i];
-            let normal = pc.normals.as_ref().map_or([0.0, 0.0, 1.0], |ns| {
-                let v = ns[i].map(f64::from);
-                let l = norm(v);
-                if l > 0.0 && l.is_finite() { v.map(|x| (x / l) as f32) } else { [0.0, 0.0, 1.0] }
-            });
-            let c = pc.colors.as_ref().map_or([0.8, 0.8, 0.8, 1.0], |c| c[i]);
-            Node { center: pc.positions[i], radius: d as f32, normal, cone: 0.0, area: (d * d) as f32, color: srgb8(c) }
-        })
-        .collect()
+    let node = |i: usize| {
+        let d = dist[i];
+        let normal = pc.normals.as_ref().map_or([0.0, 0.0, 1.0], |ns| {
+            let v = ns[i].map(f64::from);
+            let l = norm(v);
+            if l > 0.0 && l.is_finite() { v.map(|x| (x / l) as f32) } else { [0.0, 0.0, 1.0] }
+        });
+        let c = pc.colors.as_ref().map_or([0.8, 0.8, 0.8, 1.0], |c| c[i]);
+        Node { center: pc.positions[i], radius: d as f32, normal, cone: 0.0, area: (d * d) as f32, color: srgb8(c) }
+    };
+    let mut run = Vec::with_capacity(n.min(POINT_RUN));
+    for start in (0..n).step_by(POINT_RUN) {
+        run.clear();
+        run.extend((start..n.min(start + POINT_RUN)).map(node));
+        sink(&run)?;
+    }
+    Ok(())
 }
 
 /// A uniform grid hash over points (used for neighbour search and coverage checks).
