@@ -415,6 +415,64 @@ mod tests {
     use super::*;
     use std::time::{Duration, SystemTime};
 
+    /// An OBJ of two objects (a bumpy strip and a triangle) and a PLY point cloud in `dir`.
+    fn write_inputs(dir: &Path) -> Vec<PathBuf> {
+        let mut obj = String::from("o strip\n");
+        for i in 0..=20 {
+            let x = f64::from(i) / 20.0;
+            obj += &format!("v {x} 0 {}\nv {x} 0.3 {}\n", 0.1 * (9.0 * x).sin(), 0.1 * (7.0 * x).cos());
+        }
+        for i in 0..20 {
+            let (a, b, c, d) = (2 * i + 1, 2 * i + 2, 2 * i + 3, 2 * i + 4);
+            obj += &format!("f {a} {c} {d}\nf {a} {d} {b}\n");
+        }
+        obj += "o tri\nv 0 1 0\nv 1 1 0\nv 0 2 0.5\nf 43 44 45\n";
+        let mut ply = String::from("ply\nformat ascii 1.0\nelement vertex 300\nproperty float x\nproperty float y\nproperty float z\nend_header\n");
+        for i in 0..300 {
+            ply += &format!("{} {} 2\n", f64::from(i % 20) * 0.05, f64::from(i / 20) * 0.05);
+        }
+        let (o, p) = (dir.join("strip.obj"), dir.join("cloud.ply"));
+        std::fs::write(&o, obj).expect("write obj");
+        std::fs::write(&p, ply).expect("write ply");
+        vec![o, p]
+    }
+
+    /// The sink gets the samples of the in-memory file in its order (meshes, then points); a
+    /// dry run reports the same counts and writes nothing; a sink error ends the run with it.
+    #[test]
+    fn sink_gets_the_file_samples_and_its_error_stops_the_run() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let opts = Options {
+            inputs: write_inputs(dir.path()),
+            output: None,
+            load: LoadOptions::default(),
+            sample: SampleOptions { density: Density::VoxelSize(0.01), ..Default::default() },
+        };
+        let (file, summary) = sample_in_memory(&opts, &|_, _| {}).expect("samples");
+        assert_eq!(file.meshes.iter().map(|m| m.name.as_str()).collect::<Vec<_>>(), ["strip", "tri", "points"]);
+        assert_eq!(summary.point_samples, 300);
+        let (mut runs, mut got) = (0, Vec::new());
+        let (tables, streamed) = sample_into(&opts, &|_, _| {}, &mut |nodes| {
+            runs += 1;
+            got.extend_from_slice(nodes);
+            Ok(())
+        })
+        .expect("samples");
+        assert!(runs >= 3, "{runs} runs");
+        assert_eq!(tables.sample_count(), file.samples.len() as u64);
+        assert_eq!(tables.with_samples(got), file);
+        assert_eq!((streamed.samples, streamed.meshes, streamed.sample_area.to_bits()), (summary.samples, 3, summary.sample_area.to_bits()));
+        let dry = run(&opts, &|_, _| {}).expect("dry run");
+        assert_eq!((dry.samples, dry.output_bytes, dry.output), (file.samples.len() as u64, 0, None));
+        let mut calls = 0;
+        let r = sample_into(&opts, &|_, _| {}, &mut |_| {
+            calls += 1;
+            Err(Error::Usage("sink full".into()))
+        });
+        assert!(matches!(r, Err(Error::Usage(m)) if m == "sink full"));
+        assert_eq!(calls, 1);
+    }
+
     #[test]
     fn changes_during_a_run_are_seen_but_future_dates_are_not() {
         let dir = tempfile::tempdir().expect("tempdir");

@@ -1003,11 +1003,12 @@ fn sample_slabs<E>(
             }
         }
     }
-    // Slabs run in about 8 batches, each batch's output emitted in slab order as it ends:
-    // only one batch's per-slab outputs exist at a time, and their buffers are reused by the
-    // next batch (no fresh pages to fault in and zero).
+    // Slabs run in batches of 8 per thread (enough to balance the threads), each batch's
+    // output emitted in slab order as it ends: only one batch's per-slab outputs exist at a
+    // time, whatever the scene's size, and their buffers are reused by the next batch (no
+    // fresh pages to fault in and zero).
     let outs: std::sync::Mutex<Vec<Vec<Node>>> = std::sync::Mutex::new(Vec::new());
-    let batch = slab_x.len().div_ceil(8).max(8 * rayon::current_num_threads());
+    let batch = 8 * rayon::current_num_threads();
     let (mut before, mut dropped) = (0u64, 0u64);
     for (lists, slab_x) in lists.chunks(batch).zip(slab_x.chunks(batch)) {
         let parts: Vec<(Vec<Node>, u64, u64)> = lists
@@ -2012,14 +2013,8 @@ mod tests {
         }
     }
 
-    /// A bumpy sheet over many slabs (small slab target: dozens of slabs, several batches):
-    /// 1 and 2 threads give the same samples for every method; progress counts each triangle
-    /// once; EQ 17 and scan-line areas still divide each triangle's area by its whole sample
-    /// count (they sum to the mesh area) although multi-slab triangles are shaded per slab.
-    #[test]
-    fn slabs_batches_progress_and_per_triangle_areas() {
-        SLAB_TARGET.store(300, std::sync::atomic::Ordering::Relaxed);
-        let n = 40u32;
+    /// An n × n grid of unit size, bumped in z (2 n² triangles).
+    fn bumpy_sheet(n: u32) -> Primitive {
         let mut positions = Vec::new();
         for y in 0..=n {
             for x in 0..=n {
@@ -2035,8 +2030,134 @@ mod tests {
                 triangles.push([i, i + n + 2, i + n + 1]);
             }
         }
-        let ntris = triangles.len() as u64;
-        let prim = Primitive { positions, triangles, ..Default::default() };
+        Primitive { positions, triangles, ..Default::default() }
+    }
+
+    /// Two meshes: a sheet placed by a similarity and two affine maps (sampled once in its
+    /// frame), and a smaller sheet baked into world space.
+    fn instanced_scene() -> LoadedScene {
+        let scale = |s: [f64; 3], t: [f64; 3]| -> Mat4 { [[s[0], 0.0, 0.0, 0.0], [0.0, s[1], 0.0, 0.0], [0.0, 0.0, s[2], 0.0], [t[0], t[1], t[2], 1.0]] };
+        LoadedScene {
+            meshes: vec![
+                Mesh { name: "sheet".into(), primitives: vec![bumpy_sheet(40)] },
+                Mesh { name: "small".into(), primitives: vec![bumpy_sheet(8), bumpy_sheet(5)] },
+            ],
+            instances: vec![
+                Instance { mesh: 0, transform: scale([1.5; 3], [0.0; 3]) },
+                Instance { mesh: 0, transform: scale([1.0, 2.0, 0.5], [3.0, 0.0, 0.0]) },
+                Instance { mesh: 0, transform: scale([0.7, 1.0, 1.3], [0.0, 3.0, 0.0]) },
+                Instance { mesh: 1, transform: scale([0.5; 3], [-1.0, 0.0, 0.0]) },
+            ],
+            materials: vec![Material { base_color: [0.8, 0.5, 0.2, 1.0], ..Default::default() }],
+            ..Default::default()
+        }
+    }
+
+    /// The sink gets each mesh's samples in runs (many slabs, several batches), mesh after
+    /// mesh, in the order and with the counters of the collected result, and the areas summed
+    /// run by run equal, bit for bit, the sums over whole meshes (instances applied).
+    #[test]
+    fn sink_runs_equal_the_collected_result() {
+        SLAB_TARGET.store(300, std::sync::atomic::Ordering::Relaxed);
+        let scene = instanced_scene();
+        for method in [Method::Voxel, Method::Scanline, Method::Vertex] {
+            let opts = SampleOptions { method, density: Density::VoxelSize(0.004), ..Default::default() };
+            let collected = sample_scene(&scene, &opts, &|_, _| {}).expect("samples");
+            let mut runs: Vec<(usize, Vec<Node>)> = Vec::new();
+            let streamed = sample_scene_into(&scene, &opts, &|_, _| {}, &mut |mesh, nodes| {
+                runs.push((mesh, nodes.to_vec()));
+                Ok::<(), Never>(())
+            })
+            .expect("samples");
+            assert!(runs.windows(2).all(|w| w[0].0 <= w[1].0), "{method:?}: meshes interleaved");
+            assert_eq!(streamed.meshes.len(), 2);
+            assert_eq!(streamed.stats, collected.stats, "{method:?}");
+            if method != Method::Vertex {
+                assert!(runs.len() > 8 * rayon::current_num_threads(), "{method:?}: {} runs, not several batches", runs.len());
+            }
+            for (mi, (m, c)) in streamed.meshes.iter().zip(&collected.meshes).enumerate() {
+                let got: Vec<Node> = runs.iter().filter(|r| r.0 == mi).flat_map(|r| r.1.iter().copied()).collect();
+                assert_eq!((m.count, &m.name, &m.instances, &m.affine), (c.samples.len() as u64, &c.name, &c.instances, &c.affine));
+                let bits = |n: &Node| (n.center.map(f32::to_bits), n.radius.to_bits(), n.normal.map(f32::to_bits), n.area.to_bits(), n.color);
+                assert!(got.iter().map(bits).eq(c.samples.iter().map(bits)), "{method:?}: mesh {mi} differs");
+            }
+            assert_eq!(collected.meshes[0].affine.len(), 2);
+            // The whole-mesh sums the tally replaces (same order of additions).
+            let mut want = 0.0f64;
+            for m in &collected.meshes {
+                let area: f64 = m.samples.iter().map(|n| f64::from(n.area)).sum();
+                want += m.instances.iter().map(|s| area * s.scale * s.scale).sum::<f64>();
+                for mat in &m.affine {
+                    let a = sct_format::samples::AffineInstance { mesh: 0, matrix: *mat };
+                    let st = a.max_stretch();
+                    want += m.samples.iter().map(|n| f64::from(a.transform_node(n, st).area)).sum::<f64>();
+                }
+            }
+            assert_eq!(streamed.stats.sample_area.to_bits(), want.to_bits(), "{method:?}");
+            let rel = (want - scene.world_area()) / scene.world_area();
+            assert!(rel.abs() < 0.02, "{method:?}: area error {rel:e}");
+        }
+    }
+
+    /// A sink error stops sampling at once (no further runs) and comes back as the error.
+    #[test]
+    fn sink_error_stops_sampling() {
+        SLAB_TARGET.store(300, std::sync::atomic::Ordering::Relaxed);
+        let scene = instanced_scene();
+        for method in [Method::Voxel, Method::Vertex] {
+            let opts = SampleOptions { method, density: Density::VoxelSize(0.004), ..Default::default() };
+            let mut calls = 0;
+            let r = sample_scene_into(&scene, &opts, &|_, _| {}, &mut |_, _| {
+                calls += 1;
+                if calls == 2 { Err("disk full") } else { Ok(()) }
+            });
+            assert!(matches!(r, Err(StreamError::Sink("disk full"))), "{method:?}: {r:?}");
+            assert_eq!(calls, 2, "{method:?}");
+        }
+        // A sampling error is told apart from a sink error.
+        let opts = SampleOptions { density: Density::VoxelSize(1e-9), ..Default::default() };
+        let r = sample_scene_into(&scene, &opts, &|_, _| {}, &mut |_, _| Ok::<(), Never>(()));
+        assert!(matches!(r, Err(StreamError::Sampling(_))));
+    }
+
+    /// Point samples reach the sink in runs of [`POINT_RUN`], in point order; a sink error
+    /// stops them.
+    #[test]
+    fn point_runs_equal_the_collected_samples() {
+        let mut rng = sct_format::rng::SplitMix64(21);
+        let n = POINT_RUN + 1000;
+        let positions: Vec<[f32; 3]> = (0..n).map(|_| [rng.next_f64() as f32, rng.next_f64() as f32, 0.0]).collect();
+        let pc = PointCloud { positions, normals: None, colors: None };
+        let all = sample_points(&pc);
+        let mut runs = Vec::new();
+        sample_points_into(&pc, &mut |nodes| {
+            runs.push(nodes.to_vec());
+            Ok::<(), Never>(())
+        })
+        .expect("infallible");
+        assert_eq!(runs.iter().map(Vec::len).collect::<Vec<_>>(), [POINT_RUN, 1000]);
+        let bits = |n: &Node| (n.center.map(f32::to_bits), n.radius.to_bits(), n.area.to_bits(), n.color);
+        assert!(runs.concat().iter().map(bits).eq(all.iter().map(bits)));
+        let mut calls = 0;
+        assert_eq!(
+            sample_points_into(&pc, &mut |_| {
+                calls += 1;
+                Err(7)
+            }),
+            Err(7)
+        );
+        assert_eq!(calls, 1);
+    }
+
+    /// A bumpy sheet over many slabs (small slab target: dozens of slabs, several batches):
+    /// 1 and 2 threads give the same samples for every method; progress counts each triangle
+    /// once; EQ 17 and scan-line areas still divide each triangle's area by its whole sample
+    /// count (they sum to the mesh area) although multi-slab triangles are shaded per slab.
+    #[test]
+    fn slabs_batches_progress_and_per_triangle_areas() {
+        SLAB_TARGET.store(300, std::sync::atomic::Ordering::Relaxed);
+        let prim = bumpy_sheet(40);
+        let ntris = prim.triangles.len() as u64;
         let scene = LoadedScene {
             meshes: vec![Mesh { name: "sheet".into(), primitives: vec![prim] }],
             instances: vec![Instance { mesh: 0, transform: IDENTITY }],
