@@ -10,7 +10,7 @@ use serde_json::json;
 use crate::error::{Error, LoadError};
 use crate::load::{load, LoadOptions};
 use crate::mesh::{Instance, LoadedScene};
-use crate::sample::{sample_points_into, sample_scene_into, AreaMode, Density, SampleOptions, Sampled, StreamError, Streamed};
+use crate::sample::{sample_points_into, sample_scene_into, AreaMode, Density, SampleOptions, Sampled, Sink, StreamError, Streamed};
 
 /// Options of a run.
 #[derive(Clone, Debug)]
@@ -270,7 +270,7 @@ pub fn sample_in_memory(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) ->
 pub fn sample_into(
     opts: &Options,
     progress: &(dyn Fn(u64, u64) + Sync),
-    sink: &mut dyn FnMut(&[Node]) -> Result<(), Error>,
+    sink: &mut Sink<'_, Error>,
 ) -> Result<(Tables, Summary), Error> {
     let t0 = Instant::now();
     if opts.inputs.is_empty() {

@@ -221,6 +221,13 @@ pub enum StreamError<E> {
 /// A sink that never fails (collecting in memory, counting).
 pub type Never = std::convert::Infallible;
 
+/// Where samples go as they are made, in runs, in their final order. `Send`: a sink works
+/// while the threads make the next batch.
+pub type Sink<'a, E> = dyn FnMut(&[Node]) -> Result<(), E> + Send + 'a;
+
+/// A [`Sink`] told which mesh (index into [`Streamed::meshes`]) each run belongs to.
+pub type MeshSink<'a, E> = dyn FnMut(usize, &[Node]) -> Result<(), E> + Send + 'a;
+
 /// Chooses the voxel size (EQ 16, explicit, or viewing needs).
 pub fn choose_voxel_size(scene: &LoadedScene, d: &Density) -> Result<VoxelChoice, String> {
     let c = match *d {
@@ -745,11 +752,11 @@ pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn F
 /// mesh (`mesh` indexes the result's meshes) and in each mesh's final (voxel) order, as they
 /// are made: no result is held, only one batch of slabs. A sink error stops sampling and is
 /// returned.
-pub fn sample_scene_into<E>(
+pub fn sample_scene_into<E: Send>(
     scene: &LoadedScene,
     opts: &SampleOptions,
     progress: &(dyn Fn(u64, u64) + Sync),
-    sink: &mut dyn FnMut(usize, &[Node]) -> Result<(), E>,
+    sink: &mut MeshSink<'_, E>,
 ) -> Result<Streamed, StreamError<E>> {
     let (voxel, mut stats, units) = plan_sampling(scene, opts).map_err(StreamError::Sampling)?;
     let total_tris: u64 = units.iter().map(|u| scene.meshes[u.mesh].triangle_count() as u64).sum();
@@ -921,13 +928,13 @@ fn unit_keys(mesh: &Mesh, u: &Unit) -> Result<KeyPack, String> {
 /// global sort, and memory per batch of slabs rather than per scene: each batch's slab
 /// outputs go to `emit` in slab order, then their buffers serve the next batch. Returns
 /// (samples before merging, alpha-dropped samples), or the first error of `emit`.
-fn sample_slabs<E>(
+fn sample_slabs<E: Send>(
     pp: &[Prepared],
     kp: &KeyPack,
     h: f64,
     opts: &SampleOptions,
     progress: &(dyn Fn(u64) + Sync),
-    emit: &mut dyn FnMut(&[Node]) -> Result<(), E>,
+    emit: &mut Sink<'_, E>,
 ) -> Result<(u64, u64), E> {
     // Every triangle: (primitive, index), x-cell range, expected samples.
     let mut tris: Vec<(u32, u32)> = Vec::new();
@@ -1003,15 +1010,15 @@ fn sample_slabs<E>(
             }
         }
     }
-    // Slabs run in batches of 8 per thread (enough to balance the threads), each batch's
-    // output emitted in slab order as it ends: only one batch's per-slab outputs exist at a
-    // time, whatever the scene's size, and their buffers are reused by the next batch (no
-    // fresh pages to fault in and zero).
+    // Slabs run in batches of 4 per thread (enough to balance the threads). A batch's
+    // outputs are emitted in slab order while the threads make the next batch (the sink's
+    // work, a file write, overlaps sampling), then their buffers serve a later batch: the
+    // outputs of two batches exist at a time, whatever the scene's size, and no fresh pages
+    // are faulted in and zeroed after the first two.
     let outs: std::sync::Mutex<Vec<Vec<Node>>> = std::sync::Mutex::new(Vec::new());
-    let batch = 8 * rayon::current_num_threads();
-    let (mut before, mut dropped) = (0u64, 0u64);
-    for (lists, slab_x) in lists.chunks(batch).zip(slab_x.chunks(batch)) {
-        let parts: Vec<(Vec<Node>, u64, u64)> = lists
+    let batch = 4 * rayon::current_num_threads();
+    let make_batch = |lists: &[Vec<u32>], slab_x: &[(i64, i64)]| -> Vec<(Vec<Node>, u64, u64)> {
+        lists
             .par_iter()
             .zip(slab_x.par_iter())
             .map_init(
@@ -1046,7 +1053,10 @@ fn sample_slabs<E>(
                     (out, before, dropped)
                 },
             )
-            .collect();
+            .collect()
+    };
+    let mut emit_batch = |parts: Vec<(Vec<Node>, u64, u64)>| -> Result<(u64, u64), E> {
+        let (mut before, mut dropped) = (0u64, 0u64);
         for (mut p, b, d) in parts {
             emit(&p)?;
             before += b;
@@ -1056,8 +1066,18 @@ fn sample_slabs<E>(
                 o.push(p);
             }
         }
+        Ok((before, dropped))
+    };
+    let (mut before, mut dropped) = (0u64, 0u64);
+    let mut made = Vec::new();
+    for (lists, slab_x) in lists.chunks(batch).zip(slab_x.chunks(batch)) {
+        let last = std::mem::take(&mut made);
+        let (emitted, next) = rayon::join(|| emit_batch(last), || make_batch(lists, slab_x));
+        let (b, d) = emitted?;
+        (before, dropped, made) = (before + b, dropped + d, next);
     }
-    Ok((before, dropped))
+    let (b, d) = emit_batch(made)?;
+    Ok((before + b, dropped + d))
 }
 
 /// Expected samples per slab (unit tests lower it to get many slabs and batches from small
@@ -1789,7 +1809,7 @@ const POINT_RUN: usize = 1 << 16;
 
 /// [`sample_points`] handing the samples to `sink` in runs, in point order; a sink error
 /// stops it and is returned.
-pub fn sample_points_into<E>(pc: &PointCloud, sink: &mut dyn FnMut(&[Node]) -> Result<(), E>) -> Result<(), E> {
+pub fn sample_points_into<E>(pc: &PointCloud, sink: &mut Sink<'_, E>) -> Result<(), E> {
     let n = pc.positions.len();
     if n == 0 {
         return Ok(());
