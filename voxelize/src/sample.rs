@@ -750,8 +750,8 @@ pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn F
 
 /// Samples a loaded scene, handing the samples to `sink(mesh, samples)` in runs, mesh after
 /// mesh (`mesh` indexes the result's meshes) and in each mesh's final (voxel) order, as they
-/// are made: no result is held, only one batch of slabs. A sink error stops sampling and is
-/// returned.
+/// are made: no result is held, only two batches of slabs (the sink works on one while the
+/// threads make the next). A sink error stops sampling and is returned.
 pub fn sample_scene_into<E: Send>(
     scene: &LoadedScene,
     opts: &SampleOptions,
@@ -926,7 +926,7 @@ fn unit_keys(mesh: &Mesh, u: &Unit) -> Result<KeyPack, String> {
 /// concatenating slabs in order gives the globally sorted result, and equal voxels (always in
 /// one slab) merge in triangle order whatever the thread count: deterministic output, no
 /// global sort, and memory per batch of slabs rather than per scene: each batch's slab
-/// outputs go to `emit` in slab order, then their buffers serve the next batch. Returns
+/// outputs go to `emit` in slab order, then their buffers serve a later batch. Returns
 /// (samples before merging, alpha-dropped samples), or the first error of `emit`.
 fn sample_slabs<E: Send>(
     pp: &[Prepared],
