@@ -345,9 +345,37 @@ struct Tri {
 /// Material view used in the hot loop.
 struct Mat<'a> {
     base: [f32; 4],
-    tex: Option<(TexImage<'a>, &'a TextureRef)>,
-    alpha_tex: Option<(TexImage<'a>, &'a TextureRef)>,
+    tex: Option<Tex<'a>>,
+    alpha_tex: Option<Tex<'a>>,
     alpha: AlphaMode,
+}
+
+/// A texture as a material binds it: the image, its UV set, transform and wrap modes.
+#[derive(Clone, Copy)]
+struct Tex<'a> {
+    img: TexImage<'a>,
+    tr: &'a TextureRef,
+    /// The UV transform is the identity: lookups skip it.
+    plain: bool,
+}
+
+impl<'a> Tex<'a> {
+    fn new(img: TexImage<'a>, tr: &'a TextureRef) -> Self {
+        Tex { img, tr, plain: tr.transform == [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] }
+    }
+
+    /// Linear RGBA at texture coordinates `uv` (before the transform), bit for bit
+    /// [`Image::sample`] of the transformed coordinates.
+    #[inline(always)]
+    fn sample(&self, uv: [f32; 2]) -> [f32; 4] {
+        // The identity transform changes finite coordinates at most in the sign of a zero,
+        // which the lookup ignores; the interior lookup takes finite coordinates only.
+        let st = if self.plain { uv } else { self.tr.transform_uv(uv) };
+        if let Some(s) = self.img.interior(st) {
+            return s;
+        }
+        self.img.sample(self.tr.transform_uv(uv), self.tr.wrap_s, self.tr.wrap_t)
+    }
 }
 
 /// A texture image for the samplers, with its texels decoded to linear RGBA once when that
@@ -360,8 +388,38 @@ struct TexImage<'a> {
 }
 
 impl TexImage<'_> {
+    /// [`bilinear`]'s lookup in the pre-decoded texels where its 2×2 texel block needs no
+    /// wrapping (texel coordinates in [0, width − 1) × [0, height − 1): nearly every lookup
+    /// of a texture that is not tiled), with the same arithmetic; `None` elsewhere (edge
+    /// texels, wrapping, non-finite coordinates, no decoded table), left to [`Self::sample`].
+    #[inline(always)]
+    fn interior(&self, uv: [f32; 2]) -> Option<[f32; 4]> {
+        let lin = self.linear?;
+        // i64 (not usize) keeps the float conversions single instructions.
+        let (w, h) = (i64::from(self.img.width), i64::from(self.img.height));
+        let x = f64::from(uv[0]) * w as f64 - 0.5;
+        let y = f64::from(uv[1]) * h as f64 - 0.5;
+        // NaN fails too.
+        if !(x >= 0.0 && y >= 0.0 && x < (w - 1) as f64 && y < (h - 1) as f64) {
+            return None;
+        }
+        // Truncation is the floor of these non-negative values.
+        let (xi, yi) = (x as i64, y as i64);
+        let (fx, fy) = ((x - xi as f64) as f32, (y - yi as f64) as f32);
+        // `0 ≤ xi < w − 1` and `0 ≤ yi < h − 1`: the block lies in the table.
+        let (i, w) = ((yi * w + xi) as usize, w as usize);
+        let (&[a, b], &[c, d]) = (lin.get(i..i + 2)?.try_into().ok()?, lin.get(i + w..i + w + 2)?.try_into().ok()?);
+        let mut out = [0.0; 4];
+        for k in 0..4 {
+            let top = a[k] + (b[k] - a[k]) * fx;
+            let bot = c[k] + (d[k] - c[k]) * fx;
+            out[k] = top + (bot - top) * fy;
+        }
+        Some(out)
+    }
+
     /// [`Image::sample`], bit for bit; reads pre-decoded texels when there are some.
-    #[inline]
+    #[inline(never)]
     fn sample(&self, uv: [f32; 2], wrap_s: Wrap, wrap_t: Wrap) -> [f32; 4] {
         let Some(lin) = self.linear else {
             return self.img.sample(uv, wrap_s, wrap_t);
@@ -1106,8 +1164,8 @@ impl MatOwned<'_> {
     fn view(&self) -> Mat<'_> {
         Mat {
             base: self.base,
-            tex: self.tex.as_ref().map(|(i, t)| (*i, t)),
-            alpha_tex: self.alpha_tex.as_ref().map(|(i, t)| (*i, t)),
+            tex: self.tex.as_ref().map(|(i, t)| Tex::new(*i, t)),
+            alpha_tex: self.alpha_tex.as_ref().map(|(i, t)| Tex::new(*i, t)),
             alpha: self.alpha,
         }
     }
@@ -1209,14 +1267,14 @@ fn shade(t: &Tri, w: [f64; 3], mat: &Mat) -> (Option<[f32; 4]>, [f32; 3]) {
 #[inline]
 fn shade_color(vc: [f32; 4], uv: [f32; 2], uv2: [f32; 2], mat: &Mat) -> Option<[f32; 4]> {
     let mut c: [f32; 4] = std::array::from_fn(|k| mat.base[k] * vc[k]);
-    if let Some((img, tr)) = mat.tex {
-        let s = img.sample(tr.transform_uv(uv), tr.wrap_s, tr.wrap_t);
+    if let Some(t) = mat.tex {
+        let s = t.sample(uv);
         for k in 0..4 {
             c[k] *= s[k];
         }
     }
-    if let Some((img, tr)) = mat.alpha_tex {
-        let s = img.sample(tr.transform_uv(uv2), tr.wrap_s, tr.wrap_t);
+    if let Some(t) = mat.alpha_tex {
+        let s = t.sample(uv2);
         c[3] *= 0.2126 * s[0] + 0.7152 * s[1] + 0.0722 * s[2];
     }
     let keep = match mat.alpha {
@@ -1609,8 +1667,8 @@ fn vertex_patches(
             }
         }
     }
-    let uvset = mat.tex.and_then(|t| prim.uvs.get(t.1.tex_coord as usize));
-    let uvset2 = mat.alpha_tex.and_then(|t| prim.uvs.get(t.1.tex_coord as usize));
+    let uvset = mat.tex.and_then(|t| prim.uvs.get(t.tr.tex_coord as usize));
+    let uvset2 = mat.alpha_tex.and_then(|t| prim.uvs.get(t.tr.tex_coord as usize));
     let mut out = Vec::new();
     let mut dropped = 0;
     for i in 0..nv {
@@ -1873,6 +1931,58 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The material lookups (fast interior path, then the general one) equal `Image::sample`
+    /// of the transformed coordinates bit for bit: random coordinates inside and outside
+    /// [0, 1], near 0 and 1, at texel centres and block edges, ±0 and non-finite ones, every
+    /// wrap mode, with the identity and other transforms; most inside lookups take the fast
+    /// path.
+    #[test]
+    fn material_texture_lookup_matches_image_sample() {
+        let mut rng = sct_format::rng::SplitMix64(29);
+        let (w, h) = (9u32, 6u32);
+        let rgba: Vec<[u8; 4]> = (0..w * h).map(|_| std::array::from_fn(|_| (rng.next_u64() >> 56) as u8)).collect();
+        let img = Image { width: w, height: h, rgba, source: "test".into() };
+        let plain = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let scene = LoadedScene {
+            images: vec![img],
+            materials: vec![Material { texture: Some(TextureRef { image: 0, tex_coord: 0, transform: plain, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat }), ..Default::default() }],
+            ..Default::default()
+        };
+        let linear = decode_textures(&scene);
+        let img = &scene.images[0];
+        let tex_img = TexImage { img, linear: linear[0].as_deref() };
+        let mut uvs: Vec<[f32; 2]> = (0..4000).map(|_| [(rng.next_f64() * 3.0 - 1.0) as f32, (rng.next_f64() * 3.0 - 1.0) as f32]).collect();
+        uvs.extend((0..4000).map(|_| [rng.next_f64() as f32, rng.next_f64() as f32]));
+        for i in -2..=20 {
+            // Texel centres, block edges (half-integer texel coordinates) and their neighbours.
+            for f in [i as f32 / 2.0 / w as f32, (i as f32 + 0.5) / w as f32] {
+                let g = f * w as f32 / h as f32;
+                uvs.extend([[f, g], [g, f], [f.next_up(), g.next_down()], [f.next_down(), g.next_up()]]);
+            }
+        }
+        for e in [0.0f32, 1.0] {
+            uvs.extend([[e, 0.5], [0.5, e], [e.next_up(), e.next_down()], [e.next_down(), 0.3], [0.7, e.next_up()]]);
+        }
+        uvs.extend([[-0.0, 0.5], [0.5, -0.0], [f32::NAN, 0.3], [0.2, f32::INFINITY], [f32::NEG_INFINITY, 0.5], [1e30, -1e30]]);
+        let transforms = [plain, [[0.5, 0.0, 0.25], [0.0, 0.5, 0.25]], [[0.0, 1.0, 0.0], [-1.0, 0.0, 1.0]], [[2.0, 0.3, -0.5], [0.1, 1.5, 0.2]]];
+        let mut fast = 0;
+        for transform in transforms {
+            for wrap_s in [Wrap::Repeat, Wrap::MirroredRepeat, Wrap::ClampToEdge] {
+                for wrap_t in [Wrap::Repeat, Wrap::MirroredRepeat, Wrap::ClampToEdge] {
+                    let tr = TextureRef { image: 0, tex_coord: 0, transform, wrap_s, wrap_t };
+                    let tex = Tex::new(tex_img, &tr);
+                    assert_eq!(tex.plain, transform == plain);
+                    for &uv in &uvs {
+                        let want = img.sample(tr.transform_uv(uv), wrap_s, wrap_t);
+                        assert_eq!(tex.sample(uv).map(f32::to_bits), want.map(f32::to_bits), "uv {uv:?} {transform:?} {wrap_s:?} {wrap_t:?}");
+                        fast += usize::from(tex_img.interior(tr.transform_uv(uv)).is_some());
+                    }
+                }
+            }
+        }
+        assert!(fast * 4 > uvs.len() * 9 * transforms.len(), "{fast} fast lookups");
     }
 
     /// A bumpy sheet over many slabs (small slab target: dozens of slabs, several batches):
