@@ -357,11 +357,24 @@ struct Tex<'a> {
     tr: &'a TextureRef,
     /// The UV transform is the identity: lookups skip it.
     plain: bool,
+    /// The image's texel grid for [`Tex::interior`].
+    grid: TexelGrid,
+}
+
+/// Width and height of a decoded image as the interior lookup uses them.
+#[derive(Clone, Copy)]
+struct TexelGrid {
+    w: f64,
+    h: f64,
+    /// `w − 1`, `h − 1`: the texel coordinates whose 2×2 block needs no wrapping lie below.
+    x_end: f64,
+    y_end: f64,
 }
 
 impl<'a> Tex<'a> {
     fn new(img: TexImage<'a>, tr: &'a TextureRef) -> Self {
-        Tex { img, tr, plain: tr.transform == [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] }
+        let (w, h) = (f64::from(img.img.width), f64::from(img.img.height));
+        Tex { img, tr, plain: tr.transform == [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], grid: TexelGrid { w, h, x_end: w - 1.0, y_end: h - 1.0 } }
     }
 
     /// Linear RGBA at texture coordinates `uv` (before the transform), bit for bit
@@ -371,10 +384,43 @@ impl<'a> Tex<'a> {
         // The identity transform changes finite coordinates at most in the sign of a zero,
         // which the lookup ignores; the interior lookup takes finite coordinates only.
         let st = if self.plain { uv } else { self.tr.transform_uv(uv) };
-        if let Some(s) = self.img.interior(st) {
+        if let Some(s) = self.interior(st) {
             return s;
         }
         self.img.sample(self.tr.transform_uv(uv), self.tr.wrap_s, self.tr.wrap_t)
+    }
+
+    /// [`bilinear`]'s lookup in the pre-decoded texels where its 2×2 texel block needs no
+    /// wrapping (texel coordinates in [0, width − 1) × [0, height − 1): nearly every lookup
+    /// of a texture that is not tiled), with the same arithmetic; `None` elsewhere (edge
+    /// texels, wrapping, non-finite coordinates, no decoded table), left to [`TexImage::sample`].
+    #[inline(always)]
+    fn interior(&self, uv: [f32; 2]) -> Option<[f32; 4]> {
+        let lin = self.img.linear?;
+        let g = &self.grid;
+        // `bilinear` computes these from i64 sizes: the same f64 values.
+        let x = f64::from(uv[0]) * g.w - 0.5;
+        let y = f64::from(uv[1]) * g.h - 0.5;
+        // NaN fails too.
+        if !(x >= 0.0 && y >= 0.0 && x < g.x_end && y < g.y_end) {
+            return None;
+        }
+        // Truncation is the floor of these non-negative values (i64, not usize: single
+        // conversion instructions).
+        let (xi, yi) = (x as i64, y as i64);
+        let (fx, fy) = ((x - xi as f64) as f32, (y - yi as f64) as f32);
+        // `0 ≤ xi < w − 1` and `0 ≤ yi < h − 1`: the block lies in the table.
+        let w = self.img.img.width as usize;
+        let i = yi as usize * w + xi as usize;
+        let block = lin.get(i..i + w + 2)?;
+        let (&[a, b], &[c, d]) = (block.first_chunk::<2>()?, block.last_chunk::<2>()?);
+        let mut out = [0.0; 4];
+        for k in 0..4 {
+            let top = a[k] + (b[k] - a[k]) * fx;
+            let bot = c[k] + (d[k] - c[k]) * fx;
+            out[k] = top + (bot - top) * fy;
+        }
+        Some(out)
     }
 }
 
@@ -388,36 +434,6 @@ struct TexImage<'a> {
 }
 
 impl TexImage<'_> {
-    /// [`bilinear`]'s lookup in the pre-decoded texels where its 2×2 texel block needs no
-    /// wrapping (texel coordinates in [0, width − 1) × [0, height − 1): nearly every lookup
-    /// of a texture that is not tiled), with the same arithmetic; `None` elsewhere (edge
-    /// texels, wrapping, non-finite coordinates, no decoded table), left to [`Self::sample`].
-    #[inline(always)]
-    fn interior(&self, uv: [f32; 2]) -> Option<[f32; 4]> {
-        let lin = self.linear?;
-        // i64 (not usize) keeps the float conversions single instructions.
-        let (w, h) = (i64::from(self.img.width), i64::from(self.img.height));
-        let x = f64::from(uv[0]) * w as f64 - 0.5;
-        let y = f64::from(uv[1]) * h as f64 - 0.5;
-        // NaN fails too.
-        if !(x >= 0.0 && y >= 0.0 && x < (w - 1) as f64 && y < (h - 1) as f64) {
-            return None;
-        }
-        // Truncation is the floor of these non-negative values.
-        let (xi, yi) = (x as i64, y as i64);
-        let (fx, fy) = ((x - xi as f64) as f32, (y - yi as f64) as f32);
-        // `0 ≤ xi < w − 1` and `0 ≤ yi < h − 1`: the block lies in the table.
-        let (i, w) = ((yi * w + xi) as usize, w as usize);
-        let (&[a, b], &[c, d]) = (lin.get(i..i + 2)?.try_into().ok()?, lin.get(i + w..i + w + 2)?.try_into().ok()?);
-        let mut out = [0.0; 4];
-        for k in 0..4 {
-            let top = a[k] + (b[k] - a[k]) * fx;
-            let bot = c[k] + (d[k] - c[k]) * fx;
-            out[k] = top + (bot - top) * fy;
-        }
-        Some(out)
-    }
-
     /// [`Image::sample`], bit for bit; reads pre-decoded texels when there are some.
     #[inline(never)]
     fn sample(&self, uv: [f32; 2], wrap_s: Wrap, wrap_t: Wrap) -> [f32; 4] {
@@ -1264,16 +1280,16 @@ fn shade(t: &Tri, w: [f64; 3], mat: &Mat) -> (Option<[f32; 4]>, [f32; 3]) {
 
 /// The material colour for vertex colour `vc` and texture coordinates `uv` (colour texture),
 /// `uv2` (alpha texture); `None` = dropped by alpha.
-#[inline]
+#[inline(always)]
 fn shade_color(vc: [f32; 4], uv: [f32; 2], uv2: [f32; 2], mat: &Mat) -> Option<[f32; 4]> {
     let mut c: [f32; 4] = std::array::from_fn(|k| mat.base[k] * vc[k]);
-    if let Some(t) = mat.tex {
+    if let Some(t) = &mat.tex {
         let s = t.sample(uv);
         for k in 0..4 {
             c[k] *= s[k];
         }
     }
-    if let Some(t) = mat.alpha_tex {
+    if let Some(t) = &mat.alpha_tex {
         let s = t.sample(uv2);
         c[3] *= 0.2126 * s[0] + 0.7152 * s[1] + 0.0722 * s[2];
     }
@@ -1977,7 +1993,7 @@ mod tests {
                     for &uv in &uvs {
                         let want = img.sample(tr.transform_uv(uv), wrap_s, wrap_t);
                         assert_eq!(tex.sample(uv).map(f32::to_bits), want.map(f32::to_bits), "uv {uv:?} {transform:?} {wrap_s:?} {wrap_t:?}");
-                        fast += usize::from(tex_img.interior(tr.transform_uv(uv)).is_some());
+                        fast += usize::from(tex.interior(tr.transform_uv(uv)).is_some());
                     }
                 }
             }
