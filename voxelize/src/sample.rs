@@ -1325,6 +1325,9 @@ struct Planes<'m> {
     flat_n: Option<[f32; 3]>,
     /// Unit face normal, for interpolated normals of (near) zero length.
     face_n: [f32; 3],
+    /// The vertex colour when the corners share it (a textured triangle's colour varies
+    /// while this does not): used as it is, its planes being flat.
+    vc: Option<[f32; 4]>,
     mat: &'m Mat<'m>,
 }
 
@@ -1363,6 +1366,7 @@ impl<'m> Planes<'m> {
             flat_c,
             flat_n,
             face_n,
+            vc: (t.c[0] == t.c[1] && t.c[0] == t.c[2]).then_some(t.c[0]),
             mat,
         }
     }
@@ -1374,7 +1378,13 @@ impl<'m> Planes<'m> {
         let at = |pl: &[f32; 3]| pl[0] + pl[1] * da + pl[2] * db;
         let c = match self.flat_c {
             Some(c) => c,
-            None => shade_color(self.c.each_ref().map(at), self.uv.each_ref().map(at), self.uv2.each_ref().map(at), self.mat),
+            None => {
+                // Only the channels the material reads; the values are the same.
+                let vc = self.vc.unwrap_or_else(|| self.c.each_ref().map(at));
+                let uv = if self.mat.tex.is_some() { self.uv.each_ref().map(at) } else { [0.0; 2] };
+                let uv2 = if self.mat.alpha_tex.is_some() { self.uv2.each_ref().map(at) } else { [0.0; 2] };
+                shade_color(vc, uv, uv2, self.mat)
+            }
         };
         let n = match self.flat_n {
             Some(n) => n,
@@ -1999,6 +2009,56 @@ mod tests {
             }
         }
         assert!(fast * 4 > uvs.len() * 9 * transforms.len(), "{fast} fast lookups");
+    }
+
+    /// [`Planes::shade`]'s shortcuts (a vertex colour shared by the corners used as it is,
+    /// unread texture coordinates skipped) give the colours of evaluating every plane, for
+    /// textured (identity and other transforms, alpha textures) and untextured materials,
+    /// every alpha mode, shared and varying vertex colours.
+    #[test]
+    fn planes_shortcuts_match_full_evaluation() {
+        let mut rng = sct_format::rng::SplitMix64(31);
+        let (w, h) = (5u32, 4u32);
+        let rgba: Vec<[u8; 4]> = (0..w * h).map(|_| std::array::from_fn(|_| (rng.next_u64() >> 56) as u8)).collect();
+        let tr = |transform| TextureRef { image: 0, tex_coord: 0, transform, wrap_s: Wrap::Repeat, wrap_t: Wrap::MirroredRepeat };
+        let trs = [tr([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), tr([[0.7, 0.2, 0.1], [-0.3, 1.1, 0.05]])];
+        let scene = LoadedScene {
+            images: vec![Image { width: w, height: h, rgba, source: "test".into() }],
+            materials: vec![Material { texture: Some(trs[0].clone()), ..Default::default() }],
+            ..Default::default()
+        };
+        let linear = decode_textures(&scene);
+        let tex_img = TexImage { img: &scene.images[0], linear: linear[0].as_deref() };
+        let mut shared_vc = 0;
+        for i in 0..3000 {
+            let mat = Mat {
+                base: [0.9, 0.8, 0.7, 0.6],
+                tex: (i % 3 != 0).then(|| Tex::new(tex_img, &trs[i % 2])),
+                alpha_tex: (i % 4 == 1).then(|| Tex::new(tex_img, &trs[1])),
+                alpha: [AlphaMode::Opaque, AlphaMode::Mask(0.4), AlphaMode::Blend][i % 3],
+            };
+            let mut f = || rng.next_f64() as f32;
+            let c0 = [f(), f(), f(), f()];
+            let c = if i % 2 == 0 { [c0; 3] } else { [c0, [f(), f(), f(), f()], [f(), f(), f(), f()]] };
+            let uv: [[f32; 2]; 3] = std::array::from_fn(|_| [f() * 2.0 - 0.5, f() * 2.0 - 0.5]);
+            let uv2: [[f32; 2]; 3] = std::array::from_fn(|_| [f(), f()]);
+            let n: [[f32; 3]; 3] = std::array::from_fn(|_| [f() - 0.5, f() - 0.5, f() - 0.5]);
+            let p: [[f64; 3]; 3] = std::array::from_fn(|_| std::array::from_fn(|_| rng.next_f64() * 20.0));
+            let t = Tri { p, n, c, uv, uv2 };
+            let (fnrm, _, a, b) = face_axes(&t);
+            let q = t.p.map(|p| [p[a], p[b]]);
+            let planes = Planes::new(&t, &q, fnrm, &mat);
+            shared_vc += usize::from(planes.flat_c.is_none() && planes.vc.is_some());
+            for _ in 0..10 {
+                let pt = [q[0][0] + (rng.next_f64() - 0.3) * 8.0, q[0][1] + (rng.next_f64() - 0.3) * 8.0];
+                let (da, db) = ((pt[0] - planes.o[0]) as f32, (pt[1] - planes.o[1]) as f32);
+                let at = |pl: &[f32; 3]| pl[0] + pl[1] * da + pl[2] * db;
+                let want = planes.flat_c.unwrap_or_else(|| shade_color(planes.c.each_ref().map(at), planes.uv.each_ref().map(at), planes.uv2.each_ref().map(at), &mat));
+                let got = planes.shade(pt).0;
+                assert_eq!(got.map(|c| c.map(f32::to_bits)), want.map(|c| c.map(f32::to_bits)), "{t:?}", t = (i, pt));
+            }
+        }
+        assert!(shared_vc > 500, "{shared_vc}");
     }
 
     /// A bumpy sheet over many slabs (small slab target: dozens of slabs, several batches):
