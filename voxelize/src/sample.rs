@@ -378,7 +378,7 @@ impl<'a> Tex<'a> {
     }
 
     /// Linear RGBA at texture coordinates `uv` (before the transform), bit for bit
-    /// [`Image::sample`] of the transformed coordinates.
+    /// [`Image::sample`] of the transformed coordinates with the binding's wrap modes.
     #[inline(always)]
     fn sample(&self, uv: [f32; 2]) -> [f32; 4] {
         // The identity transform changes finite coordinates at most in the sign of a zero,
@@ -434,7 +434,8 @@ struct TexImage<'a> {
 }
 
 impl TexImage<'_> {
-    /// [`Image::sample`], bit for bit; reads pre-decoded texels when there are some.
+    /// [`Image::sample`], bit for bit; reads pre-decoded texels when there are some. Out of
+    /// line: per sample it is the rare path after [`Tex::interior`].
     #[inline(never)]
     fn sample(&self, uv: [f32; 2], wrap_s: Wrap, wrap_t: Wrap) -> [f32; 4] {
         let Some(lin) = self.linear else {
