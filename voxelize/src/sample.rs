@@ -388,9 +388,83 @@ struct Tri {
 /// Material view used in the hot loop.
 struct Mat<'a> {
     base: [f32; 4],
-    tex: Option<(TexImage<'a>, &'a TextureRef)>,
-    alpha_tex: Option<(TexImage<'a>, &'a TextureRef)>,
+    tex: Option<Tex<'a>>,
+    alpha_tex: Option<Tex<'a>>,
     alpha: AlphaMode,
+}
+
+/// A texture as a material binds it: the image, its UV set, transform and wrap modes.
+#[derive(Clone, Copy)]
+struct Tex<'a> {
+    img: TexImage<'a>,
+    tr: &'a TextureRef,
+    /// The UV transform is the identity: lookups skip it.
+    plain: bool,
+    /// The image's texel grid for [`Tex::interior`].
+    grid: TexelGrid,
+}
+
+/// Width and height of a decoded image as the interior lookup uses them.
+#[derive(Clone, Copy)]
+struct TexelGrid {
+    w: f64,
+    h: f64,
+    /// `w − 1`, `h − 1`: the texel coordinates whose 2×2 block needs no wrapping lie below.
+    x_end: f64,
+    y_end: f64,
+}
+
+impl<'a> Tex<'a> {
+    fn new(img: TexImage<'a>, tr: &'a TextureRef) -> Self {
+        let (w, h) = (f64::from(img.img.width), f64::from(img.img.height));
+        Tex { img, tr, plain: tr.transform == [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], grid: TexelGrid { w, h, x_end: w - 1.0, y_end: h - 1.0 } }
+    }
+
+    /// Linear RGBA at texture coordinates `uv` (before the transform), bit for bit
+    /// [`Image::sample`] of the transformed coordinates with the binding's wrap modes.
+    #[inline(always)]
+    fn sample(&self, uv: [f32; 2]) -> [f32; 4] {
+        // The identity transform changes finite coordinates at most in the sign of a zero,
+        // which the lookup ignores; the interior lookup takes finite coordinates only.
+        let st = if self.plain { uv } else { self.tr.transform_uv(uv) };
+        if let Some(s) = self.interior(st) {
+            return s;
+        }
+        self.img.sample(self.tr.transform_uv(uv), self.tr.wrap_s, self.tr.wrap_t)
+    }
+
+    /// [`bilinear`]'s lookup in the pre-decoded texels where its 2×2 texel block needs no
+    /// wrapping (texel coordinates in [0, width − 1) × [0, height − 1): nearly every lookup
+    /// of a texture that is not tiled), with the same arithmetic; `None` elsewhere (edge
+    /// texels, wrapping, non-finite coordinates, no decoded table), left to [`TexImage::sample`].
+    #[inline(always)]
+    fn interior(&self, uv: [f32; 2]) -> Option<[f32; 4]> {
+        let lin = self.img.linear?;
+        let g = &self.grid;
+        // `bilinear` computes these from i64 sizes: the same f64 values.
+        let x = f64::from(uv[0]) * g.w - 0.5;
+        let y = f64::from(uv[1]) * g.h - 0.5;
+        // NaN fails too.
+        if !(x >= 0.0 && y >= 0.0 && x < g.x_end && y < g.y_end) {
+            return None;
+        }
+        // Truncation is the floor of these non-negative values (i64, not usize: single
+        // conversion instructions).
+        let (xi, yi) = (x as i64, y as i64);
+        let (fx, fy) = ((x - xi as f64) as f32, (y - yi as f64) as f32);
+        // `0 ≤ xi < w − 1` and `0 ≤ yi < h − 1`: the block lies in the table.
+        let w = self.img.img.width as usize;
+        let i = yi as usize * w + xi as usize;
+        let block = lin.get(i..i + w + 2)?;
+        let (&[a, b], &[c, d]) = (block.first_chunk::<2>()?, block.last_chunk::<2>()?);
+        let mut out = [0.0; 4];
+        for k in 0..4 {
+            let top = a[k] + (b[k] - a[k]) * fx;
+            let bot = c[k] + (d[k] - c[k]) * fx;
+            out[k] = top + (bot - top) * fy;
+        }
+        Some(out)
+    }
 }
 
 /// A texture image for the samplers, with its texels decoded to linear RGBA once when that
@@ -403,8 +477,9 @@ struct TexImage<'a> {
 }
 
 impl TexImage<'_> {
-    /// [`Image::sample`], bit for bit; reads pre-decoded texels when there are some.
-    #[inline]
+    /// [`Image::sample`], bit for bit; reads pre-decoded texels when there are some. Out of
+    /// line: per sample it is the rare path after [`Tex::interior`].
+    #[inline(never)]
     fn sample(&self, uv: [f32; 2], wrap_s: Wrap, wrap_t: Wrap) -> [f32; 4] {
         let Some(lin) = self.linear else {
             return self.img.sample(uv, wrap_s, wrap_t);
@@ -1245,8 +1320,8 @@ impl MatOwned<'_> {
     fn view(&self) -> Mat<'_> {
         Mat {
             base: self.base,
-            tex: self.tex.as_ref().map(|(i, t)| (*i, t)),
-            alpha_tex: self.alpha_tex.as_ref().map(|(i, t)| (*i, t)),
+            tex: self.tex.as_ref().map(|(i, t)| Tex::new(*i, t)),
+            alpha_tex: self.alpha_tex.as_ref().map(|(i, t)| Tex::new(*i, t)),
             alpha: self.alpha,
         }
     }
@@ -1345,17 +1420,17 @@ fn shade(t: &Tri, w: [f64; 3], mat: &Mat) -> (Option<[f32; 4]>, [f32; 3]) {
 
 /// The material colour for vertex colour `vc` and texture coordinates `uv` (colour texture),
 /// `uv2` (alpha texture); `None` = dropped by alpha.
-#[inline]
+#[inline(always)]
 fn shade_color(vc: [f32; 4], uv: [f32; 2], uv2: [f32; 2], mat: &Mat) -> Option<[f32; 4]> {
     let mut c: [f32; 4] = std::array::from_fn(|k| mat.base[k] * vc[k]);
-    if let Some((img, tr)) = mat.tex {
-        let s = img.sample(tr.transform_uv(uv), tr.wrap_s, tr.wrap_t);
+    if let Some(t) = &mat.tex {
+        let s = t.sample(uv);
         for k in 0..4 {
             c[k] *= s[k];
         }
     }
-    if let Some((img, tr)) = mat.alpha_tex {
-        let s = img.sample(tr.transform_uv(uv2), tr.wrap_s, tr.wrap_t);
+    if let Some(t) = &mat.alpha_tex {
+        let s = t.sample(uv2);
         c[3] *= 0.2126 * s[0] + 0.7152 * s[1] + 0.0722 * s[2];
     }
     let keep = match mat.alpha {
@@ -1390,6 +1465,9 @@ struct Planes<'m> {
     flat_n: Option<[f32; 3]>,
     /// Unit face normal, for interpolated normals of (near) zero length.
     face_n: [f32; 3],
+    /// The vertex colour when the corners share it (a textured triangle's colour varies
+    /// while this does not): used as it is, its planes being flat.
+    vc: Option<[f32; 4]>,
     mat: &'m Mat<'m>,
 }
 
@@ -1428,6 +1506,7 @@ impl<'m> Planes<'m> {
             flat_c,
             flat_n,
             face_n,
+            vc: (t.c[0] == t.c[1] && t.c[0] == t.c[2]).then_some(t.c[0]),
             mat,
         }
     }
@@ -1439,7 +1518,13 @@ impl<'m> Planes<'m> {
         let at = |pl: &[f32; 3]| pl[0] + pl[1] * da + pl[2] * db;
         let c = match self.flat_c {
             Some(c) => c,
-            None => shade_color(self.c.each_ref().map(at), self.uv.each_ref().map(at), self.uv2.each_ref().map(at), self.mat),
+            None => {
+                // Only the channels the material reads; the values are the same.
+                let vc = self.vc.unwrap_or_else(|| self.c.each_ref().map(at));
+                let uv = if self.mat.tex.is_some() { self.uv.each_ref().map(at) } else { [0.0; 2] };
+                let uv2 = if self.mat.alpha_tex.is_some() { self.uv2.each_ref().map(at) } else { [0.0; 2] };
+                shade_color(vc, uv, uv2, self.mat)
+            }
         };
         let n = match self.flat_n {
             Some(n) => n,
@@ -1748,8 +1833,8 @@ fn vertex_patches(
             }
         }
     }
-    let uvset = mat.tex.and_then(|t| prim.uvs.get(t.1.tex_coord as usize));
-    let uvset2 = mat.alpha_tex.and_then(|t| prim.uvs.get(t.1.tex_coord as usize));
+    let uvset = mat.tex.and_then(|t| prim.uvs.get(t.tr.tex_coord as usize));
+    let uvset2 = mat.alpha_tex.and_then(|t| prim.uvs.get(t.tr.tex_coord as usize));
     let mut out = Vec::new();
     let mut dropped = 0;
     for i in 0..nv {
@@ -2031,6 +2116,108 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The material lookups (fast interior path, then the general one) equal `Image::sample`
+    /// of the transformed coordinates bit for bit: random coordinates inside and outside
+    /// [0, 1], near 0 and 1, at texel centres and block edges, ±0 and non-finite ones, every
+    /// wrap mode, with the identity and other transforms; most inside lookups take the fast
+    /// path.
+    #[test]
+    fn material_texture_lookup_matches_image_sample() {
+        let mut rng = sct_format::rng::SplitMix64(29);
+        let (w, h) = (9u32, 6u32);
+        let rgba: Vec<[u8; 4]> = (0..w * h).map(|_| std::array::from_fn(|_| (rng.next_u64() >> 56) as u8)).collect();
+        let img = Image { width: w, height: h, rgba, source: "test".into() };
+        let plain = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let scene = LoadedScene {
+            images: vec![img],
+            materials: vec![Material { texture: Some(TextureRef { image: 0, tex_coord: 0, transform: plain, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat }), ..Default::default() }],
+            ..Default::default()
+        };
+        let linear = decode_textures(&scene);
+        let img = &scene.images[0];
+        let tex_img = TexImage { img, linear: linear[0].as_deref() };
+        let mut uvs: Vec<[f32; 2]> = (0..4000).map(|_| [(rng.next_f64() * 3.0 - 1.0) as f32, (rng.next_f64() * 3.0 - 1.0) as f32]).collect();
+        uvs.extend((0..4000).map(|_| [rng.next_f64() as f32, rng.next_f64() as f32]));
+        for i in -2..=20 {
+            // Texel centres, block edges (half-integer texel coordinates) and their neighbours.
+            for f in [i as f32 / 2.0 / w as f32, (i as f32 + 0.5) / w as f32] {
+                let g = f * w as f32 / h as f32;
+                uvs.extend([[f, g], [g, f], [f.next_up(), g.next_down()], [f.next_down(), g.next_up()]]);
+            }
+        }
+        for e in [0.0f32, 1.0] {
+            uvs.extend([[e, 0.5], [0.5, e], [e.next_up(), e.next_down()], [e.next_down(), 0.3], [0.7, e.next_up()]]);
+        }
+        uvs.extend([[-0.0, 0.5], [0.5, -0.0], [f32::NAN, 0.3], [0.2, f32::INFINITY], [f32::NEG_INFINITY, 0.5], [1e30, -1e30]]);
+        let transforms = [plain, [[0.5, 0.0, 0.25], [0.0, 0.5, 0.25]], [[0.0, 1.0, 0.0], [-1.0, 0.0, 1.0]], [[2.0, 0.3, -0.5], [0.1, 1.5, 0.2]]];
+        let mut fast = 0;
+        for transform in transforms {
+            for wrap_s in [Wrap::Repeat, Wrap::MirroredRepeat, Wrap::ClampToEdge] {
+                for wrap_t in [Wrap::Repeat, Wrap::MirroredRepeat, Wrap::ClampToEdge] {
+                    let tr = TextureRef { image: 0, tex_coord: 0, transform, wrap_s, wrap_t };
+                    let tex = Tex::new(tex_img, &tr);
+                    assert_eq!(tex.plain, transform == plain);
+                    for &uv in &uvs {
+                        let want = img.sample(tr.transform_uv(uv), wrap_s, wrap_t);
+                        assert_eq!(tex.sample(uv).map(f32::to_bits), want.map(f32::to_bits), "uv {uv:?} {transform:?} {wrap_s:?} {wrap_t:?}");
+                        fast += usize::from(tex.interior(tr.transform_uv(uv)).is_some());
+                    }
+                }
+            }
+        }
+        assert!(fast * 4 > uvs.len() * 9 * transforms.len(), "{fast} fast lookups");
+    }
+
+    /// [`Planes::shade`]'s shortcuts (a vertex colour shared by the corners used as it is,
+    /// unread texture coordinates skipped) give the colours of evaluating every plane, for
+    /// textured (identity and other transforms, alpha textures) and untextured materials,
+    /// every alpha mode, shared and varying vertex colours.
+    #[test]
+    fn planes_shortcuts_match_full_evaluation() {
+        let mut rng = sct_format::rng::SplitMix64(31);
+        let (w, h) = (5u32, 4u32);
+        let rgba: Vec<[u8; 4]> = (0..w * h).map(|_| std::array::from_fn(|_| (rng.next_u64() >> 56) as u8)).collect();
+        let tr = |transform| TextureRef { image: 0, tex_coord: 0, transform, wrap_s: Wrap::Repeat, wrap_t: Wrap::MirroredRepeat };
+        let trs = [tr([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), tr([[0.7, 0.2, 0.1], [-0.3, 1.1, 0.05]])];
+        let scene = LoadedScene {
+            images: vec![Image { width: w, height: h, rgba, source: "test".into() }],
+            materials: vec![Material { texture: Some(trs[0].clone()), ..Default::default() }],
+            ..Default::default()
+        };
+        let linear = decode_textures(&scene);
+        let tex_img = TexImage { img: &scene.images[0], linear: linear[0].as_deref() };
+        let mut shared_vc = 0;
+        for i in 0..3000 {
+            let mat = Mat {
+                base: [0.9, 0.8, 0.7, 0.6],
+                tex: (i % 3 != 0).then(|| Tex::new(tex_img, &trs[i % 2])),
+                alpha_tex: (i % 4 == 1).then(|| Tex::new(tex_img, &trs[1])),
+                alpha: [AlphaMode::Opaque, AlphaMode::Mask(0.4), AlphaMode::Blend][i % 3],
+            };
+            let mut f = || rng.next_f64() as f32;
+            let c0 = [f(), f(), f(), f()];
+            let c = if i % 2 == 0 { [c0; 3] } else { [c0, [f(), f(), f(), f()], [f(), f(), f(), f()]] };
+            let uv: [[f32; 2]; 3] = std::array::from_fn(|_| [f() * 2.0 - 0.5, f() * 2.0 - 0.5]);
+            let uv2: [[f32; 2]; 3] = std::array::from_fn(|_| [f(), f()]);
+            let n: [[f32; 3]; 3] = std::array::from_fn(|_| [f() - 0.5, f() - 0.5, f() - 0.5]);
+            let p: [[f64; 3]; 3] = std::array::from_fn(|_| std::array::from_fn(|_| rng.next_f64() * 20.0));
+            let t = Tri { p, n, c, uv, uv2 };
+            let (fnrm, _, a, b) = face_axes(&t);
+            let q = t.p.map(|p| [p[a], p[b]]);
+            let planes = Planes::new(&t, &q, fnrm, &mat);
+            shared_vc += usize::from(planes.flat_c.is_none() && planes.vc.is_some());
+            for _ in 0..10 {
+                let pt = [q[0][0] + (rng.next_f64() - 0.3) * 8.0, q[0][1] + (rng.next_f64() - 0.3) * 8.0];
+                let (da, db) = ((pt[0] - planes.o[0]) as f32, (pt[1] - planes.o[1]) as f32);
+                let at = |pl: &[f32; 3]| pl[0] + pl[1] * da + pl[2] * db;
+                let want = planes.flat_c.unwrap_or_else(|| shade_color(planes.c.each_ref().map(at), planes.uv.each_ref().map(at), planes.uv2.each_ref().map(at), &mat));
+                let got = planes.shade(pt).0;
+                assert_eq!(got.map(|c| c.map(f32::to_bits)), want.map(|c| c.map(f32::to_bits)), "{t:?}", t = (i, pt));
+            }
+        }
+        assert!(shared_vc > 500, "{shared_vc}");
     }
 
     /// An n × n grid of unit size, bumped in z (2 n² triangles).

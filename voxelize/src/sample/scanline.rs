@@ -118,7 +118,7 @@ impl Spans {
 /// (`value at o + d/da·Δa`) is taken once per row, so a sample adds only `d/db·Δb` — the same
 /// operations in the same order, hence the same values bit for bit. Channels the material
 /// ignores (texture coordinates without a texture) are not evaluated, and vertex colours
-/// equal at the three corners are used as they are (their planes are flat).
+/// equal at the three corners are used as they are ([`Planes`]' `vc`).
 struct RowShade<'p, 'm> {
     planes: &'p Planes<'m>,
     /// Per channel (value at the row's a, d/db).
@@ -126,14 +126,11 @@ struct RowShade<'p, 'm> {
     c: [[f32; 2]; 4],
     uv: [[f32; 2]; 2],
     uv2: [[f32; 2]; 2],
-    /// The vertex colour when the corners share it.
-    vc: Option<[f32; 4]>,
 }
 
 impl<'p, 'm> RowShade<'p, 'm> {
-    fn new(planes: &'p Planes<'m>, t: &Tri) -> Self {
-        let vc = (t.c[0] == t.c[1] && t.c[0] == t.c[2]).then_some(t.c[0]);
-        RowShade { planes, n: [[0.0; 2]; 3], c: [[0.0; 2]; 4], uv: [[0.0; 2]; 2], uv2: [[0.0; 2]; 2], vc }
+    fn new(planes: &'p Planes<'m>) -> Self {
+        RowShade { planes, n: [[0.0; 2]; 3], c: [[0.0; 2]; 4], uv: [[0.0; 2]; 2], uv2: [[0.0; 2]; 2] }
     }
 
     /// Moves to the row through `a`.
@@ -146,7 +143,7 @@ impl<'p, 'm> RowShade<'p, 'm> {
             self.n = p.n.each_ref().map(rebase);
         }
         if p.flat_c.is_none() {
-            if self.vc.is_none() {
+            if p.vc.is_none() {
                 self.c = p.c.each_ref().map(rebase);
             }
             if p.mat.tex.is_some() {
@@ -167,7 +164,7 @@ impl<'p, 'm> RowShade<'p, 'm> {
         let c = match p.flat_c {
             Some(c) => c,
             None => {
-                let vc = self.vc.unwrap_or_else(|| self.c.each_ref().map(at));
+                let vc = p.vc.unwrap_or_else(|| self.c.each_ref().map(at));
                 let uv = if p.mat.tex.is_some() { self.uv.each_ref().map(at) } else { [0.0; 2] };
                 let uv2 = if p.mat.alpha_tex.is_some() { self.uv2.each_ref().map(at) } else { [0.0; 2] };
                 shade_color(vc, uv, uv2, p.mat)
@@ -242,7 +239,7 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
         }
         return dropped;
     }
-    let mut shade = RowShade::new(&planes, t);
+    let mut shade = RowShade::new(&planes);
     let each = (area / total as f64) as f32;
     // Depth plane through corner 0: depth = p0 + ga·(a − a0) + gb·(b − b0).
     let (ga, gb) = (-fnrm[a] / fnrm[D], -fnrm[b] / fnrm[D]);
