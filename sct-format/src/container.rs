@@ -78,23 +78,52 @@ pub fn write_container<W: Write>(magic: [u8; 8], sections: &[SectionOut], mut w:
 /// The file header followed by the section table of `entries`, for a file of `file_length`
 /// bytes (streaming writers reserve these bytes and fill them in last).
 pub(crate) fn header_and_table(magic: [u8; 8], entries: &[SectionEntry], file_length: u64) -> Vec<u8> {
+    let (mut out, table) = header_and_table_at(magic, entries, FILE_HEADER_LEN as u64, file_length);
+    out.extend_from_slice(&table);
+    out
+}
+
+/// The file header and, apart, the section table of `entries`, for a table stored at
+/// `table_offset` (the samples writer puts it after the sections, §8).
+pub(crate) fn header_and_table_at(magic: [u8; 8], entries: &[SectionEntry], table_offset: u64, file_length: u64) -> (Vec<u8>, Vec<u8>) {
     let mut table = Vec::with_capacity(entries.len() * SECTION_ENTRY_LEN);
     entries.iter().for_each(|e| e.write(&mut table));
-    let mut out = Vec::with_capacity(FILE_HEADER_LEN + table.len());
+    let mut header = Vec::with_capacity(FILE_HEADER_LEN + table.len());
     FileHeader {
         magic,
         major: MAJOR,
         minor: MINOR,
         flags: 0,
         section_count: entries.len() as u32,
-        section_table_offset: FILE_HEADER_LEN as u64,
+        section_table_offset: table_offset,
         file_length,
         table_crc: crc32fast::hash(&table),
         header_crc: 0,
     }
-    .write(&mut out);
-    out.extend_from_slice(&table);
-    out
+    .write(&mut header);
+    (header, table)
+}
+
+/// CRC-32 of `bytes`, pieces of a large input hashed in parallel and combined in order.
+pub(crate) fn crc32(bytes: &[u8]) -> u32 {
+    use rayon::prelude::*;
+    /// Large enough that combining (a few hundred operations) is noise.
+    const PIECE: usize = 4 << 20;
+    if bytes.len() <= PIECE {
+        return crc32fast::hash(bytes);
+    }
+    bytes
+        .par_chunks(PIECE)
+        .map(|p| {
+            let mut h = crc32fast::Hasher::new();
+            h.update(p);
+            h
+        })
+        .reduce(crc32fast::Hasher::new, |mut a, b| {
+            a.combine(&b);
+            a
+        })
+        .finalize()
 }
 
 /// A parsed container over borrowed bytes.
@@ -199,7 +228,7 @@ impl<'a> Container<'a> {
     /// Verifies a section's CRC.
     pub fn verify(&self, e: &SectionEntry) -> Result<()> {
         let stored = self.stored(e)?;
-        let computed = crc32fast::hash(stored);
+        let computed = crc32(stored);
         if computed != e.crc {
             return Err(Error::Checksum { what: format!("section {}", e.tag_str()), offset: e.offset, stored: e.crc, computed });
         }
@@ -238,22 +267,7 @@ pub(crate) fn decompress(stored: &[u8], raw_len: u64, offset: u64, limits: &Limi
         let frame_len = zstd::zstd_safe::find_frame_compressed_size(stored).map_err(corrupt)?;
         let frame = stored.get(..frame_len).ok_or_else(|| Error::malformed(offset, "zstd frame is longer than its section"))?;
         let mut out = Vec::with_capacity(raw_len as usize);
-        thread_local! {
-            /// One decompression context per thread, reused (blocks are decompressed by the
-            /// thousand).
-            static DCTX: std::cell::RefCell<Option<zstd::zstd_safe::DCtx<'static>>> = const { std::cell::RefCell::new(None) };
-        }
-        DCTX.with(|cell| -> Result<()> {
-            let mut cell = cell.borrow_mut();
-            let dctx = match &mut *cell {
-                Some(d) => d,
-                slot => slot.insert(
-                    zstd::zstd_safe::DCtx::try_create().ok_or_else(|| Error::Io { path: None, source: std::io::ErrorKind::OutOfMemory.into() })?,
-                ),
-            };
-            dctx.decompress(&mut out, frame).map_err(corrupt)?;
-            Ok(())
-        })?;
+        inflate_into(frame, &mut out, offset)?;
         if out.len() as u64 != raw_len {
             return Err(Error::malformed(offset, format!("decompressed to {} bytes, expected {raw_len}", out.len())));
         }
@@ -271,4 +285,27 @@ pub(crate) fn decompress(stored: &[u8], raw_len: u64, offset: u64, limits: &Limi
         return Err(Error::malformed(offset, format!("decompressed to {} bytes, expected {raw_len}", out.len())));
     }
     Ok(out)
+}
+
+/// Decompresses `frame` into `out` (cleared first), producing at most `out.capacity()` bytes:
+/// a frame that would produce more is an error, so the capacity bounds the memory.
+pub(crate) fn inflate_into(frame: &[u8], out: &mut Vec<u8>, offset: u64) -> Result<()> {
+    thread_local! {
+        /// One decompression context per thread, reused (blocks and chunks are decompressed
+        /// by the thousand).
+        static DCTX: std::cell::RefCell<Option<zstd::zstd_safe::DCtx<'static>>> = const { std::cell::RefCell::new(None) };
+    }
+    out.clear();
+    let corrupt = |code: usize| Error::malformed(offset, format!("zstd data is corrupt: {}", zstd::zstd_safe::get_error_name(code)));
+    DCTX.with(|cell| -> Result<()> {
+        let mut cell = cell.borrow_mut();
+        let dctx = match &mut *cell {
+            Some(d) => d,
+            slot => slot.insert(
+                zstd::zstd_safe::DCtx::try_create().ok_or_else(|| Error::Io { path: None, source: std::io::ErrorKind::OutOfMemory.into() })?,
+            ),
+        };
+        dctx.decompress(out, frame).map_err(corrupt)?;
+        Ok(())
+    })
 }

@@ -2,10 +2,15 @@
 //!
 //! Samples are grouped by mesh (contiguous ranges); the scene is every instance's mesh
 //! placed by its similarity transform, so a mesh used by many glTF nodes is sampled once.
-//! Sections: `GENR` (provenance JSON), `MESH` (mesh table), `INST` (instances), `SMPL`
-//! (samples, column by column, zstd-compressed) and, only when some placement is not a
-//! similarity, `AFFI` (affine instances, flagged required so that a reader that predates it
-//! refuses the file instead of silently dropping those placements).
+//! Sections: `GENR` (provenance JSON), `MESH` (mesh table), `INST` (instances), `SMPC`
+//! (samples in chunks of [`CHUNK_SAMPLES`], each chunk's columns one zstd frame; files
+//! before it have `SMPL`, all columns one frame, which still reads) and, only when some
+//! placement is not a similarity, `AFFI` (affine instances, flagged required so that a reader
+//! that predates it refuses the file instead of silently dropping those placements).
+//!
+//! Chunks let [`SamplesWriter`] write samples as they come (nothing holds them all) and let
+//! both sides compress and decompress on every thread; the tables, known last, follow the
+//! samples, and the section table ends the file.
 
 use std::borrow::Cow;
 use std::io::{Seek, SeekFrom, Write};
@@ -13,15 +18,23 @@ use std::path::Path;
 
 use rayon::prelude::*;
 
-use crate::container::{header_and_table, Container, SectionOut};
+use crate::container::{header_and_table_at, inflate_into, Container, SectionOut};
 use crate::error::{Error, Result};
 use crate::graph::{Generator, Similarity};
 use crate::limits::Limits;
 use crate::node::Node;
 use crate::raw::{cursor::Put, tags, Cursor, SectionEntry, FILE_HEADER_LEN, SAMPLES_MAGIC, SECTION_ENTRY_LEN};
 
-/// Bytes per sample in the `SMPL` section (centre 12, radius 4, normal 12, area 4, RGBA 4).
+/// Bytes per sample in the column layout (centre 12, radius 4, normal 12, area 4, RGBA 4).
 pub const SAMPLE_BYTES: usize = 36;
+/// Section tag of the chunked samples (spec §8), which writers write instead of `SMPL`.
+pub const SMPC: [u8; 4] = *b"SMPC";
+/// Most samples in one `SMPC` chunk; writers cut chunks of exactly this many but the last,
+/// so the bytes depend neither on the thread count nor on how samples were pushed. 2.4 MB
+/// of columns: big enough for zstd's ratio, small enough for 36 chunks on the bunny.
+pub const CHUNK_SAMPLES: usize = 1 << 16;
+/// Bytes of a chunk header: sample count u32, stored length u32.
+const CHUNK_HEADER_BYTES: usize = 8;
 const MESH_ENTRY_MIN: usize = 20;
 const INST_ENTRY_BYTES: usize = 68;
 const AFFI_ENTRY_BYTES: usize = 100;
@@ -175,10 +188,7 @@ impl SamplesFile {
     /// Checks the invariants the reader enforces, so a writer cannot produce a file its own
     /// reader refuses.
     pub fn check(&self) -> Result<()> {
-        check_tables(&self.meshes, &self.instances, &self.affine_instances, self.samples.len() as u64, &TableOffsets { mesh: 0, inst: 0, affi: 0 }).map_err(|e| match e {
-            Error::Malformed { what, .. } => Error::Misuse(what),
-            other => other,
-        })
+        check_tables_for_writer(&self.meshes, &self.instances, &self.affine_instances, self.samples.len() as u64)
     }
 
     /// Writes the file to `w`; returns the number of bytes written.
@@ -201,77 +211,24 @@ impl SamplesFile {
         crate::atomic::write_atomic(path, |w| self.write_seekable(w))
     }
 
-    /// Writes the sections in table order, streaming `SMPL` ([`stream_samples`]); the header
-    /// and section table, reserved as zeros, are filled in last by seeking back.
+    /// Through [`SamplesWriter`], the one writer of samples files.
     fn write_seekable<W: Write + Seek>(&self, w: &mut W) -> Result<u64> {
-        let genr = serde_json::to_vec(&self.generator).map_err(|e| Error::Misuse(format!("generator: {e}")))?;
-        let mut mesh = Vec::new();
-        mesh.put_u64(self.meshes.len() as u64);
-        for m in &self.meshes {
-            mesh.put_u64(m.first);
-            mesh.put_u64(m.count);
-            mesh.put_str(&m.name);
-        }
-        let mut inst = Vec::with_capacity(8 + self.instances.len() * INST_ENTRY_BYTES);
-        inst.put_u64(self.instances.len() as u64);
-        for i in &self.instances {
-            inst.put_u32(i.mesh);
-            put_similarity(&mut inst, &i.transform);
-        }
-        let before = [SectionOut::plain(tags::GENR, genr), SectionOut::plain(tags::MESH, mesh), SectionOut::zstd(tags::INST, &inst, ZSTD_LEVEL)?];
-        // Only when needed, so files without such placements stay readable by 1.0 readers.
-        let affi = if self.affine_instances.is_empty() {
-            None
-        } else {
-            let mut affi = Vec::with_capacity(8 + self.affine_instances.len() * AFFI_ENTRY_BYTES);
-            affi.put_u64(self.affine_instances.len() as u64);
-            for a in &self.affine_instances {
-                affi.put_u32(a.mesh);
-                a.matrix.iter().flatten().for_each(|v| affi.put_f64(*v));
-            }
-            Some(SectionOut::zstd(AFFI, &affi, ZSTD_LEVEL)?)
-        };
-        let count = before.len() + 1 + affi.iter().len();
-        let start = w.stream_position()?;
-        let head_len = FILE_HEADER_LEN + count * SECTION_ENTRY_LEN;
-        w.write_all(&vec![0u8; head_len])?;
-        let mut offset = head_len as u64;
-        let mut entries = Vec::with_capacity(count);
-        for s in &before {
-            w.write_all(&s.stored)?;
-            entries.push(s.entry(offset));
-            offset += s.stored.len() as u64;
-        }
-        // Each zstd worker holds about two jobs' buffers (2 MiB of input each at level 1):
-        // more than a few cost memory and outrun the disk.
-        let workers = rayon::current_num_threads().clamp(1, MAX_ZSTD_WORKERS) as u32;
-        let smpl = SectionEntry { offset, ..stream_samples(&self.samples, workers, w)? };
-        offset += smpl.stored_len;
-        entries.push(smpl);
-        if let Some(s) = &affi {
-            w.write_all(&s.stored)?;
-            entries.push(s.entry(offset));
-            offset += s.stored.len() as u64;
-        }
-        w.seek(SeekFrom::Start(start))?;
-        w.write_all(&header_and_table(SAMPLES_MAGIC, &entries, offset))?;
-        w.seek(SeekFrom::Start(start + offset))?;
-        Ok(offset)
+        let mut sw = SamplesWriter::new(w)?;
+        sw.push(&self.samples)?;
+        sw.finish_unchecked(&self.generator, &self.meshes, &self.instances, &self.affine_instances)
     }
 
     /// Parses a samples file from bytes.
     pub fn read(data: &[u8], limits: &Limits) -> Result<Self> {
-        let (mut file, smpl, offset, at) = Self::read_tables(data, limits)?;
-        file.samples = decode_samples(&smpl, offset, limits)?;
-        file.check_tables(&at)?;
+        let (mut file, stored, at) = Self::read_tables(data, limits)?;
+        file.decode(stored, &at, limits)?;
         Ok(file)
     }
 
-    /// Everything but the samples, which come back as the `SMPL` section's bytes (after the
-    /// CRC check and decompression) with the section's offset, and the offsets the table
-    /// checks report.
-    fn read_tables<'a>(data: &'a [u8], limits: &Limits) -> Result<(Self, Cow<'a, [u8]>, u64, TableOffsets)> {
-        let known = [tags::GENR, tags::MESH, tags::INST, tags::SMPL, AFFI];
+    /// Everything but the samples, which come back as stored (after the section's CRC check:
+    /// `SMPL` decompressed, `SMPC` walked) with the offsets the table checks report.
+    fn read_tables<'a>(data: &'a [u8], limits: &Limits) -> Result<(Self, StoredSamples<'a>, TableOffsets)> {
+        let known = [tags::GENR, tags::MESH, tags::INST, tags::SMPL, SMPC, AFFI];
         let c = Container::parse(data, SAMPLES_MAGIC, "SCT samples", &known, limits)?;
         if c.sections.first().map(|e| e.tag) != Some(tags::GENR) {
             return Err(Error::malformed(c.header.section_table_offset, "the first section must be the generator (GENR)"));
@@ -279,9 +236,7 @@ impl SamplesFile {
         let genr = c.single(tags::GENR)?;
         let generator = parse_generator(&c.section_bytes(genr, limits)?, genr.offset, limits)?;
 
-        let e = c.single(tags::SMPL)?;
-        let smpl = c.section_bytes(e, limits)?;
-        let smpl_offset = e.offset;
+        let stored = stored_samples(&c, limits)?;
 
         let e = c.single(tags::MESH)?;
         let mesh_offset = e.offset;
@@ -328,26 +283,43 @@ impl SamplesFile {
             }
             cur.finish("affine instance list")?;
         }
-        // The tables are checked against the sample count once the samples are decoded.
+        // The tables are checked against the sample count when the samples are decoded.
         let file = SamplesFile { generator, meshes, instances, affine_instances, samples: Vec::new() };
-        Ok((file, smpl, smpl_offset, offsets))
+        Ok((file, stored, offsets))
     }
 
-    /// The table checks that need the samples (see [`check_tables`]).
+    /// Decodes the samples and checks the tables against them: for `SMPC` before decoding
+    /// (the chunk walk gave the count), for `SMPL` after.
+    fn decode(&mut self, stored: StoredSamples<'_>, at: &TableOffsets, limits: &Limits) -> Result<()> {
+        match stored {
+            StoredSamples::Columns(columns, offset) => {
+                self.samples = decode_samples(&columns, offset, limits)?;
+                self.check_tables(at)
+            }
+            StoredSamples::Chunks(chunks, count) => {
+                check_tables(&self.meshes, &self.instances, &self.affine_instances, count, at)?;
+                self.samples = decode_chunks(&chunks)?;
+                Ok(())
+            }
+        }
+    }
+
+    /// The table checks that need the sample count (see [`check_tables`]).
     fn check_tables(&self, at: &TableOffsets) -> Result<()> {
         check_tables(&self.meshes, &self.instances, &self.affine_instances, self.samples.len() as u64, at)
     }
 
-    /// Reads a samples file from disk. The file's bytes are freed before the samples are
-    /// decoded from the (decompressed) column section, so the peak is columns + samples
-    /// (76 bytes a sample), not file + columns + samples (92).
+    /// Reads a samples file from disk. For an `SMPL` file the bytes are freed before the
+    /// samples are decoded from the decompressed columns, so the peak is columns + samples
+    /// (76 bytes a sample), not file + columns + samples (92); an `SMPC` file decodes chunk
+    /// by chunk from the file's bytes (about 56).
     pub fn read_file(path: &Path, limits: &Limits) -> Result<Self> {
         Ok(Self::read_file_impl(path, limits, false)?.0)
     }
 
-    /// [`Self::read_file`], also returning the BLAKE3 hash (lowercase hex) of the bytes read,
-    /// computed while the samples are decompressed: provenance without reading the file
-    /// twice, and of exactly the bytes the samples came from.
+    /// [`Self::read_file`], also returning the BLAKE3 hash (lowercase hex) of the bytes read:
+    /// provenance without reading the file twice, and of exactly the bytes the samples came
+    /// from. Hashed on every thread ([`crate::atomic::hash_bytes`]) while the tables are read.
     pub fn read_file_hashed(path: &Path, limits: &Limits) -> Result<(Self, String)> {
         let (file, hash) = Self::read_file_impl(path, limits, true)?;
         Ok((file, hash.unwrap_or_default()))
@@ -355,19 +327,16 @@ impl SamplesFile {
 
     fn read_file_impl(path: &Path, limits: &Limits, hash: bool) -> Result<(Self, Option<String>)> {
         let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-        let (hash, tables) = rayon::join(|| hash.then(|| blake3::hash(&data).to_hex().to_string()), || Self::read_tables(&data, limits));
-        let (mut file, smpl, offset, at) = tables?;
-        file.samples = match smpl {
-            Cow::Borrowed(b) => decode_samples(b, offset, limits)?,
-            Cow::Owned(columns) => {
-                drop(data);
-                decode_samples(&columns, offset, limits)?
-            }
-        };
-        file.check_tables(&at)?;
+        let (hash, tables) = rayon::join(|| hash.then(|| crate::atomic::hash_bytes(&data)), || Self::read_tables(&data, limits));
+        let (mut file, stored, at) = tables?;
+        if let StoredSamples::Columns(Cow::Owned(columns), offset) = stored {
+            drop(data);
+            file.decode(StoredSamples::Columns(Cow::Owned(columns), offset), &at, limits)?;
+        } else {
+            file.decode(stored, &at, limits)?;
+        }
         Ok((file, hash))
     }
-
     /// Samples of mesh `m`.
     pub fn mesh_samples(&self, m: usize) -> &[Node] {
         let e = &self.meshes[m];
@@ -447,75 +416,376 @@ pub(crate) fn read_similarity(c: &mut Cursor<'_>) -> Result<Similarity> {
     Ok(Similarity { translation: [v[0], v[1], v[2]], rotation: [v[3], v[4], v[5], v[6]], scale: v[7] })
 }
 
-/// Most zstd threads compressing the column section.
-const MAX_ZSTD_WORKERS: usize = 4;
-/// Samples laid out per chunk of the column section before compression.
-const CHUNK_SAMPLES: usize = 1 << 16;
-
-/// Streams the `SMPL` section to `w`: one zstd frame of the column layout (count, then all
-/// centres, radii, normals, areas, colours). The columns are laid out a chunk at a time and
-/// compressed by `workers` zstd threads while this thread lays out the next chunk and
-/// writes what is done, so neither the columns (36 bytes a sample) nor the compressed
-/// section is ever held whole. zstd's multithreaded frames are the same bytes for every
-/// worker count ≥ 1 (it cuts jobs by size, not by workers; a section smaller than one job
-/// is compressed on this thread, also for every count). Returns the section's entry (at
-/// offset 0).
-fn stream_samples(samples: &[Node], workers: u32, w: &mut dyn Write) -> Result<SectionEntry> {
-    use zstd::stream::raw::{Encoder, InBuffer, Operation, OutBuffer};
-    let raw_len = 8 + samples.len() as u64 * SAMPLE_BYTES as u64;
-    let mut enc = Encoder::new(ZSTD_LEVEL)?;
-    enc.set_parameter(zstd::zstd_safe::CParameter::NbWorkers(workers.max(1)))?;
-    enc.set_pledged_src_size(Some(raw_len))?;
-    let mut out = vec![0u8; zstd::zstd_safe::CCtx::out_size()];
-    let mut crc = crc32fast::Hasher::new();
-    let mut stored = 0u64;
-    let mut put = |b: &[u8]| -> Result<()> {
-        crc.update(b);
-        stored += b.len() as u64;
-        Ok(w.write_all(b)?)
-    };
-    // Feeds bytes to the encoder, passing on what comes out.
-    let mut feed = |enc: &mut Encoder, data: &[u8]| -> Result<()> {
-        let mut inb = InBuffer::around(data);
-        while inb.pos() < data.len() {
-            let mut ob = OutBuffer::around(&mut out[..]);
-            enc.run(&mut inb, &mut ob)?;
-            put(ob.as_slice())?;
-        }
-        Ok(())
-    };
-    feed(&mut enc, &(samples.len() as u64).to_le_bytes())?;
-    let columns: [fn(&Node, &mut Vec<u8>); 5] = [
-        |s, c| s.center.iter().for_each(|v| c.put_f32(*v)),
-        |s, c| c.put_f32(s.radius),
-        |s, c| s.normal.iter().for_each(|v| c.put_f32(*v)),
-        |s, c| c.put_f32(s.area),
-        |s, c| c.extend_from_slice(&s.color),
-    ];
-    let mut chunk: Vec<u8> = Vec::with_capacity(CHUNK_SAMPLES * 12);
-    let mut fed = 8u64;
-    for column in columns {
-        for part in samples.chunks(CHUNK_SAMPLES) {
-            chunk.clear();
-            part.iter().for_each(|s| column(s, &mut chunk));
-            feed(&mut enc, &chunk)?;
-            fed += chunk.len() as u64;
-        }
-    }
-    loop {
-        let mut ob = OutBuffer::around(&mut out[..]);
-        let left = enc.finish(&mut ob, true)?;
-        put(ob.as_slice())?;
-        if left == 0 {
-            break;
-        }
-    }
-    if fed != raw_len {
-        return Err(Error::Misuse(format!("sample columns are {fed} bytes, {raw_len} expected (bug)")));
-    }
-    Ok(SectionEntry { tag: tags::SMPL, flags: SectionEntry::REQUIRED | SectionEntry::ZSTD, offset: 0, stored_len: stored, raw_len, crc: crc.finalize() })
+/// [`check_tables`] for a writer: what the reader would call malformed is the caller's
+/// mistake.
+fn check_tables_for_writer(meshes: &[MeshEntry], instances: &[SampleInstance], affine: &[AffineInstance], samples: u64) -> Result<()> {
+    check_tables(meshes, instances, affine, samples, &TableOffsets { mesh: 0, inst: 0, affi: 0 }).map_err(|e| match e {
+        Error::Malformed { what, .. } => Error::Misuse(what),
+        other => other,
+    })
 }
 
+/// The sections other than the samples, in table order: `GENR`, `MESH`, `INST`; and `AFFI`
+/// apart, present only when there are affine placements, so that files without them stay
+/// readable by readers that predate it.
+fn table_sections(
+    generator: &Generator,
+    meshes: &[MeshEntry],
+    instances: &[SampleInstance],
+    affine: &[AffineInstance],
+) -> Result<([SectionOut; 3], Option<SectionOut>)> {
+    let genr = serde_json::to_vec(generator).map_err(|e| Error::Misuse(format!("generator: {e}")))?;
+    let mut mesh = Vec::new();
+    mesh.put_u64(meshes.len() as u64);
+    for m in meshes {
+        mesh.put_u64(m.first);
+        mesh.put_u64(m.count);
+        mesh.put_str(&m.name);
+    }
+    let mut inst = Vec::with_capacity(8 + instances.len() * INST_ENTRY_BYTES);
+    inst.put_u64(instances.len() as u64);
+    for i in instances {
+        inst.put_u32(i.mesh);
+        put_similarity(&mut inst, &i.transform);
+    }
+    let tables = [SectionOut::plain(tags::GENR, genr), SectionOut::plain(tags::MESH, mesh), SectionOut::zstd(tags::INST, &inst, ZSTD_LEVEL)?];
+    let affi = if affine.is_empty() {
+        None
+    } else {
+        let mut affi = Vec::with_capacity(8 + affine.len() * AFFI_ENTRY_BYTES);
+        affi.put_u64(affine.len() as u64);
+        for a in affine {
+            affi.put_u32(a.mesh);
+            a.matrix.iter().flatten().for_each(|v| affi.put_f64(*v));
+        }
+        Some(SectionOut::zstd(AFFI, &affi, ZSTD_LEVEL)?)
+    };
+    Ok((tables, affi))
+}
+
+/// Chunks compressed together by [`SamplesWriter`]: enough to keep the threads busy; it
+/// buffers fewer samples than this many chunks hold (42 MB).
+const BATCH_CHUNKS: usize = 16;
+
+/// Writes a samples file as the samples come (spec §8): the `SMPC` section straight after the
+/// header, chunk by chunk; at [`SamplesWriter::finish`] the tables, the section table and,
+/// seeking back, the header. The same bytes as [`SamplesFile::write_to`] for the same
+/// content, however the samples were split into pushes and on any number of threads.
+///
+/// ```
+/// use sct_format::samples::{MeshEntry, SampleInstance, SamplesFile, SamplesWriter};
+/// use sct_format::{Generator, Limits, Node, Similarity};
+///
+/// let mut out = std::io::Cursor::new(Vec::new());
+/// let mut w = SamplesWriter::new(&mut out)?;
+/// for batch in 0..3 {
+///     w.push(&vec![Node { radius: 0.1, area: 0.01, ..Node::default() }; 1000 + batch])?;
+/// }
+/// let meshes = [MeshEntry { name: "m".into(), first: 0, count: w.samples_written() }];
+/// let instances = [SampleInstance { mesh: 0, transform: Similarity::IDENTITY }];
+/// w.finish(&Generator::default(), &meshes, &instances, &[])?;
+/// let file = SamplesFile::read(out.get_ref(), &Limits::default())?;
+/// assert_eq!(file.samples.len(), 3003);
+/// # Ok::<(), sct_format::Error>(())
+/// ```
+pub struct SamplesWriter<W: Write + Seek> {
+    w: W,
+    /// Stream position of the file's first byte.
+    start: u64,
+    /// Pushed samples not yet in a chunk; fewer than a batch, and they start a chunk.
+    pending: Vec<Node>,
+    /// Samples in the chunks written.
+    written: u64,
+    /// Bytes of the `SMPC` section written.
+    section_len: u64,
+    /// CRC-32 of those bytes.
+    crc: crc32fast::Hasher,
+}
+
+impl<W: Write + Seek> SamplesWriter<W> {
+    /// Starts a samples file at `w`'s current position (the header is reserved, filled in by
+    /// [`Self::finish`]).
+    pub fn new(mut w: W) -> Result<Self> {
+        let start = w.stream_position()?;
+        w.write_all(&[0u8; FILE_HEADER_LEN])?;
+        Ok(SamplesWriter { w, start, pending: Vec::new(), written: 0, section_len: 0, crc: crc32fast::Hasher::new() })
+    }
+
+    /// Appends samples, in order. Whole chunks are compressed (in parallel, a batch at a
+    /// time) and written; what is left of a chunk, or fewer than [`BATCH_CHUNKS`] chunks
+    /// from small pushes, stays buffered until more come or [`Self::finish`].
+    pub fn push(&mut self, samples: &[Node]) -> Result<()> {
+        let mut rest = samples;
+        if !self.pending.is_empty() {
+            let take = rest.len().min((BATCH_CHUNKS * CHUNK_SAMPLES).saturating_sub(self.pending.len()));
+            self.pending.extend_from_slice(&rest[..take]);
+            rest = &rest[take..];
+            if self.pending.len() < BATCH_CHUNKS * CHUNK_SAMPLES {
+                return Ok(());
+            }
+            let pending = std::mem::take(&mut self.pending);
+            self.write_chunks(&pending)?;
+            self.pending = pending;
+            self.pending.clear();
+        }
+        // Whole chunks straight from the caller's slice: no copy for large pushes.
+        let whole = rest.len() / CHUNK_SAMPLES * CHUNK_SAMPLES;
+        self.write_chunks(&rest[..whole])?;
+        self.pending.extend_from_slice(&rest[whole..]);
+        Ok(())
+    }
+
+    /// Samples pushed so far.
+    pub fn samples_written(&self) -> u64 {
+        self.written + self.pending.len() as u64
+    }
+
+    /// Writes the last chunk, the tables (`AFFI` only when `affine` is not empty), the section
+    /// table and the header; returns the file's length. The tables must describe the samples
+    /// pushed, as [`SamplesFile::check`] requires (else [`Error::Misuse`], and the file is
+    /// not finished).
+    pub fn finish(self, generator: &Generator, meshes: &[MeshEntry], instances: &[SampleInstance], affine: &[AffineInstance]) -> Result<u64> {
+        check_tables_for_writer(meshes, instances, affine, self.samples_written())?;
+        self.finish_unchecked(generator, meshes, instances, affine)
+    }
+
+    /// [`Self::finish`] without the table checks (tests write files the reader must refuse).
+    fn finish_unchecked(mut self, generator: &Generator, meshes: &[MeshEntry], instances: &[SampleInstance], affine: &[AffineInstance]) -> Result<u64> {
+        let last = std::mem::take(&mut self.pending);
+        self.write_chunks(&last)?;
+        let (tables, affi) = table_sections(generator, meshes, instances, affine)?;
+        let samples = SectionEntry {
+            tag: SMPC,
+            flags: SectionEntry::REQUIRED,
+            offset: FILE_HEADER_LEN as u64,
+            stored_len: self.section_len,
+            raw_len: self.section_len,
+            crc: self.crc.clone().finalize(),
+        };
+        let mut offset = FILE_HEADER_LEN as u64 + self.section_len;
+        let mut entries = Vec::with_capacity(5);
+        for s in tables.iter().chain(affi.iter()) {
+            self.w.write_all(&s.stored)?;
+            entries.push(s.entry(offset));
+            offset += s.stored.len() as u64;
+        }
+        // Table order: GENR first (readers require it), the samples after the tables that
+        // index them, AFFI last (as before SMPC).
+        entries.insert(tables.len(), samples);
+        let (header, table) = header_and_table_at(SAMPLES_MAGIC, &entries, offset, offset + (entries.len() * SECTION_ENTRY_LEN) as u64);
+        self.w.write_all(&table)?;
+        let length = offset + table.len() as u64;
+        self.w.seek(SeekFrom::Start(self.start))?;
+        self.w.write_all(&header)?;
+        self.w.seek(SeekFrom::Start(self.start + length))?;
+        Ok(length)
+    }
+
+    /// Compresses `samples` as chunks of [`CHUNK_SAMPLES`] (the last may be short), a batch
+    /// at a time in parallel, and writes them in order.
+    fn write_chunks(&mut self, samples: &[Node]) -> Result<()> {
+        for batch in samples.chunks(BATCH_CHUNKS * CHUNK_SAMPLES) {
+            let chunks = batch.par_chunks(CHUNK_SAMPLES).map(compress_chunk).collect::<Result<Vec<_>>>()?;
+            for c in chunks {
+                self.w.write_all(&c.header)?;
+                self.w.write_all(&c.frame)?;
+                self.crc.combine(&c.crc);
+                self.section_len += (CHUNK_HEADER_BYTES + c.frame.len()) as u64;
+            }
+            self.written += batch.len() as u64;
+        }
+        Ok(())
+    }
+}
+
+/// One compressed chunk: header, frame and the CRC-32 of both (combined into the section's
+/// in order, so no thread waits to hash).
+struct CompressedChunk {
+    header: [u8; CHUNK_HEADER_BYTES],
+    frame: Vec<u8>,
+    crc: crc32fast::Hasher,
+}
+
+fn compress_chunk(samples: &[Node]) -> Result<CompressedChunk> {
+    thread_local! {
+        /// Column scratch and compression context, reused chunk after chunk.
+        static SCRATCH: std::cell::RefCell<(Vec<u8>, Option<zstd::bulk::Compressor<'static>>)> = const { std::cell::RefCell::new((Vec::new(), None)) };
+    }
+    let frame = SCRATCH.with(|cell| -> Result<Vec<u8>> {
+        let mut cell = cell.borrow_mut();
+        let (columns, compressor) = &mut *cell;
+        columns.clear();
+        put_columns(samples, columns);
+        let compressor = match compressor {
+            Some(c) => c,
+            slot => slot.insert(zstd::bulk::Compressor::new(ZSTD_LEVEL)?),
+        };
+        Ok(compressor.compress(columns)?)
+    })?;
+    let n = u32::try_from(samples.len()).map_err(|_| Error::Misuse("chunk too large (bug)".into()))?;
+    let len = u32::try_from(frame.len()).map_err(|_| Error::Misuse("compressed chunk too large (bug)".into()))?;
+    let mut header = [0u8; CHUNK_HEADER_BYTES];
+    header[..4].copy_from_slice(&n.to_le_bytes());
+    header[4..].copy_from_slice(&len.to_le_bytes());
+    let mut crc = crc32fast::Hasher::new();
+    crc.update(&header);
+    crc.update(&frame);
+    Ok(CompressedChunk { header, frame, crc })
+}
+
+/// The column layout of `samples` (centres, radii, normals, areas, colours), appended.
+fn put_columns(samples: &[Node], out: &mut Vec<u8>) {
+    out.reserve(samples.len() * SAMPLE_BYTES);
+    samples.iter().for_each(|s| s.center.iter().for_each(|v| out.put_f32(*v)));
+    samples.iter().for_each(|s| out.put_f32(s.radius));
+    samples.iter().for_each(|s| s.normal.iter().for_each(|v| out.put_f32(*v)));
+    samples.iter().for_each(|s| out.put_f32(s.area));
+    samples.iter().for_each(|s| out.extend_from_slice(&s.color));
+}
+
+/// The samples as stored, after the section's CRC check.
+enum StoredSamples<'a> {
+    /// `SMPL`: the decompressed column section and its offset.
+    Columns(Cow<'a, [u8]>, u64),
+    /// `SMPC`: the chunks, walked and checked, and the number of samples they hold.
+    Chunks(Vec<Chunk<'a>>, u64),
+}
+
+/// One `SMPC` chunk: `n` samples whose columns are the zstd frame `frame`.
+struct Chunk<'a> {
+    n: usize,
+    frame: &'a [u8],
+    /// The frame's offset, for errors.
+    offset: u64,
+}
+
+/// The file's samples section: exactly one of `SMPC` and `SMPL`.
+fn stored_samples<'a>(c: &Container<'a>, limits: &Limits) -> Result<StoredSamples<'a>> {
+    let has = |tag| c.sections.iter().any(|s| s.tag == tag);
+    match (has(SMPC), has(tags::SMPL)) {
+        (true, false) => {
+            let e = c.single(SMPC)?;
+            if e.compressed() {
+                return Err(Error::malformed(e.offset, "section SMPC is zstd-flagged; its chunks are compressed, the section is not"));
+            }
+            c.verify(e)?;
+            let chunks = walk_chunks(c.stored(e)?, e.offset, limits)?;
+            let count = chunks.iter().map(|k| k.n as u64).sum();
+            Ok(StoredSamples::Chunks(chunks, count))
+        }
+        (false, true) => {
+            let e = c.single(tags::SMPL)?;
+            Ok(StoredSamples::Columns(c.section_bytes(e, limits)?, e.offset))
+        }
+        (true, true) => Err(Error::malformed(c.header.section_table_offset, "the file has both samples sections, SMPC and SMPL")),
+        (false, false) => Err(Error::malformed(c.header.section_table_offset, "required samples section SMPC (or SMPL) is missing")),
+    }
+}
+
+/// Walks the chunk headers of an `SMPC` section (`bytes`, at `offset`): every count in
+/// 1..=[`CHUNK_SAMPLES`], every frame inside the section and exactly one zstd frame long,
+/// the totals within the limits. Nothing is allocated for the samples here; what is
+/// (a few words a chunk) grows with the bytes walked.
+fn walk_chunks<'a>(bytes: &'a [u8], offset: u64, limits: &Limits) -> Result<Vec<Chunk<'a>>> {
+    let mut cur = Cursor::new(bytes, offset);
+    let mut chunks = Vec::new();
+    let mut total = 0u64;
+    while cur.remaining() > 0 {
+        let at = cur.offset();
+        let n = cur.u32("chunk sample count")?;
+        if n == 0 || n as usize > CHUNK_SAMPLES {
+            return Err(Error::malformed(at, format!("chunk sample count is {n}, must be 1 to {CHUNK_SAMPLES}")));
+        }
+        let len = cur.u32("chunk stored length")?;
+        let frame_at = cur.offset();
+        let frame = cur.take(len as usize, "chunk zstd frame")?;
+        total = total.checked_add(u64::from(n)).ok_or_else(|| Error::malformed(at, "sample count overflows"))?;
+        Limits::check("sample count", total, limits.max_samples)?;
+        let raw = total.checked_mul(SAMPLE_BYTES as u64).ok_or_else(|| Error::malformed(at, "sample bytes overflow"))?;
+        Limits::check("decompressed size", raw, limits.max_decompressed_bytes)?;
+        check_frame(frame, n as u64 * SAMPLE_BYTES as u64, frame_at)?;
+        chunks.push(Chunk { n: n as usize, frame, offset: frame_at });
+    }
+    Ok(chunks)
+}
+
+/// Cheap checks of a chunk's frame before anything is decompressed: exactly one frame, and
+/// the content size its header may declare is the chunk's.
+fn check_frame(frame: &[u8], raw_len: u64, offset: u64) -> Result<()> {
+    use zstd::zstd_safe::{find_frame_compressed_size, get_error_name, get_frame_content_size};
+    match find_frame_compressed_size(frame) {
+        Ok(len) if len == frame.len() => {}
+        Ok(len) => return Err(Error::malformed(offset, format!("{} bytes follow the chunk's zstd frame", frame.len().saturating_sub(len)))),
+        Err(code) => return Err(Error::malformed(offset, format!("chunk zstd frame is corrupt: {}", get_error_name(code)))),
+    }
+    if let Ok(Some(declared)) = get_frame_content_size(frame) {
+        if declared != raw_len {
+            return Err(Error::malformed(offset, format!("chunk zstd frame declares {declared} bytes, the chunk's columns are {raw_len}")));
+        }
+    }
+    Ok(())
+}
+
+/// Chunks decoded per round. The samples' memory is taken a round at a time, so a file whose
+/// frames do not inflate fails before the reader holds memory for every sample it claims.
+const DECODE_ROUND_CHUNKS: usize = 64;
+
+/// Decodes the chunks in parallel, each straight into its slice of the samples; the first
+/// bad chunk (in file order) is the error.
+fn decode_chunks(chunks: &[Chunk<'_>]) -> Result<Vec<Node>> {
+    let mut samples: Vec<Node> = Vec::new();
+    for round in chunks.chunks(DECODE_ROUND_CHUNKS) {
+        let start = samples.len();
+        samples.par_extend(rayon::iter::repeat_n(Node::default(), round.iter().map(|c| c.n).sum()));
+        let mut outs = Vec::with_capacity(round.len());
+        let mut rest = &mut samples[start..];
+        for c in round {
+            let k = c.n.min(rest.len());
+            let (out, tail) = std::mem::take(&mut rest).split_at_mut(k);
+            outs.push(out);
+            rest = tail;
+        }
+        let errors: Vec<Error> = round
+            .par_iter()
+            .zip(outs)
+            .map_init(Vec::new, |scratch, (c, out)| decode_chunk(c, out, scratch).err())
+            .flatten()
+            .collect();
+        if let Some(e) = errors.into_iter().next() {
+            return Err(e);
+        }
+    }
+    Ok(samples)
+}
+
+/// Inflates one chunk into `scratch` (at most its 36 · n bytes: the capacity bounds the
+/// memory) and lays its columns out as the samples `out`.
+fn decode_chunk(c: &Chunk<'_>, out: &mut [Node], scratch: &mut Vec<u8>) -> Result<()> {
+    let raw_len = c.n * SAMPLE_BYTES;
+    scratch.clear();
+    scratch.reserve_exact(raw_len);
+    inflate_into(c.frame, scratch, c.offset)?;
+    if scratch.len() != raw_len || out.len() != c.n {
+        return Err(Error::malformed(c.offset, format!("chunk of {} samples inflates to {} bytes, {raw_len} expected", c.n, scratch.len())));
+    }
+    let (centers, rest) = scratch.split_at(12 * c.n);
+    let (radii, rest) = rest.split_at(4 * c.n);
+    let (normals, rest) = rest.split_at(12 * c.n);
+    let (areas, colors) = rest.split_at(4 * c.n);
+    let columns = centers.chunks_exact(12).zip(radii.chunks_exact(4)).zip(normals.chunks_exact(12)).zip(areas.chunks_exact(4)).zip(colors.chunks_exact(4));
+    for (o, ((((c, r), nm), ar), co)) in out.iter_mut().zip(columns) {
+        *o = node_from_columns(c, r, nm, ar, co);
+    }
+    Ok(())
+}
+
+/// A sample from its bytes in the five columns.
+#[inline]
+fn node_from_columns(c: &[u8], r: &[u8], nm: &[u8], ar: &[u8], co: &[u8]) -> Node {
+    Node { center: f3(c), radius: f1(r), normal: f3(nm), cone: 0.0, area: f1(ar), color: [co[0], co[1], co[2], co[3]] }
+}
+
+/// Decodes an `SMPL` section (files written before `SMPC`): count, then whole columns.
 fn decode_samples(bytes: &[u8], offset: u64, limits: &Limits) -> Result<Vec<Node>> {
     let mut c = Cursor::new(bytes, offset);
     let n = c.count(SAMPLE_BYTES, "sample count")?;
@@ -536,14 +806,7 @@ fn decode_samples(bytes: &[u8], offset: u64, limits: &Limits) -> Result<Vec<Node
         .zip(areas.par_chunks_exact(4))
         .zip(colors.par_chunks_exact(4))
         .with_min_len(4096)
-        .map(|((((c, r), nm), ar), co)| Node {
-            center: f3(c),
-            radius: f1(r),
-            normal: f3(nm),
-            cone: 0.0,
-            area: f1(ar),
-            color: [co[0], co[1], co[2], co[3]],
-        })
+        .map(|((((c, r), nm), ar), co)| node_from_columns(c, r, nm, ar, co))
         .collect())
 }
 
@@ -594,7 +857,7 @@ mod tests {
     #[test]
     fn table_errors_point_at_their_section() {
         let offset_of = |bytes: &[u8], tag: [u8; 4]| {
-            let known = [tags::GENR, tags::MESH, tags::INST, tags::SMPL, AFFI];
+            let known = [tags::GENR, tags::MESH, tags::INST, SMPC, AFFI];
             let c = Container::parse(bytes, SAMPLES_MAGIC, "SCT samples", &known, &Limits::default()).unwrap();
             c.sections.iter().find(|e| e.tag == tag).map(|e| e.offset).unwrap()
         };
@@ -641,12 +904,23 @@ mod tests {
         file().write_to(&mut plain).unwrap();
         let mut with = Vec::new();
         file_affine().write_to(&mut with).unwrap();
-        let old_known = [tags::GENR, tags::MESH, tags::INST, tags::SMPL];
-        // A reader that predates AFFI still reads files without it …
-        assert!(Container::parse(&plain, SAMPLES_MAGIC, "SCT samples", &old_known, &Limits::default()).is_ok());
+        let before_affi = [tags::GENR, tags::MESH, tags::INST, SMPC];
+        // A reader that predates AFFI would read files without it …
+        assert!(Container::parse(&plain, SAMPLES_MAGIC, "SCT samples", &before_affi, &Limits::default()).is_ok());
         // … and refuses files with it rather than silently dropping placements.
-        let e = Container::parse(&with, SAMPLES_MAGIC, "SCT samples", &old_known, &Limits::default()).unwrap_err();
+        let e = Container::parse(&with, SAMPLES_MAGIC, "SCT samples", &before_affi, &Limits::default()).unwrap_err();
         assert!(e.to_string().contains("AFFI"), "{e}");
+    }
+
+    /// A reader that predates SMPC refuses the file (the section is required) instead of
+    /// reading a file without samples.
+    #[test]
+    fn chunked_section_is_required() {
+        let mut bytes = Vec::new();
+        file().write_to(&mut bytes).unwrap();
+        let before_smpc = [tags::GENR, tags::MESH, tags::INST, tags::SMPL, AFFI];
+        let e = Container::parse(&bytes, SAMPLES_MAGIC, "SCT samples", &before_smpc, &Limits::default()).unwrap_err();
+        assert!(matches!(&e, Error::UnknownRequiredSection { tag, .. } if tag == "SMPC"), "{e}");
     }
 
     #[test]
@@ -717,26 +991,6 @@ mod tests {
         assert!(cr[0] * nb[0] + cr[1] * nb[1] + cr[2] * nb[2] > 0.0);
     }
 
-    /// The column section is the same bytes for every zstd worker count, over several of
-    /// zstd's jobs (2 MiB of input each at level 1), and decodes to the samples.
-    #[test]
-    fn samples_section_does_not_depend_on_workers() {
-        let samples: Vec<Node> = (0..600_000u32).map(|i| Node { radius: (i as f32).sqrt(), ..sample(i) }).collect();
-        let mut first: Option<Vec<u8>> = None;
-        for workers in [1, 2, 3] {
-            let mut out = Vec::new();
-            let e = stream_samples(&samples, workers, &mut out).unwrap();
-            assert_eq!((e.stored_len as usize, e.crc), (out.len(), crc32fast::hash(&out)));
-            assert_eq!(e.raw_len, 8 + 36 * samples.len() as u64);
-            match &first {
-                None => first = Some(out),
-                Some(f) => assert!(*f == out, "{workers} workers"),
-            }
-        }
-        let raw = zstd::stream::decode_all(&first.unwrap()[..]).unwrap();
-        assert_eq!(decode_samples(&raw, 0, &Limits::default()).unwrap(), samples);
-    }
-
     #[test]
     fn round_trip() {
         let f = file();
@@ -796,5 +1050,243 @@ mod tests {
         file().write_to(&mut bytes).unwrap();
         let limits = Limits { max_samples: 10, ..Limits::default() };
         assert!(matches!(SamplesFile::read(&bytes, &limits), Err(Error::LimitExceeded { .. })));
+    }
+
+    /// The writer of `SMPL` files (before `SMPC`), kept test-only to show that they still read.
+    fn write_smpl(f: &SamplesFile) -> Vec<u8> {
+        let (tables, affi) = table_sections(&f.generator, &f.meshes, &f.instances, &f.affine_instances).unwrap();
+        let mut columns = Vec::new();
+        columns.put_u64(f.samples.len() as u64);
+        put_columns(&f.samples, &mut columns);
+        let mut sections: Vec<SectionOut> = tables.into_iter().collect();
+        sections.push(SectionOut::zstd(tags::SMPL, &columns, ZSTD_LEVEL).unwrap());
+        sections.extend(affi);
+        let mut out = Vec::new();
+        crate::container::write_container(SAMPLES_MAGIC, &sections, &mut out).unwrap();
+        out
+    }
+
+    fn many(n: usize) -> Vec<Node> {
+        (0..n as u32).map(|i| Node { radius: (i as f32).sqrt(), area: (i % 7) as f32, ..sample(i) }).collect()
+    }
+
+    fn chunk_counts(bytes: &[u8]) -> Vec<usize> {
+        let known = [tags::GENR, tags::MESH, tags::INST, SMPC, AFFI];
+        let c = Container::parse(bytes, SAMPLES_MAGIC, "SCT samples", &known, &Limits::default()).unwrap();
+        let e = c.single(SMPC).unwrap();
+        walk_chunks(c.stored(e).unwrap(), e.offset, &Limits::default()).unwrap().iter().map(|k| k.n).collect()
+    }
+
+    #[test]
+    fn round_trip_around_chunk_sizes() {
+        let c = CHUNK_SAMPLES;
+        for n in [0, 1, c - 1, c, c + 1, 3 * c + 5] {
+            let f = SamplesFile::single_mesh(Generator::default(), "m", many(n));
+            let mut bytes = Vec::new();
+            assert_eq!(f.write_to(&mut bytes).unwrap() as usize, bytes.len());
+            assert_eq!(SamplesFile::read(&bytes, &Limits::default()).unwrap(), f, "{n} samples");
+            // Full chunks but the last.
+            let counts = chunk_counts(&bytes);
+            assert_eq!(counts.iter().sum::<usize>(), n);
+            assert!(counts.iter().rev().skip(1).all(|&k| k == c) && counts.iter().all(|&k| k > 0), "{counts:?}");
+        }
+    }
+
+    /// The samples section is written first and the section table last (§8).
+    #[test]
+    fn layout_samples_first_table_last() {
+        let mut bytes = Vec::new();
+        file_affine().write_to(&mut bytes).unwrap();
+        let known = [tags::GENR, tags::MESH, tags::INST, SMPC, AFFI];
+        let c = Container::parse(&bytes, SAMPLES_MAGIC, "SCT samples", &known, &Limits::default()).unwrap();
+        let tags: Vec<_> = c.sections.iter().map(|e| e.tag).collect();
+        assert_eq!(tags, [tags::GENR, tags::MESH, tags::INST, SMPC, AFFI]);
+        assert_eq!(c.single(SMPC).unwrap().offset, FILE_HEADER_LEN as u64);
+        assert_eq!(c.header.section_table_offset as usize, bytes.len() - 5 * SECTION_ENTRY_LEN);
+    }
+
+    /// Uneven pushes, through the atomic writer, on 1 and 2 threads: the bytes of
+    /// `SamplesFile::write_to`. Over more than a batch, so pushes fill and flush the buffer.
+    #[test]
+    fn streaming_writer_is_write_to() {
+        let mut f = SamplesFile::single_mesh(Generator { tool: "stream".into(), ..Default::default() }, "a", many((BATCH_CHUNKS + 1) * CHUNK_SAMPLES + 777));
+        f.meshes[0].count -= 10;
+        f.meshes.push(MeshEntry { name: "b".into(), first: f.meshes[0].count, count: 10 });
+        f.instances.push(SampleInstance { mesh: 1, transform: Similarity::IDENTITY });
+        f.affine_instances.push(AffineInstance { mesh: 1, ..stretched() });
+        let mut want = Vec::new();
+        f.write_to(&mut want).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            for sizes in [vec![f.samples.len()], vec![0, 1, 10_007, CHUNK_SAMPLES, 3], vec![30_011], vec![3 * CHUNK_SAMPLES + 1, 5]] {
+                let path = dir.path().join(format!("s{threads}.samples"));
+                let len = pool.install(|| {
+                    crate::atomic::write_atomic(&path, |w| {
+                        let mut sw = SamplesWriter::new(&mut *w)?;
+                        let mut rest = &f.samples[..];
+                        for &k in sizes.iter().cycle() {
+                            if rest.is_empty() {
+                                break;
+                            }
+                            let (a, b) = rest.split_at(k.min(rest.len()));
+                            sw.push(a)?;
+                            rest = b;
+                        }
+                        assert_eq!(sw.samples_written(), f.samples.len() as u64);
+                        sw.finish(&f.generator, &f.meshes, &f.instances, &f.affine_instances)
+                    })
+                });
+                let got = std::fs::read(&path).unwrap();
+                assert_eq!(len.unwrap() as usize, got.len());
+                assert!(got == want, "{threads} threads, pushes {sizes:?}");
+            }
+            let bytes = pool.install(|| {
+                let mut b = Vec::new();
+                f.write_to(&mut b).unwrap();
+                b
+            });
+            assert!(bytes == want, "write_to on {threads} threads");
+        }
+        assert_eq!(SamplesFile::read(&want, &Limits::default()).unwrap(), f);
+    }
+
+    #[test]
+    fn streaming_writer_checks_tables() {
+        let mut sw = SamplesWriter::new(std::io::Cursor::new(Vec::new())).unwrap();
+        sw.push(&many(5)).unwrap();
+        let meshes = [MeshEntry { name: "m".into(), first: 0, count: 4 }];
+        let instances = [SampleInstance { mesh: 0, transform: Similarity::IDENTITY }];
+        assert!(matches!(sw.finish(&Generator::default(), &meshes, &instances, &[]), Err(Error::Misuse(_))));
+    }
+
+    /// Files written before SMPC (one SMPL frame of whole columns) still read, and still
+    /// have their tables checked.
+    #[test]
+    fn smpl_files_still_read() {
+        for f in [file(), file_affine(), SamplesFile::single_mesh(Generator::default(), "m", many(CHUNK_SAMPLES + 3))] {
+            assert_eq!(SamplesFile::read(&write_smpl(&f), &Limits::default()).unwrap(), f);
+        }
+        let mut bad = file();
+        bad.meshes[0].count += 1;
+        assert!(matches!(SamplesFile::read(&write_smpl(&bad), &Limits::default()), Err(Error::Malformed { .. })));
+        // Files the SMPL writer made (fuzz seeds): read, and the same content once rewritten.
+        for seed in [&include_bytes!("../../fuzz/seeds/samples_reader/cube.samples")[..], include_bytes!("../../fuzz/seeds/samples_reader/instancing.samples")] {
+            let old = SamplesFile::read(seed, &Limits::default()).unwrap();
+            assert!(!old.samples.is_empty());
+            let mut new = Vec::new();
+            old.write_to(&mut new).unwrap();
+            assert_eq!(SamplesFile::read(&new, &Limits::default()).unwrap(), old);
+        }
+    }
+
+    #[test]
+    fn crc32_in_pieces_is_crc32() {
+        let data: Vec<u8> = (0..9_000_017u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 11) as u8).collect();
+        for len in [0, 5, 4 << 20, (4 << 20) + 1, data.len()] {
+            assert_eq!(crate::container::crc32(&data[..len]), crc32fast::hash(&data[..len]), "{len}");
+        }
+    }
+
+    /// A samples file of one mesh of `mesh_count` samples whose samples section is `tag`
+    /// (flags `flags`) with `section` as its bytes, plus `extra` sections.
+    fn hostile(mesh_count: u64, tag: [u8; 4], section: Vec<u8>, flags: u32, extra: Vec<SectionOut>) -> Vec<u8> {
+        let meshes = [MeshEntry { name: "m".into(), first: 0, count: mesh_count }];
+        let instances = [SampleInstance { mesh: 0, transform: Similarity::IDENTITY }];
+        let (tables, _) = table_sections(&Generator::default(), &meshes, &instances, &[]).unwrap();
+        let mut sections: Vec<SectionOut> = tables.into_iter().collect();
+        let compressed = flags & SectionEntry::ZSTD != 0;
+        let raw_len = if compressed { 1 << 20 } else { section.len() as u64 };
+        sections.push(SectionOut { tag, required: true, stored: section, raw_len, compressed });
+        sections.extend(extra);
+        let mut out = Vec::new();
+        crate::container::write_container(SAMPLES_MAGIC, &sections, &mut out).unwrap();
+        out
+    }
+
+    fn chunk(n: u32, frame: &[u8]) -> Vec<u8> {
+        let mut c = Vec::new();
+        c.put_u32(n);
+        c.put_u32(frame.len() as u32);
+        c.extend_from_slice(frame);
+        c
+    }
+
+    fn frame_of(samples: &[Node], declare_size: bool) -> Vec<u8> {
+        let mut columns = Vec::new();
+        put_columns(samples, &mut columns);
+        let mut z = zstd::bulk::Compressor::new(ZSTD_LEVEL).unwrap();
+        z.set_parameter(zstd::zstd_safe::CParameter::ContentSizeFlag(declare_size)).unwrap();
+        z.compress(&columns).unwrap()
+    }
+
+    #[track_caller]
+    fn malformed(bytes: &[u8], needle: &str) {
+        match SamplesFile::read(bytes, &Limits::default()) {
+            Err(Error::Malformed { what, .. }) => assert!(what.contains(needle), "{what:?} lacks {needle:?}"),
+            other => panic!("{:?}", other.map(|f| f.samples.len())),
+        }
+    }
+
+    #[test]
+    fn hostile_chunks_are_refused() {
+        let two = many(2);
+        let good = frame_of(&two, true);
+        // The hand-made layout itself reads.
+        let ok = SamplesFile::read(&hostile(2, SMPC, chunk(2, &good), 0, vec![]), &Limits::default()).unwrap();
+        assert_eq!(ok.samples, two);
+        malformed(&hostile(0, SMPC, chunk(0, &[]), 0, vec![]), "chunk sample count is 0");
+        let n = CHUNK_SAMPLES as u32 + 1;
+        malformed(&hostile(n as u64, SMPC, chunk(n, &frame_of(&many(n as usize), true)), 0, vec![]), "must be 1 to");
+        let mut long = chunk(2, &good);
+        long[4..8].copy_from_slice(&(good.len() as u32 + 1).to_le_bytes());
+        malformed(&hostile(2, SMPC, long, 0, vec![]), "chunk zstd frame");
+        let mut cut = chunk(2, &good);
+        cut.extend_from_slice(&[1, 0, 0, 0, 9]);
+        malformed(&hostile(2, SMPC, cut, 0, vec![]), "chunk stored length");
+        // The frame declares, or inflates to, the columns of 3 or 1 samples, not 2.
+        malformed(&hostile(2, SMPC, chunk(2, &frame_of(&many(3), true)), 0, vec![]), "declares");
+        malformed(&hostile(2, SMPC, chunk(2, &frame_of(&many(3), false)), 0, vec![]), "");
+        malformed(&hostile(2, SMPC, chunk(2, &frame_of(&many(1), false)), 0, vec![]), "inflates to 36 bytes");
+        malformed(&hostile(2, SMPC, chunk(2, b"definitely not a zstd frame"), 0, vec![]), "corrupt");
+        let mut trailing = good.clone();
+        trailing.push(0);
+        malformed(&hostile(2, SMPC, chunk(2, &trailing), 0, vec![]), "follow");
+        // Counts that disagree with the mesh table.
+        malformed(&hostile(3, SMPC, chunk(2, &good), 0, vec![]), "meshes cover 3 samples, the file has 2");
+        // Both samples sections, or neither.
+        let both = hostile(2, SMPC, chunk(2, &good), 0, vec![SectionOut::zstd(tags::SMPL, &[0; 8], 1).unwrap()]);
+        malformed(&both, "both");
+        let neither = hostile(0, *b"XTRA", vec![], 0, vec![]);
+        assert!(matches!(SamplesFile::read(&neither, &Limits::default()), Err(Error::UnknownRequiredSection { .. })));
+        let mut neither_known = neither.clone();
+        // Mark XTRA optional (flags of its table entry, the last), fixing the table CRC.
+        let c = Container::parse(&neither, SAMPLES_MAGIC, "SCT samples", &[*b"XTRA", tags::GENR, tags::MESH, tags::INST], &Limits::default()).unwrap();
+        let t = c.header.section_table_offset as usize;
+        let last = t + 3 * SECTION_ENTRY_LEN;
+        neither_known[last + 4..last + 8].copy_from_slice(&0u32.to_le_bytes());
+        let crc = crc32fast::hash(&neither_known[t..t + 4 * SECTION_ENTRY_LEN]);
+        neither_known[40..44].copy_from_slice(&crc.to_le_bytes());
+        let hcrc = crc32fast::hash(&neither_known[..60]);
+        neither_known[60..64].copy_from_slice(&hcrc.to_le_bytes());
+        malformed(&neither_known, "missing");
+        // The section itself is not zstd-flagged.
+        malformed(&hostile(2, SMPC, chunk(2, &good), SectionEntry::ZSTD, vec![]), "zstd-flagged");
+    }
+
+    #[test]
+    fn chunk_totals_are_limited_before_decoding() {
+        let mut section = Vec::new();
+        let full = frame_of(&many(CHUNK_SAMPLES), true);
+        for _ in 0..3 {
+            section.extend(chunk(CHUNK_SAMPLES as u32, &full));
+        }
+        let total = 3 * CHUNK_SAMPLES as u64;
+        let bytes = hostile(total, SMPC, section, 0, vec![]);
+        assert_eq!(SamplesFile::read(&bytes, &Limits::default()).unwrap().samples.len() as u64, total);
+        let limits = Limits { max_samples: total - 1, ..Limits::default() };
+        assert!(matches!(SamplesFile::read(&bytes, &limits), Err(Error::LimitExceeded { what: "sample count", .. })));
+        let limits = Limits { max_decompressed_bytes: 36 * total - 1, ..Limits::default() };
+        assert!(matches!(SamplesFile::read(&bytes, &limits), Err(Error::LimitExceeded { what: "decompressed size", .. })));
     }
 }
