@@ -10,13 +10,20 @@ use crate::error::{Error, Result};
 /// Calls `fill` with a buffered writer on a temporary file next to `path`, then renames it
 /// over `path`. On any error the temporary file is removed and `path` is untouched.
 pub fn write_atomic<T>(path: &Path, fill: impl FnOnce(&mut BufWriter<File>) -> Result<T>) -> Result<T> {
+    write_atomic_with(path, fill)
+}
+
+/// [`write_atomic`] for a `fill` that fails with its caller's error type (a writer fed by a
+/// sampler fails with the sampler's errors too), into which this function's own I/O errors
+/// convert.
+pub fn write_atomic_with<T, E: From<Error>>(path: &Path, fill: impl FnOnce(&mut BufWriter<File>) -> std::result::Result<T, E>) -> std::result::Result<T, E> {
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path.file_name().ok_or_else(|| Error::Misuse(format!("{} is not a file path", path.display())))?;
     let mut tmp_name = std::ffi::OsString::from(".");
     tmp_name.push(name);
     tmp_name.push(format!(".{}.tmp", std::process::id()));
     let tmp: PathBuf = dir.join(tmp_name);
-    let result = (|| {
+    let result = (|| -> std::result::Result<T, E> {
         let file = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
         let mut w = BufWriter::with_capacity(1 << 20, file);
         let value = fill(&mut w)?;

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use sct_format::samples::{AffineInstance, MeshEntry, SampleInstance, SamplesFile};
+use sct_format::samples::{AffineInstance, MeshEntry, SampleInstance, SamplesFile, SamplesWriter};
 use sct_format::{Generator, Node, Similarity, SourceRef};
 use serde_json::json;
 
@@ -76,13 +76,14 @@ pub struct Summary {
     pub area_relative_error: f64,
     /// Seconds spent loading.
     pub seconds_load: f64,
-    /// Seconds spent sampling.
+    /// Seconds spent sampling. With an output file this includes compressing and writing
+    /// the samples, which overlap sampling; a dry run times the sampler alone.
     pub seconds_sample: f64,
-    /// Seconds spent writing.
+    /// Seconds spent finishing the output after sampling (last chunk, tables, sync, rename).
     pub seconds_write: f64,
     /// Total seconds.
     pub seconds_total: f64,
-    /// Samples per second of sampling time.
+    /// Samples (after merging) per second of `seconds_sample`.
     pub samples_per_second: f64,
     /// Non-fatal problems.
     pub warnings: Vec<String>,
@@ -244,13 +245,35 @@ pub fn run(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summa
     Ok(summary)
 }
 
-/// Samples into the samples file at `path` (collected in memory, then written atomically).
+/// Samples into the samples file at `path`, written atomically as the samples are made
+/// ([`SamplesWriter`]: chunks are compressed and written while the sampler makes the next
+/// batch, so no run holds all its samples). `seconds_write` is the finishing step alone.
 fn sample_to_file(opts: &Options, path: &Path, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summary, Error> {
-    let (file, mut summary) = sample_in_memory(opts, progress)?;
-    let t = Instant::now();
-    summary.output_bytes = file.write_file(path).map_err(|source| Error::Write { path: path.to_path_buf(), source })?;
-    summary.seconds_write = t.elapsed().as_secs_f64();
-    Ok(summary)
+    let write_error = |source| Error::Write { path: path.to_path_buf(), source };
+    let written = sct_format::atomic::write_atomic_with(path, |w| -> Result<Summary, ToFile> {
+        let mut out = SamplesWriter::new(w)?;
+        let (tables, mut summary) = sample_into(opts, progress, &mut |nodes| out.push(nodes).map_err(write_error)).map_err(ToFile::Run)?;
+        let t = Instant::now();
+        summary.output_bytes = out.finish(&tables.generator, &tables.meshes, &tables.instances, &tables.affine_instances)?;
+        summary.seconds_write = t.elapsed().as_secs_f64();
+        Ok(summary)
+    });
+    written.map_err(|e| match e {
+        ToFile::Run(e) => e,
+        ToFile::Format(source) => write_error(source),
+    })
+}
+
+/// How writing a samples file while sampling fails: the run's own error, or the file's.
+enum ToFile {
+    Run(Error),
+    Format(sct_format::Error),
+}
+
+impl From<sct_format::Error> for ToFile {
+    fn from(e: sct_format::Error) -> Self {
+        ToFile::Format(e)
+    }
 }
 
 /// Loads and samples `opts.inputs` into a samples file in memory (`opts.output` is
@@ -471,6 +494,39 @@ mod tests {
         });
         assert!(matches!(r, Err(Error::Usage(m)) if m == "sink full"));
         assert_eq!(calls, 1);
+    }
+
+    /// The file written while sampling is the in-memory file's bytes; a run that fails after
+    /// sampling began (a mesh whose grid cannot be indexed comes after good ones) leaves
+    /// neither the output nor a temporary file behind.
+    #[test]
+    fn streamed_file_equals_the_in_memory_file_and_a_failed_run_leaves_nothing() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = dir.path().join("out").join("x.samples");
+        std::fs::create_dir(dir.path().join("out")).expect("mkdir");
+        let mut opts = Options {
+            inputs: write_inputs(dir.path()),
+            output: Some(out.clone()),
+            load: LoadOptions::default(),
+            sample: SampleOptions { density: Density::VoxelSize(0.01), ..Default::default() },
+        };
+        let summary = run(&opts, &|_, _| {}).expect("run");
+        let (file, _) = sample_in_memory(&opts, &|_, _| {}).expect("samples");
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        file.write_to(&mut bytes).expect("write");
+        assert_eq!(std::fs::read(&out).expect("read"), bytes.into_inner());
+        assert_eq!(summary.output_bytes, std::fs::metadata(&out).expect("metadata").len());
+
+        let huge = dir.path().join("huge.obj");
+        // A sliver: few samples, but 2^23 voxels along each axis, too many for 64-bit keys,
+        // which only the sampling loop finds (after the other meshes were streamed).
+        std::fs::write(&huge, "v 0 0 0\nv 50000 50000 50000\nv 50000 50000.01 50000\nf 1 2 3\n").expect("write obj");
+        opts.inputs.push(huge);
+        opts.output = Some(dir.path().join("out").join("y.samples"));
+        let err = run(&opts, &|_, _| {}).expect_err("an unindexable grid");
+        assert!(err.to_string().contains("64-bit voxel keys"), "{err}");
+        let left: Vec<_> = std::fs::read_dir(dir.path().join("out")).expect("read dir").map(|e| e.expect("entry").file_name()).collect();
+        assert_eq!(left, [std::ffi::OsString::from("x.samples")]);
     }
 
     #[test]
