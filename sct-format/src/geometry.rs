@@ -322,14 +322,21 @@ fn parent_cone_bounded(a: &Node, va: [f64; 3], b: &Node, vb: [f64; 3]) -> Option
     Some((normal, cone))
 }
 
-/// `to32(a cos φ + u sin φ)` from enclosures of sin φ and cos φ (both positive here), when
-/// every component rounds to the same non-zero f32 at both ends (a zero could differ in sign).
+/// `to32(a cos φ + u sin φ)` (`a`, `u` unit) from enclosures of sin φ and cos φ, when every
+/// component rounds to the same non-zero f32 over the whole range (a zero could differ in sign).
+///
+/// Evaluated at the enclosures' low ends, the f64 component differs from the exact path's by
+/// at most `|a_k|·width(cos) + |u_k|·width(sin)` plus the two evaluations' rounding (three
+/// roundings each of terms ≤ 2 in size: ≤ 2⁻⁵⁰ in all); the slack 2⁻⁴⁸ also covers
+/// `|a_k|, |u_k| ≤ 1 + 2⁻⁵²` and the rounding of the bounds themselves. Rounding to f32 is
+/// monotone, so agreement at both bounds decides the exact component.
 fn rotated_axis_f32(a: [f64; 3], u: [f64; 3], s: Interval, c: Interval) -> Option<[f32; 3]> {
+    const SLACK: f64 = 1.0 / (1u64 << 48) as f64;
+    let e = (c.hi - c.lo) + (s.hi - s.lo) + SLACK;
     let mut out = [0f32; 3];
     for k in 0..3 {
-        // Each product is monotone in its enclosed factor (either way, by the other's sign).
-        let (ac, us) = ((a[k] * c.lo, a[k] * c.hi), (u[k] * s.lo, u[k] * s.hi));
-        let (lo, hi) = ((ac.0.min(ac.1) + us.0.min(us.1)) as f32, (ac.0.max(ac.1) + us.0.max(us.1)) as f32);
+        let mid = a[k] * c.lo + u[k] * s.lo;
+        let (lo, hi) = ((mid - e) as f32, (mid + e) as f32);
         if lo.to_bits() != hi.to_bits() || lo == 0.0 {
             return None;
         }
