@@ -109,15 +109,14 @@ pub(super) fn atan2(y: f64, x: f64) -> Option<Interval> {
         return Some(Interval::exact(y));
     }
     let ax = x.abs();
-    if !(y > 1e-280 && ax > 1e-280 && y < 1e280 && ax < 1e280) {
+    // With y > 1e-150 and |x| < 1e150 the ratio below is a normal number (or an ignorable
+    // tiny one next to π/2); x = ±0 and y = ∞ give π/2 like libm. NaN fails both tests.
+    if !(y > 1e-150 && ax < 1e150) {
         return None;
     }
     let v = if y <= ax {
-        // Result in [0, π/4] or [3π/4, π]; a subnormal `q` would lose relative precision.
+        // Result in [0, π/4] or [3π/4, π]; q ≥ 1e-300 keeps full relative precision.
         let q = y / ax;
-        if q < 1e-290 {
-            return None;
-        }
         let a = atan_unit(q);
         if x > 0.0 {
             a
@@ -252,7 +251,11 @@ mod tests {
         }
         assert!(checked > 500_000, "{checked}");
         assert_eq!(atan2(0.0, 1.0).map(|i| i.lo.to_bits()), Some(0));
-        assert!(atan2(0.0, -1.0).is_none() && atan2(1.0, 0.0).is_none() && atan2(f64::NAN, 1.0).is_none());
+        assert!(atan2(0.0, -1.0).is_none() && atan2(f64::NAN, 1.0).is_none() && atan2(1.0, f64::NAN).is_none());
+        for (y, x) in [(1.0, 0.0), (1.0, -0.0), (f64::INFINITY, 1.0), (f64::INFINITY, -1.0), (1e-150f64.next_up(), 1e150f64.next_down())] {
+            let i = atan2(y, x).expect("handled");
+            assert!(holds(i, y.atan2(x)), "atan2({y:e}, {x:e}): {i:?}");
+        }
     }
 
     #[test]
