@@ -11,6 +11,9 @@ use std::f64::consts::PI;
 
 use crate::node::Node;
 
+mod bounds;
+use bounds::Interval;
+
 /// Relative safety margin applied before rounding up to f32: covers the few-ulp error of
 /// the f64 distance/angle evaluation so that an f64 re-check of containment never fails.
 const F64_MARGIN: f64 = 8.0 * f64::EPSILON;
@@ -191,7 +194,24 @@ fn covering_cone(n: [f32; 3], ua: Option<[f64; 3]>, ta: f32, ub: Option<[f64; 3]
         Some(m_axis) => angle_between(n, m_axis) + cone as f64,
         None => PI,
     };
-    let t = need(ua, ta).max(need(ub, tb)) * (1.0 + F64_MARGIN) + F64_MARGIN;
+    cone_from_need(need(ua, ta).max(need(ub, tb)))
+}
+
+/// [`covering_cone`] for two axes, from enclosures of the two angles: `None` unless both
+/// ends give the same f32. Sound because [`cone_from_need`] of the max of `angle + cone`
+/// is nondecreasing in each f64 angle (every step rounds monotonically).
+fn covering_cone_bounded(n: [f32; 3], ua: [f64; 3], ta: f32, ub: [f64; 3], tb: f32) -> Option<f32> {
+    let n = normalize(to64(n))?;
+    let angle = |m: [f64; 3]| bounds::atan2(norm(cross(n, m)), dot(n, m));
+    let (ia, ib) = (angle(ua)?, angle(ub)?);
+    let at = |xa: f64, xb: f64| cone_from_need((xa + ta as f64).max(xb + tb as f64));
+    let (lo, hi) = (at(ia.lo, ib.lo), at(ia.hi, ib.hi));
+    (lo.to_bits() == hi.to_bits()).then_some(lo)
+}
+
+/// The stored cone angle for a needed f64 angle: grown by the margin, rounded up.
+fn cone_from_need(need: f64) -> f32 {
+    let t = need * (1.0 + F64_MARGIN) + F64_MARGIN;
     // f32 π rounds above the true π, so it always covers the whole sphere.
     if t >= PI {
         std::f32::consts::PI
@@ -218,6 +238,22 @@ pub fn parent_of(a: &Node, b: &Node) -> Node {
     // Each child's axis is normalised once and shared by the merge, the containment checks
     // and the covering angle (the same f64 operations as evaluating them separately).
     let (ua, ub) = (normalize(to64(a.normal)), normalize(to64(b.normal)));
+    let (normal, cone) = match (ua, ub) {
+        (Some(va), Some(vb)) => parent_cone_bounded(a, va, b, vb).unwrap_or_else(|| parent_cone(a, ua, b, ub)),
+        _ => parent_cone(a, ua, b, ub),
+    };
+    Node {
+        center,
+        radius,
+        normal,
+        cone,
+        area: merge_area(a.area, b.area),
+        color: merge_color(a.color, a.area, b.color, b.area),
+    }
+}
+
+/// The parent's stored axis and cone angle, with libm's exact `atan2`, `sin` and `cos`.
+fn parent_cone(a: &Node, ua: Option<[f64; 3]>, b: &Node, ub: Option<[f64; 3]>) -> ([f32; 3], f32) {
     let (n, t, d) = merge_unit_cones(ua, a.cone as f64, ub, b.cone as f64);
     let normal = to32(n);
     // `cone_contains(outer, inner, 0)` with the axes' angle `d` already known.
@@ -232,15 +268,81 @@ pub fn parent_of(a: &Node, b: &Node) -> Node {
     } else {
         covering_cone(normal, ua, a.cone, ub, b.cone)
     };
+    (normal, cone)
+}
 
-    Node {
-        center,
-        radius,
-        normal,
-        cone,
-        area: merge_area(a.area, b.area),
-        color: merge_color(a.color, a.area, b.color, b.area),
+/// [`parent_cone`] for two non-zero axes, with every libm result replaced by an enclosure
+/// ([`bounds`]): each step of [`merge_unit_cones`] and of the choice above runs on both ends
+/// of the enclosure, and the result is returned only when every decision and every rounding
+/// to f32 comes out the same at both ends; `None` (rare: near ties, rounding boundaries,
+/// wide angles) leaves the exact path to decide. The steps are monotone in the enclosed
+/// value, so agreement at the ends means agreement for the exact libm value between them.
+fn parent_cone_bounded(a: &Node, va: [f64; 3], b: &Node, vb: [f64; 3]) -> Option<([f32; 3], f32)> {
+    let ta = (a.cone as f64).clamp(0.0, PI);
+    let tb = (b.cone as f64).clamp(0.0, PI);
+    let ab = dot(va, vb);
+    let d = bounds::atan2(norm(cross(va, vb)), ab)?;
+    // merge_unit_cones: containment, whole sphere, else rotate A's axis towards B's.
+    let (normal, t) = if d.decide(|d| d + tb <= ta)? {
+        (to32(va), Interval::exact(ta))
+    } else if d.decide(|d| d + ta <= tb)? {
+        (to32(vb), Interval::exact(tb))
+    } else {
+        let tc = d.map(|d| 0.5 * (d + ta + tb));
+        if tc.decide(|tc| tc >= PI)? {
+            (to32(va), Interval::exact(PI))
+        } else {
+            let u = normalize(sub(vb, [va[0] * ab, va[1] * ab, va[2] * ab])).unwrap_or_else(|| any_perpendicular(va));
+            let (s, c) = bounds::sin_cos(tc.map(|tc| tc - ta))?;
+            (rotated_axis_f32(va, u, s, c)?, tc)
+        }
+    };
+    let contains = |outer: f32, inner: f32| {
+        let (outer, inner) = (outer as f64, inner as f64);
+        if outer >= PI {
+            Some(true)
+        } else {
+            d.decide(|d| d + inner <= outer)
+        }
+    };
+    // `normal == x.normal && t == x.cone && contains(..)`, short-circuiting like the exact path.
+    let keeps = |x: &Node, y: &Node| -> Option<bool> {
+        if normal != x.normal || !t.equals(x.cone as f64)? {
+            return Some(false);
+        }
+        contains(x.cone, y.cone)
+    };
+    let cone = if keeps(a, b)? {
+        a.cone
+    } else if keeps(b, a)? {
+        b.cone
+    } else {
+        covering_cone_bounded(normal, va, a.cone, vb, b.cone)?
+    };
+    Some((normal, cone))
+}
+
+/// `to32(a cos φ + u sin φ)` (`a`, `u` unit) from enclosures of sin φ and cos φ, when every
+/// component rounds to the same non-zero f32 over the whole range (a zero could differ in sign).
+///
+/// Evaluated at the enclosures' low ends, the f64 component differs from the exact path's by
+/// at most `|a_k|·width(cos) + |u_k|·width(sin)` plus the two evaluations' rounding (three
+/// roundings each of terms ≤ 2 in size: ≤ 2⁻⁵⁰ in all); the slack 2⁻⁴⁸ also covers
+/// `|a_k|, |u_k| ≤ 1 + 2⁻⁵²` and the rounding of the bounds themselves. Rounding to f32 is
+/// monotone, so agreement at both bounds decides the exact component.
+fn rotated_axis_f32(a: [f64; 3], u: [f64; 3], s: Interval, c: Interval) -> Option<[f32; 3]> {
+    const SLACK: f64 = 1.0 / (1u64 << 48) as f64;
+    let e = (c.hi - c.lo) + (s.hi - s.lo) + SLACK;
+    let mut out = [0f32; 3];
+    for k in 0..3 {
+        let mid = a[k] * c.lo + u[k] * s.lo;
+        let (lo, hi) = ((mid - e) as f32, (mid + e) as f32);
+        if lo.to_bits() != hi.to_bits() || lo == 0.0 {
+            return None;
+        }
+        out[k] = lo;
     }
+    Some(out)
 }
 
 fn covers(outer: &Node, inner: &Node) -> bool {
@@ -612,6 +714,88 @@ mod tests {
                 acc_new = parent_of(&acc_new, &s);
                 acc_old = reference::parent_of(&acc_old, &s);
                 assert_eq!(node_bits(&acc_new), node_bits(&acc_old));
+            }
+        }
+    }
+
+    /// Leaf-like siblings: unit f32 normals a small angle apart (or equal), small cones.
+    fn realistic_pair(rng: &mut Rng) -> (Node, Node) {
+        let mut a = rng.node();
+        let mut b = rng.node();
+        let n = loop {
+            let n = rng.axis();
+            if normalize(to64(n)).is_some() && n.iter().all(|x| x.is_finite()) {
+                break n;
+            }
+        };
+        let spread = rng.pick(&[0.0f32, 1e-6, 1e-3, 0.05, 0.3, 1.0]);
+        let tilt = |rng: &mut Rng| n.map(|x| x + (rng.unit() - 0.5) * spread);
+        let unit = |v: [f32; 3]| {
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            v.map(|x| x / l)
+        };
+        a.normal = unit(tilt(rng));
+        b.normal = unit(tilt(rng));
+        a.cone = rng.pick(&[0.0, 0.0, 1e-3, 0.1, 0.5]) * rng.unit();
+        b.cone = rng.pick(&[0.0, 0.0, 1e-3, 0.1, 0.5]) * rng.unit();
+        (a, b)
+    }
+
+    #[test]
+    fn bounded_cone_matches_exact_and_decides_realistic_pairs() {
+        let mut rng = Rng::new(0xC0DE);
+        let (mut tried, mut decided) = (0u32, 0u32);
+        for i in 0..400_000 {
+            let (a, b) = match i % 3 {
+                0 => realistic_pair(&mut rng),
+                1 => (rng.node(), rng.node()),
+                _ => {
+                    let a = rng.node();
+                    (a, rng.related(&a))
+                }
+            };
+            let (ua, ub) = (normalize(to64(a.normal)), normalize(to64(b.normal)));
+            let (Some(va), Some(vb)) = (ua, ub) else { continue };
+            let exact = parent_cone(&a, ua, &b, ub);
+            let got = parent_cone_bounded(&a, va, &b, vb);
+            if let Some(got) = got {
+                assert_eq!(
+                    (got.0.map(f32::to_bits), got.1.to_bits()),
+                    (exact.0.map(f32::to_bits), exact.1.to_bits()),
+                    "case {i}: {a:?} {b:?}"
+                );
+            }
+            if i % 3 == 0 && a.normal != b.normal {
+                tried += 1;
+                decided += u32::from(got.is_some());
+            }
+        }
+        // The fast path is the point: it must decide nearly every leaf-like pair.
+        assert!(decided as f64 >= 0.97 * tried as f64, "{decided} of {tried}");
+    }
+
+    #[test]
+    fn bottom_up_merges_of_leaf_like_nodes_match_reference() {
+        let mut rng = Rng::new(99);
+        for _ in 0..200 {
+            let (base, _) = realistic_pair(&mut rng);
+            let mut level: Vec<Node> = (0..256)
+                .map(|_| {
+                    let (mut x, _) = realistic_pair(&mut rng);
+                    x.normal = base.normal.map(|v| v + (rng.unit() - 0.5) * 0.2);
+                    x.cone = 0.0;
+                    x
+                })
+                .collect();
+            while level.len() > 1 {
+                level = level
+                    .chunks(2)
+                    .map(|p| {
+                        let (got, want) = (parent_of(&p[0], &p[1]), reference::parent_of(&p[0], &p[1]));
+                        assert_eq!(node_bits(&got), node_bits(&want), "{:?}", p);
+                        got
+                    })
+                    .collect();
             }
         }
     }
