@@ -242,8 +242,11 @@ fn cone_code_over(axis: [f32; 3], dec: [f32; 3], cone: f32) -> u8 {
     cone_encode_up(base + angle(axis, dec))
 }
 
-/// `cos²` of [`MAX_NORMAL_ERROR_DEG`] (0.64°), written out so that no libm call decides a code.
-const COS2_MAX_ERROR: f64 = 0.999875233894061;
+/// `cos²` of 0.63999°, written out so that no libm call decides a code: 10⁻⁵° inside
+/// [`MAX_NORMAL_ERROR_DEG`], because a code is accepted on its unrounded axis and the f32
+/// rounding of the decoded axis moves it by up to 3·10⁻⁶° (at exactly 0.64° a random test
+/// found 0.6400000064°).
+const COS2_MAX_ERROR: f64 = 0.9998752377928093;
 
 /// Like [`encode_cone_decoded`], but among the codes near the projection (a 4×4 block) whose
 /// decoded axis lies within [`MAX_NORMAL_ERROR_DEG`] of `axis`, picks the one of smallest
