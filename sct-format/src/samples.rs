@@ -1151,6 +1151,21 @@ mod tests {
         assert_eq!(SamplesFile::read(&want, &Limits::default()).unwrap(), f);
     }
 
+    /// A file written after other bytes of a stream is the same file, offsets included.
+    #[test]
+    fn streaming_writer_starts_where_the_stream_is() {
+        let f = file_affine();
+        let mut want = Vec::new();
+        f.write_to(&mut want).unwrap();
+        let mut out = std::io::Cursor::new(b"prefix".to_vec());
+        out.seek(SeekFrom::End(0)).unwrap();
+        let mut sw = SamplesWriter::new(&mut out).unwrap();
+        sw.push(&f.samples).unwrap();
+        assert_eq!(sw.finish(&f.generator, &f.meshes, &f.instances, &f.affine_instances).unwrap() as usize, want.len());
+        assert_eq!(out.position() as usize, 6 + want.len());
+        assert!(out.get_ref()[6..] == want[..]);
+    }
+
     #[test]
     fn streaming_writer_checks_tables() {
         let mut sw = SamplesWriter::new(std::io::Cursor::new(Vec::new())).unwrap();
