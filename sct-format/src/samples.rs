@@ -512,7 +512,7 @@ impl<W: Write + Seek> SamplesWriter<W> {
     }
 
     /// Appends samples, in order. Whole chunks are compressed (in parallel, a batch at a
-    /// time) and written; what is left of a chunk, or fewer than [`BATCH_CHUNKS`] chunks
+    /// time) and written; what is left of a chunk, or fewer than 16 chunks (42 MB)
     /// from small pushes, stays buffered until more come or [`Self::finish`].
     pub fn push(&mut self, samples: &[Node]) -> Result<()> {
         let mut rest = samples;
