@@ -512,7 +512,7 @@ impl<W: Write + Seek> SamplesWriter<W> {
     }
 
     /// Appends samples, in order. Whole chunks are compressed (in parallel, a batch at a
-    /// time) and written; what is left of a chunk, or fewer than [`BATCH_CHUNKS`] chunks
+    /// time) and written; what is left of a chunk, or fewer than 16 chunks (42 MB)
     /// from small pushes, stays buffered until more come or [`Self::finish`].
     pub fn push(&mut self, samples: &[Node]) -> Result<()> {
         let mut rest = samples;
@@ -1149,6 +1149,21 @@ mod tests {
             assert!(bytes == want, "write_to on {threads} threads");
         }
         assert_eq!(SamplesFile::read(&want, &Limits::default()).unwrap(), f);
+    }
+
+    /// A file written after other bytes of a stream is the same file, offsets included.
+    #[test]
+    fn streaming_writer_starts_where_the_stream_is() {
+        let f = file_affine();
+        let mut want = Vec::new();
+        f.write_to(&mut want).unwrap();
+        let mut out = std::io::Cursor::new(b"prefix".to_vec());
+        out.seek(SeekFrom::End(0)).unwrap();
+        let mut sw = SamplesWriter::new(&mut out).unwrap();
+        sw.push(&f.samples).unwrap();
+        assert_eq!(sw.finish(&f.generator, &f.meshes, &f.instances, &f.affine_instances).unwrap() as usize, want.len());
+        assert_eq!(out.position() as usize, 6 + want.len());
+        assert!(out.get_ref()[6..] == want[..]);
     }
 
     #[test]
