@@ -34,7 +34,7 @@ struct Cli {
     /// Worker threads (default: all cores; RAYON_NUM_THREADS also works).
     #[arg(long, value_name = "N")]
     threads: Option<usize>,
-    /// Print a JSON summary on stdout.
+    /// Print a JSON summary on stdout (schema: spec/voxelize-json.md).
     #[arg(long)]
     json: bool,
     // Last, so its help heading does not swallow the options above.
