@@ -430,7 +430,10 @@ impl<'a> Tex<'a> {
         if let Some(s) = self.interior(st) {
             return s;
         }
-        self.img.sample(self.tr.transform_uv(uv), self.tr.wrap_s, self.tr.wrap_t)
+        // The general lookup gets the transformed coordinates exactly (for the identity too:
+        // it maps non-finite ones to NaN); a non-identity transform is not applied twice.
+        let st = if self.plain { self.tr.transform_uv(uv) } else { st };
+        self.img.sample(st, self.tr.wrap_s, self.tr.wrap_t)
     }
 
     /// [`bilinear`]'s lookup in the pre-decoded texels where its 2×2 texel block needs no
