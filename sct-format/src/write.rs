@@ -6,7 +6,7 @@
 //! encoded and the header, section table and tree indexes are patched in by seeking back,
 //! then the file is renamed into place (atomic either way).
 
-use std::io::{Seek, SeekFrom, Write};
+use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::path::Path;
 
 use rayon::prelude::*;
@@ -179,6 +179,22 @@ fn with_path(e: Error, path: &Path) -> Error {
     }
 }
 
+/// Stored blocks at least this long go around the writer's buffer.
+const UNBUFFERED_BLOCK: usize = 64 << 10;
+
+/// Writes one stored block. A long one goes straight to the file after what is buffered:
+/// copying it into the buffer first would be one more pass over the bytes for nothing (a
+/// block a few times shorter than the buffer is about as few system calls either way).
+fn write_block<W: Write>(w: &mut BufWriter<W>, block: &[u8]) -> Result<()> {
+    if block.len() >= UNBUFFERED_BLOCK {
+        w.flush()?;
+        w.get_mut().write_all(block)?;
+    } else {
+        w.write_all(block)?;
+    }
+    Ok(())
+}
+
 /// The streaming writer behind [`write_scene_file`]. Mirrors [`write_container`]'s layout
 /// (header, section table, sections in order), which needs every section in memory.
 /// The graph must have been checked ([`check_graph`]).
@@ -187,7 +203,7 @@ fn stream_scene<'a, W: Write + Seek + Send>(
     graph: &SceneGraph,
     trees: impl ExactSizeIterator<Item = TreeInput<'a>>,
     opts: &WriteOptions,
-    w: &mut W,
+    w: &mut BufWriter<W>,
 ) -> Result<WriteStats> {
     let genr = serde_json::to_vec(generator).map_err(|e| Error::Misuse(format!("generator: {e}")))?;
     let small = [SectionOut::plain(tags::GENR, genr), SectionOut::zstd(tags::GRPH, &encode_graph(graph), 3)?];
@@ -207,7 +223,7 @@ fn stream_scene<'a, W: Write + Seek + Send>(
     for tree in trees {
         let index_len = tree.index_len(block_nodes(opts));
         w.write_all(&vec![0u8; index_len])?;
-        let st = stream_tree(tree, opts, &mut |b| w.write_all(b).map_err(Error::from))?;
+        let st = stream_tree(tree, opts, &mut |b| write_block(w, b))?;
         let end = start + offset + st.stats.section_bytes;
         // The index lies in front of the blocks; its CRC is combined with the blocks' so the
         // section CRC equals that of the bytes in file order without reading them back.
@@ -422,6 +438,8 @@ struct EncodedBlock {
     payload_len: u64,
     /// Stored bytes per [`TreeStats::attribute_bytes`] entry.
     attribute_bytes: [u64; 7],
+    /// The block's decoded internal nodes: parents of the next level.
+    parents: Vec<Node>,
 }
 
 /// Splits `bytes` over the attributes in proportion to `widths` (remainder to the first).
@@ -442,23 +460,19 @@ fn split_bytes(bytes: usize, widths: &[u32; 6], into: &mut [u64; 7]) {
     }
 }
 
-/// Encodes one block; writes its decoded nodes with children to `next_parents` (exactly as
-/// many as `flags` has set).
+/// Encodes one block, keeping its decoded nodes with children (`internal` of them).
 fn encode_block(
     opts: &WriteOptions,
     params: CodecParams,
     parents: &[Node],
     nodes: &[Node],
     flags: &[bool],
-    next_parents: &mut [Node],
+    internal: usize,
 ) -> Result<EncodedBlock> {
     let profile = opts.profile;
     let m = nodes.len();
     let mask_len = m.div_ceil(8);
-    let mut payload = vec![0u8; mask_len];
-    for (i, &f) in flags.iter().enumerate() {
-        payload[i / 8] |= (f as u8) << (i % 8);
-    }
+    let mut payload: Vec<u8> = flags.chunks(8).map(|c| c.iter().rev().fold(0u8, |b, &f| b << 1 | f as u8)).collect();
     let decoded = encode_children(profile, params, parents, nodes, &mut payload)?;
     let raw_len = payload.len();
     let streams = crate::codec::streams(profile, params, m);
@@ -481,12 +495,18 @@ fn encode_block(
             (payload, 0u32)
         }
     };
-    let mut slots = next_parents.iter_mut();
-    for (n, _) in decoded.iter().zip(flags).filter(|(_, &f)| f) {
-        let slot = slots.next().ok_or_else(|| Error::Misuse("more internal nodes than reserved (bug)".into()))?;
-        *slot = *n;
-    }
-    Ok(EncodedBlock { crc: crc32fast::hash(&stored), stored, flags: bflags, mask_len: mask_len as u64, payload_len: (raw_len - mask_len) as u64, attribute_bytes })
+    // Sized exactly, so the segment holds no more than the internal nodes.
+    let mut next_parents = Vec::with_capacity(internal);
+    next_parents.extend(decoded.iter().zip(flags).filter(|(_, &f)| f).map(|(n, _)| *n));
+    Ok(EncodedBlock {
+        crc: crc32fast::hash(&stored),
+        stored,
+        flags: bflags,
+        mask_len: mask_len as u64,
+        payload_len: (raw_len - mask_len) as u64,
+        attribute_bytes,
+        parents: next_parents,
+    })
 }
 
 /// Blocks encoded at once per level, per worker thread: enough to keep every worker busy
@@ -578,7 +598,7 @@ impl NodeSource<'_> {
 }
 
 /// Decoded internal nodes of one level in the order the next level consumes them, as one
-/// segment per encoded batch. Segments are dropped as soon as the next level's batches have
+/// segment per encoded block. Segments are dropped as soon as the next level's batches have
 /// used them, so a level's parents shrink while its children grow: the two levels together
 /// hold about the larger of them (plus a batch) instead of their sum.
 #[derive(Default)]
@@ -681,16 +701,6 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
         for (batch_chunks, batch_internal) in chunks.chunks(batch).zip(internal.chunks(batch)) {
             let (Some(&(first, _)), Some(&(_, last))) = (batch_chunks.first(), batch_chunks.last()) else { continue };
             parents.take(first / 2, last / 2, &mut batch_parents)?;
-            // Each block writes its decoded internal nodes straight into its part of this
-            // batch's segment of the next level's parents (no per-block vectors to join).
-            let mut segment = vec![Node::default(); batch_internal.iter().sum()];
-            let mut parts: Vec<&mut [Node]> = Vec::with_capacity(batch_chunks.len());
-            let mut rest: &mut [Node] = &mut segment;
-            for &k in batch_internal {
-                let (head, tail) = rest.split_at_mut(k);
-                parts.push(head);
-                rest = tail;
-            }
             let p0 = first / 2;
             let level_nodes = tree.nodes.batch(range.start + first..range.start + last, &mut batch_nodes)?;
             // The previous batch goes to the sink while this one is encoded.
@@ -699,18 +709,19 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
                 || {
                     batch_chunks
                         .par_iter()
-                        .zip(parts.into_par_iter())
-                        .map(|(&(s, e), part)| {
+                        .zip(batch_internal)
+                        .map(|(&(s, e), &k)| {
                             let nodes = &level_nodes[s - first..e - first];
-                            encode_block(opts, params, &batch_parents[s / 2 - p0..e / 2 - p0], nodes, &level_flags[s..e], part)
+                            encode_block(opts, params, &batch_parents[s / 2 - p0..e / 2 - p0], nodes, &level_flags[s..e], k)
                         })
                         .collect::<Vec<Result<EncodedBlock>>>()
                 },
             );
             written?;
-            next_parents.segments.push_back(segment);
             for ((&(s, e), r), &k) in batch_chunks.iter().zip(encoded).zip(batch_internal) {
-                let b = r?;
+                let mut b = r?;
+                // Each block's parents are a segment of their own (no copy into a batch's).
+                next_parents.segments.push_back(std::mem::take(&mut b.parents));
                 stats.flag_bytes += b.mask_len;
                 stats.payload_bytes += b.payload_len;
                 for (t, v) in attribute_bytes.iter_mut().zip(b.attribute_bytes) {
@@ -866,6 +877,25 @@ mod tests {
             assert_eq!(st_owned, st_mem, "{profile:?}");
         }
         let _ = std::fs::remove_file(&path);
+    }
+
+    /// Blocks that go around the buffer land in order with the buffered ones.
+    #[test]
+    fn long_blocks_bypass_the_buffer_in_order() {
+        let blocks: Vec<Vec<u8>> = [10, UNBUFFERED_BLOCK, 3, UNBUFFERED_BLOCK - 1, 3 * UNBUFFERED_BLOCK, 0, 7]
+            .iter()
+            .enumerate()
+            .map(|(k, &len)| (0..len).map(|i| (i * 31 + k * 7) as u8).collect())
+            .collect();
+        let mut w = BufWriter::with_capacity(2 * UNBUFFERED_BLOCK, Vec::new());
+        for (k, b) in blocks.iter().enumerate() {
+            write_block(&mut w, b).expect("write");
+            if k == 1 {
+                assert_eq!(w.get_ref().len(), 10 + UNBUFFERED_BLOCK, "went around the buffer, after what was in it");
+            }
+        }
+        let out = w.into_inner().expect("flush");
+        assert!(out == blocks.concat());
     }
 
     #[test]
