@@ -170,7 +170,9 @@ impl SceneTree {
     /// Number of nodes without children (counting only loaded levels; a truncated tree's
     /// bottom internal nodes are not leaves).
     pub fn leaf_count(&self) -> usize {
-        self.internal.iter().filter(|&&b| !b).count()
+        // From the rank directory: the internal nodes before the last word, plus its own.
+        let internal = self.rank.last().map_or(0, |&r| r as usize) + self.bits.last().map_or(0, |w| w.count_ones() as usize);
+        self.nodes.len() - internal
     }
 
     /// Parent of every node (`NO_CHILD` for the root), computed in one pass.
@@ -265,6 +267,12 @@ mod tests {
             assert_eq!(tt.children(i), want, "node {i}");
         }
         assert!(tt.parents()[t.level(4).start..cut].iter().all(|&p| p != NO_CHILD));
+        // The rank directory's leaf count: full and truncated (its bottom internal nodes
+        // are not leaves), and the empty tree.
+        for (tree, flags) in [(&t, &internal[..]), (&tt, &internal[..cut])] {
+            assert_eq!(tree.leaf_count(), flags.iter().filter(|&&b| !b).count());
+        }
+        assert_eq!(SceneTree::default().leaf_count(), 0);
         assert_eq!(t.children(t.len()), None);
     }
 
