@@ -100,15 +100,27 @@ pub struct BuildStats {
     pub attributes_s: f64,
 }
 
+/// A sample in the partition: its centre in lanes 0–2 and its source index, as raw bits, in
+/// lane 3. One 16-byte vector, so the split loop loads, tests, boxes and swaps it whole
+/// (as a struct of a centre and a `u32` it was moved as four scalars). Lane 3 is only ever
+/// moved, and moves keep bits, so the index comes back exactly.
 #[derive(Clone, Copy)]
-struct Item {
-    c: [f32; 3],
-    idx: u32,
+struct Item([f32; 4]);
+
+impl Item {
+    fn new(c: [f32; 3], idx: u32) -> Item {
+        Item([c[0], c[1], c[2], f32::from_bits(idx)])
+    }
+
+    fn idx(&self) -> u32 {
+        self.0[3].to_bits()
+    }
 }
 
-/// An axis-aligned box. Four lanes, the fourth a copy of the third, so that growing it is
-/// one packed `minps`/`maxps` pair instead of six scalar compare-and-selects (the partition
-/// spends most of its instructions on boxes).
+/// An axis-aligned box in four lanes, so that growing it by an [`Item`] is one packed
+/// `minps`/`maxps` pair instead of six scalar compare-and-selects (the partition spends
+/// most of its instructions on boxes). Lane 3 (grown by the items' index bits) means
+/// nothing and is never read.
 #[derive(Clone, Copy)]
 struct Aabb {
     min: [f32; 4],
@@ -118,16 +130,16 @@ struct Aabb {
 impl Aabb {
     const EMPTY: Aabb = Aabb { min: [f32::INFINITY; 4], max: [f32::NEG_INFINITY; 4] };
 
-    /// Grows the box to hold `c`. A compare-and-select is one `minss`/`maxss` where
+    /// Grows the box to hold `it`'s centre. A compare-and-select is one `minss`/`maxss` where
     /// `f32::min`/`max` add a NaN fix-up; the results are the same here: centres are
-    /// finite (checked on input) and the bounds never NaN, so only the sign of a zero tie
+    /// finite (checked on input) and the bounds in lanes 0–2 never NaN, so only the sign of a zero tie
     /// could differ, and no split decision sees that (`mid`, `extent` and the comparisons
     /// made with them are the same for ±0). For the same reason the box of a set does not
     /// depend on the order its members are added in.
     #[inline]
     #[allow(clippy::needless_range_loop)] // indexed: the four lanes become one packed op
-    fn add(&mut self, c: &[f32; 3]) {
-        let v = [c[0], c[1], c[2], c[2]];
+    fn add(&mut self, it: &Item) {
+        let v = it.0;
         for k in 0..4 {
             self.min[k] = if v[k] < self.min[k] { v[k] } else { self.min[k] };
             self.max[k] = if v[k] > self.max[k] { v[k] } else { self.max[k] };
@@ -146,7 +158,7 @@ impl Aabb {
     fn of(items: &[Item]) -> Aabb {
         let mut b = Aabb::EMPTY;
         for it in items {
-            b.add(&it.c);
+            b.add(it);
         }
         b
     }
@@ -307,7 +319,7 @@ fn build_tree_impl(
     // Pass 1: partition.
     let t0 = Instant::now();
     let mut items: Vec<Item> =
-        samples.par_iter().enumerate().map(|(i, s)| Item { c: s.center, idx: i as u32 }).collect();
+        samples.par_iter().enumerate().map(|(i, s)| Item::new(s.center, i as u32)).collect();
     let mut slots = vec![0u32; 2 * n - 1];
     let ctx = Ctx { tol, weld: !matches!(opts.weld, Weld::Off), max_depth: ceil_log2(n) + opts.depth_slack };
     // In parallel: the root's box is the one pass over all items that no split shares.
@@ -322,7 +334,7 @@ fn build_tree_impl(
     // Pass 2: layout. Only the source indices of the partition are needed from here on (4
     // of the 16 bytes per item).
     let t1 = Instant::now();
-    let mut src: Vec<u32> = items.par_iter().map(|it| it.idx).collect();
+    let mut src: Vec<u32> = items.par_iter().map(Item::idx).collect();
     drop(items);
 
     // 2a: cut the tree into chunks numbered by one task each, and count every chunk's nodes
@@ -611,7 +623,7 @@ fn partition(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: 
         let hi_ok = cap.min(m - 1);
         l = target.clamp(lo_ok, hi_ok);
         items.select_nth_unstable_by(l, |a, b| {
-            a.c[axis].total_cmp(&b.c[axis]).then(a.idx.cmp(&b.idx))
+            a.0[axis].total_cmp(&b.0[axis]).then(a.idx().cmp(&b.idx()))
         });
         lb = Aabb::of(&items[..l]);
         rb = Aabb::of(&items[l..]);
@@ -626,9 +638,20 @@ fn partition(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: 
             || partition(ctx, ri, rs, lo + l, rb, depth + 1),
         )
     } else {
-        (partition(ctx, li, ls, lo, lb, depth + 1), partition(ctx, ri, rs, lo + l, rb, depth + 1))
+        (child(ctx, li, ls, lo, lb, depth + 1), child(ctx, ri, rs, lo + l, rb, depth + 1))
     };
     (forced + fa + fb, da.max(db))
+}
+
+/// [`partition`] of a child: a single item (half of all calls) becomes its leaf without
+/// the call.
+#[inline(always)]
+fn child(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: Aabb, depth: u32) -> (u64, u32) {
+    if items.len() == 1 {
+        slots[0] = (lo + 1) as u32;
+        return (0, depth);
+    }
+    partition(ctx, items, slots, lo, bbox, depth)
 }
 
 /// In-place two-pointer partition: centres below `mid` on `axis` first. Returns the left
@@ -648,13 +671,16 @@ fn split_on<const AXIS: usize>(items: &mut [Item], mid: f32) -> (usize, Aabb, Aa
     let mut i = 0usize;
     let mut j = items.len();
     while i < j {
-        if items[i].c[AXIS] < mid {
-            lb.add(&items[i].c);
+        // One load of the item serves the test, its box and the swap.
+        let it = items[i];
+        if it.0[AXIS] < mid {
+            lb.add(&it);
             i += 1;
         } else {
             j -= 1;
-            items.swap(i, j);
-            rb.add(&items[j].c);
+            items[i] = items[j];
+            items[j] = it;
+            rb.add(&it);
         }
     }
     (i, lb, rb)
@@ -670,7 +696,7 @@ mod tests {
         let mut i = 0usize;
         let mut j = items.len();
         while i < j {
-            if items[i].c[axis] < mid {
+            if items[i].0[axis] < mid {
                 i += 1;
             } else {
                 j -= 1;
@@ -716,8 +742,8 @@ mod tests {
         let mut b = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
         for it in items {
             for k in 0..3 {
-                b.0[k] = b.0[k].min(it.c[k]);
-                b.1[k] = b.1[k].max(it.c[k]);
+                b.0[k] = b.0[k].min(it.0[k]);
+                b.1[k] = b.1[k].max(it.0[k]);
             }
         }
         b
@@ -738,15 +764,22 @@ mod tests {
                         let f = rng.next_f32();
                         *v = if coarse { (f * 4.0).floor() } else { f * 2.0 - 1.0 };
                     }
-                    Item { c, idx }
+                    // Half the cases with the largest indices a tree allows, whose bits
+                    // are NaN patterns in the item's fourth lane.
+                    Item::new(c, if case % 2 == 1 { u32::MAX / 2 - idx } else { idx })
                 })
                 .collect();
+            let mut want: Vec<u32> = items.iter().map(Item::idx).collect();
+            want.sort_unstable();
             let axis = case % 3;
             let mid = if coarse { 2.0 } else { rng.next_f32() * 2.0 - 1.0 };
             let (mut a, mut b) = (items.clone(), items);
             let (l, lb, rb) = split_at_plane(&mut a, axis, mid);
             assert_eq!(l, split_at_plane_reference(&mut b, axis, mid), "case {case}");
-            assert!(a.iter().zip(&b).all(|(x, y)| x.idx == y.idx), "case {case}: permutation differs");
+            assert!(a.iter().zip(&b).all(|(x, y)| x.idx() == y.idx()), "case {case}: permutation differs");
+            let mut got: Vec<u32> = a.iter().map(Item::idx).collect();
+            got.sort_unstable();
+            assert_eq!(got, want, "case {case}: indices not kept");
             for (bx, part) in [(lb, &a[..l]), (rb, &a[l..])] {
                 if part.is_empty() {
                     continue;
