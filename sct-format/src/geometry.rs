@@ -152,6 +152,13 @@ pub fn merge_area(wa: f32, wb: f32) -> f32 {
 /// Area-weighted RGBA colour (EQ 14), rounded to nearest. With zero (or negative) total
 /// area both children weigh equally, so a zero-area subtree still gets a sensible colour.
 pub fn merge_color(ca: [u8; 4], wa: f32, cb: [u8; 4], wb: f32) -> [u8; 4] {
+    // Equal colours (untextured surfaces, flat materials) blend to themselves: with the
+    // weights below finite and non-negative, a channel `c` gives `c` times a product of
+    // roundings within 6 ulp of 1, under 1e-13 away from `c` (exactly 0 for 0), which the
+    // rounding to u8 takes back to `c`.
+    if ca == cb {
+        return ca;
+    }
     let (wa, wb) = (wa.max(0.0) as f64, wb.max(0.0) as f64);
     let (wa, wb) = if wa + wb > 0.0 && (wa + wb).is_finite() { (wa, wb) } else { (1.0, 1.0) };
     let inv = 1.0 / (wa + wb);
@@ -686,6 +693,19 @@ mod tests {
             let (ca, cb) = ((rng.next() as u32).to_le_bytes(), (rng.next() as u32).to_le_bytes());
             let (wa, wb) = (rng.float(10.0), if rng.next() % 4 == 0 { rng.float(1e-3) } else { rng.unit() * 10.0 });
             assert_eq!(merge_color(ca, wa, cb, wb), reference::merge_color(ca, wa, cb, wb), "{ca:?} {wa:e} {cb:?} {wb:e}");
+        }
+        // Equal colours (the shortcut): every channel value, weights of every scale,
+        // zero, negative, infinite and NaN.
+        let special = [0.0, -0.0, -1.0, f32::MIN_POSITIVE, 1e-45, f32::MAX, f32::INFINITY, f32::NEG_INFINITY, f32::NAN, 1.0, 3.0];
+        for k in 0..200_000u32 {
+            let c = (rng.next() as u32).to_le_bytes().map(|v| if k % 3 == 0 { [0, 1, 127, 128, 254, 255][v as usize % 6] } else { v });
+            let w = |rng: &mut Rng| match rng.next() % 3 {
+                0 => special[(rng.next() % special.len() as u64) as usize],
+                1 => f32::from_bits(rng.next() as u32),
+                _ => rng.unit() * 10.0,
+            };
+            let (wa, wb) = (w(&mut rng), w(&mut rng));
+            assert_eq!(merge_color(c, wa, c, wb), reference::merge_color(c, wa, c, wb), "{c:?} {wa:e} {wb:e}");
         }
     }
 
