@@ -609,10 +609,21 @@ struct ParentQueue {
 }
 
 impl ParentQueue {
-    /// Copies nodes `from..to` into `out` and drops the segments that end by `to` (callers
-    /// ask for consecutive ranges).
-    fn take(&mut self, from: usize, to: usize, out: &mut Vec<Node>) -> Result<()> {
-        out.clear();
+    /// Parents `from..to` (callers ask for consecutive ranges): borrowed when one segment
+    /// holds them all (the usual case: a block's parents are about half as many nodes as
+    /// the block above them that decoded them), else copied together.
+    fn range(&self, from: usize, to: usize) -> Result<std::borrow::Cow<'_, [Node]>> {
+        let mut at = self.first;
+        for seg in &self.segments {
+            if from >= at && to <= at + seg.len() {
+                return Ok(std::borrow::Cow::Borrowed(&seg[from - at..to - at]));
+            }
+            at += seg.len();
+            if at > from {
+                break;
+            }
+        }
+        let mut out = Vec::with_capacity(to.saturating_sub(from));
         let mut at = self.first;
         for seg in &self.segments {
             let (lo, hi) = (from.max(at), to.min(at + seg.len()));
@@ -627,6 +638,11 @@ impl ParentQueue {
         if out.len() != to - from {
             return Err(Error::Misuse(format!("parents {from}..{to} requested, {} available (bug)", out.len())));
         }
+        Ok(std::borrow::Cow::Owned(out))
+    }
+
+    /// Drops the segments that end by `to`.
+    fn release(&mut self, to: usize) {
         while let Some(seg) = self.segments.front() {
             if self.first + seg.len() > to {
                 break;
@@ -634,7 +650,6 @@ impl ParentQueue {
             self.first += seg.len();
             self.segments.pop_front();
         }
-        Ok(())
     }
 }
 
@@ -672,8 +687,6 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
     let mut attribute_bytes = [0u64; 7];
     // Decoded internal nodes of the previous level: the parents of the current one.
     let mut parents = ParentQueue::default();
-    // The parents of one batch, contiguous as the codec wants them.
-    let mut batch_parents: Vec<Node> = Vec::new();
     // The nodes of one batch when they are owned (see [`NodeSource::batch`]).
     let mut batch_nodes: Vec<Node> = Vec::new();
     // Stored blocks of the last batch encoded, not yet handed to the sink.
@@ -700,8 +713,9 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
         let mut next_parents = ParentQueue::default();
         for (batch_chunks, batch_internal) in chunks.chunks(batch).zip(internal.chunks(batch)) {
             let (Some(&(first, _)), Some(&(_, last))) = (batch_chunks.first(), batch_chunks.last()) else { continue };
-            parents.take(first / 2, last / 2, &mut batch_parents)?;
-            let p0 = first / 2;
+            // Every block's parents, contiguous as the codec wants them.
+            let block_parents =
+                batch_chunks.iter().map(|&(s, e)| parents.range(s / 2, e / 2)).collect::<Result<Vec<_>>>()?;
             let level_nodes = tree.nodes.batch(range.start + first..range.start + last, &mut batch_nodes)?;
             // The previous batch goes to the sink while this one is encoded.
             let (written, encoded) = rayon::join(
@@ -710,14 +724,17 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
                     batch_chunks
                         .par_iter()
                         .zip(batch_internal)
-                        .map(|(&(s, e), &k)| {
+                        .zip(&block_parents)
+                        .map(|((&(s, e), &k), p)| {
                             let nodes = &level_nodes[s - first..e - first];
-                            encode_block(opts, params, &batch_parents[s / 2 - p0..e / 2 - p0], nodes, &level_flags[s..e], k)
+                            encode_block(opts, params, p, nodes, &level_flags[s..e], k)
                         })
                         .collect::<Vec<Result<EncodedBlock>>>()
                 },
             );
             written?;
+            drop(block_parents);
+            parents.release(last / 2);
             for ((&(s, e), r), &k) in batch_chunks.iter().zip(encoded).zip(batch_internal) {
                 let mut b = r?;
                 // Each block's parents are a segment of their own (no copy into a batch's).
@@ -752,7 +769,6 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
     }
     pending.drain(..).try_for_each(|b| sink(&b))?;
     drop(parents);
-    drop(batch_parents);
     let mut index = Vec::with_capacity(index_len);
     TreeHeader {
         profile: profile.id(),
@@ -877,6 +893,34 @@ mod tests {
             assert_eq!(st_owned, st_mem, "{profile:?}");
         }
         let _ = std::fs::remove_file(&path);
+    }
+
+    /// Parents are borrowed from a segment that holds the whole range, copied across
+    /// segments (empty ones too), and released segment by segment.
+    #[test]
+    fn parent_ranges_borrow_or_copy() {
+        let node = |i: usize| Node { area: i as f32, ..Node::default() };
+        let lens = [3usize, 0, 5, 1, 0, 4];
+        let all: Vec<Node> = (0..lens.iter().sum()).map(node).collect();
+        let mut q = ParentQueue { first: 0, segments: Default::default() };
+        let mut at = 0;
+        for &l in &lens {
+            q.segments.push_back(all[at..at + l].to_vec());
+            at += l;
+        }
+        let bounds = [0, 3, 3, 8, 9, 9, 13];
+        for from in 0..all.len() {
+            for to in from + 1..=all.len() {
+                let got = q.range(from, to).expect("range");
+                assert!(got[..] == all[from..to], "{from}..{to}");
+                let inside = bounds.windows(2).any(|w| w[0] <= from && to <= w[1]);
+                assert_eq!(matches!(got, std::borrow::Cow::Borrowed(_)), inside, "{from}..{to}");
+            }
+        }
+        q.release(8);
+        assert_eq!((q.first, q.segments.len()), (8, 3));
+        assert!(q.range(9, 13).expect("range")[..] == all[9..13]);
+        assert!(q.range(2, 9).is_err(), "released parents are gone");
     }
 
     /// Blocks that go around the buffer land in order with the buffered ones.
