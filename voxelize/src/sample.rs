@@ -1134,10 +1134,9 @@ fn sample_slabs<E: Send>(
                     let mut out = outs.lock().ok().and_then(|mut o| o.pop()).unwrap_or_default();
                     out.clear();
                     out.reserve(if opts.merge { before * 4 / 5 } else { before });
-                    let node = NodeShape { kp, r: radius, h, h2, merge: opts.merge };
                     for part in &bufs.parts.parts {
                         let idx_mask = sort_order(part, &mut bufs.items, &mut bufs.tmp);
-                        merge_sorted(&bufs.items, idx_mask, part, &node, &mut out);
+                        merge_sorted(&bufs.items, idx_mask, part, kp, radius, h, h2, opts.merge, &mut out);
                     }
                     let before = before as u64;
                     (out, before, dropped)
@@ -1262,21 +1261,11 @@ fn sort_order(recs: &[Rec], items: &mut Vec<u64>, tmp: &mut Vec<u64>) -> u64 {
     (1u64 << idx_bits) - 1
 }
 
-/// What turns a unit's records into nodes: its key packing, the node radius, the voxel size
-/// and its square (grid area → world area), and whether records of one voxel merge.
-struct NodeShape<'a> {
-    kp: &'a KeyPack,
-    r: f32,
-    h: f64,
-    h2: f64,
-    merge: bool,
-}
-
 /// Appends to `out` the nodes of records in the order of `items` (record index = item &
-/// `idx_mask`, in key order), merging records of one voxel when `shape.merge` (areas add;
+/// `idx_mask`, in key order), merging records of one voxel when `merge` (areas add;
 /// normal and colour are area-weighted means).
-fn merge_sorted(items: &[u64], idx_mask: u64, recs: &[Rec], shape: &NodeShape, out: &mut Vec<Node>) {
-    let &NodeShape { kp, r, h, h2, merge } = shape;
+#[allow(clippy::too_many_arguments)]
+fn merge_sorted(items: &[u64], idx_mask: u64, recs: &[Rec], kp: &KeyPack, r: f32, h: f64, h2: f64, merge: bool, out: &mut Vec<Node>) {
     let rec = |j: usize| &recs[(items[j] & idx_mask) as usize];
     // Items carry their keys above the index (unless bare indices): runs of one voxel are
     // found without reading the records.
@@ -2542,9 +2531,8 @@ mod tests {
         assert!(voxels < recs.len() / 4);
         for merge in [true, false] {
             let (mut a, mut b) = (Vec::new(), Vec::new());
-            let shape = NodeShape { kp: &kp, r: 0.5, h: 0.1, h2: 0.01, merge };
-            merge_sorted(&items, mask, &recs, &shape, &mut a);
-            merge_sorted(&bare, u64::MAX, &recs, &shape, &mut b);
+            merge_sorted(&items, mask, &recs, &kp, 0.5, 0.1, 0.01, merge, &mut a);
+            merge_sorted(&bare, u64::MAX, &recs, &kp, 0.5, 0.1, 0.01, merge, &mut b);
             assert_eq!(a.len(), if merge { voxels } else { recs.len() });
             let bits = |n: &Node| (n.center, n.normal.map(f32::to_bits), n.area.to_bits(), n.color);
             assert_eq!(a.iter().map(bits).collect::<Vec<_>>(), b.iter().map(bits).collect::<Vec<_>>());
