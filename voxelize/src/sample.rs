@@ -1112,7 +1112,7 @@ fn sample_slabs<E: Send>(
                     bufs.parts.reset(kp, (x0, x1), per_slab);
                     let mut dropped = 0u64;
                     for &gi in list {
-                        // A triangle's records (few, in L1) go to the parts by x.
+                        // A triangle's records (few, in L1) go to the slab's parts by key.
                         bufs.recs.clear();
                         let (pi, ti) = tris[gi as usize];
                         let p = &pp[pi as usize];
@@ -2554,7 +2554,7 @@ mod tests {
                     .map(|i| {
                         let x = xs.0 - 3 + (rng.next_u64() % (xs.1 - xs.0 + 7) as u64) as i64;
                         let key = kp.pack([x, (rng.next_u64() % 40) as i64, (rng.next_u64() % 40) as i64]);
-                        Rec { key, area: i as f32, normal: [all.len() as f32; 3], color: [0.0; 4] }
+                        Rec { key, area: 0.5, normal: [(all.len() + i as usize) as f32; 3], color: [0.0; 4] }
                     })
                     .collect();
                 all.extend_from_slice(&tri);
