@@ -74,7 +74,18 @@ pub(super) fn check_parent(p: &Node, k: usize) -> Result<()> {
 }
 
 /// Checks a child's attributes are representable.
+#[inline]
 pub(super) fn check_child(c: &Node, i: usize, params: CodecParams) -> Result<()> {
+    // Inlined test; the error is built out of line (it kept this function from inlining).
+    if attributes_usable(c) && (params.alpha || c.color[3] == 255) {
+        return Ok(());
+    }
+    child_error(c, i, params)
+}
+
+/// Finite attributes, radius and area not negative.
+#[inline]
+fn attributes_usable(c: &Node) -> bool {
     // The same test, cheaper: a sum of the nine values is finite only if each is (an infinite
     // or NaN term makes it infinite or NaN); an overflowing sum takes the full test.
     let sum = c.center[0] + c.center[1] + c.center[2] + c.normal[0] + c.normal[1] + c.normal[2] + c.radius + c.area + c.cone;
@@ -84,7 +95,14 @@ pub(super) fn check_child(c: &Node, i: usize, params: CodecParams) -> Result<()>
             && c.area.is_finite()
             && c.cone.is_finite()
             && c.normal.iter().all(|v| v.is_finite()));
-    if !(finite && c.radius >= 0.0 && c.area >= 0.0) {
+    finite && c.radius >= 0.0 && c.area >= 0.0
+}
+
+/// Why [`check_child`] refuses `c`.
+#[cold]
+#[inline(never)]
+fn child_error(c: &Node, i: usize, params: CodecParams) -> Result<()> {
+    if !attributes_usable(c) {
         return Err(Error::Misuse(format!("child {i} has a non-finite or negative attribute: {c:?}")));
     }
     if !params.alpha && c.color[3] != 255 {

@@ -242,6 +242,26 @@ fn cone_code_over(axis: [f32; 3], dec: [f32; 3], cone: f32) -> u8 {
     cone_encode_up(base + angle(axis, dec))
 }
 
+/// [`cone_code_over`] for a decoded axis `dec = normalized(w)` whose surface point `w` passed
+/// the search's bound test (`m·w > 0`, `(m·w)² ≥ COS2_MAX_ERROR·|m|²·|w|²`, so within 0.64°
+/// of `axis`), with a fast path for a cone of 0 (every leaf): the angle is then below the
+/// first cone step, since the f32 normalisation moves `w` by < 1e-6 rad and 0.64° + 1e-6 rad
+/// < π/255 = 0.706°, so the code is 1, or 0 when the angle is exactly 0. That is when the f64
+/// cross product is exactly zero: its products of f32 values are exact, so each difference is
+/// zero only for equal products, and a non-zero one cannot vanish when squared (it is far
+/// above 1e-150). Checked against [`cone_code_over`] in `cone_toward_matches_reference`.
+#[inline]
+fn cone_code_within_bound(axis: [f32; 3], dec: [f32; 3], cone: f32) -> u8 {
+    // `cone_code_over` uses `cone.max(0.0)`: 0 for a negative or NaN cone too.
+    if cone.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        let a = [axis[0] as f64, axis[1] as f64, axis[2] as f64];
+        let b = [dec[0] as f64, dec[1] as f64, dec[2] as f64];
+        let parallel = a[1] * b[2] == a[2] * b[1] && a[2] * b[0] == a[0] * b[2] && a[0] * b[1] == a[1] * b[0];
+        return (!parallel) as u8;
+    }
+    cone_code_over(axis, dec, cone)
+}
+
 /// `cos²` of 0.63999°, written out so that no libm call decides a code: 10⁻⁵° inside
 /// [`MAX_NORMAL_ERROR_DEG`], because a code is accepted on its unrounded axis and the f32
 /// rounding of the decoded axis moves it by up to 3·10⁻⁶° (at exactly 0.64° a random test
@@ -282,7 +302,7 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
         // The search's bound test, negated.
         if !(d <= 0.0 || d * d < bound * l2) {
             let dec = normalized(w);
-            return (pred, dec, cone_code_over(axis, dec, cone));
+            return (pred, dec, cone_code_within_bound(axis, dec, cone));
         }
     }
     // fu, fv are whole numbers in [0, 255] (the projection of a usable axis), so clamping
@@ -369,7 +389,10 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
     }
     // oct_decode(best.1): the same surface point.
     let dec = normalized(surface(best_ij.0, best_ij.1));
-    (best.1, dec, cone_code_over(axis, dec, cone))
+    // A code other than the precise one passed the bound test to be chosen.
+    let within_bound = best.1 != c0 || !(d0 <= 0.0 || d0 * d0 < bound * l0);
+    let cone_code = if within_bound { cone_code_within_bound(axis, dec, cone) } else { cone_code_over(axis, dec, cone) };
+    (best.1, dec, cone_code)
 }
 
 /// The straightforward form of [`encode_cone_toward`] (before its per-row precomputation),
@@ -560,6 +583,12 @@ mod tests {
             axes.push([f(0), f(16), f(32)]);
         }
         axes.extend([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 1.0, -1e-7], [-0.577, 0.577, 0.577], [0.0; 3]]);
+        // Axes exactly on a decoded code (angle 0: cone code 0 for a zero cone), and multiples.
+        for _ in 0..100_000 {
+            let d = oct_decode(rnd() as u16);
+            axes.extend([d, d.map(|v| v * 2.0), d.map(|v| v * 0.375)]);
+        }
+        let mut exact_zero = 0;
         for a in axes {
             let r = rnd();
             let near = oct_encode(if usable(a) { a } else { [0.0, 0.0, 1.0] });
@@ -572,13 +601,21 @@ mod tests {
                     ((near as u8).wrapping_add(du).wrapping_sub(4)) as u16 | (((near >> 8) as u8).wrapping_add(dv).wrapping_sub(4) as u16) << 8
                 }
             };
-            let cone = ((r >> 24) as u8) as f32 / 255.0;
+            // Leaves have cone 0: half the cases (also -0.0 and a negative cone).
+            let cone = match (r >> 32) & 7 {
+                0..=2 => 0.0,
+                3 => [-0.0, -0.25][((r >> 36) & 1) as usize],
+                _ => ((r >> 24) as u8) as f32 / 255.0,
+            };
             let got = encode_cone_toward(a, cone, pred, zz);
             let want = encode_cone_toward_reference(a, cone, pred, zz);
             assert_eq!(got.0, want.0, "{a:?} {pred}");
             assert_eq!(got.1.map(f32::to_bits), want.1.map(f32::to_bits), "{a:?} {pred}");
             assert_eq!(got.2, want.2, "{a:?} {pred}");
+            exact_zero += (want.2 == 0) as u32;
             assert_eq!(want.1.map(f32::to_bits), oct_decode(want.0).map(f32::to_bits));
         }
+        // Zero cones on exactly decodable axes: the angle-0 case of the zero-cone fast path.
+        assert!(exact_zero > 10_000, "{exact_zero}");
     }
 }

@@ -190,15 +190,7 @@ fn fit(t: &Tables, g: [i32; 3], pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) ->
     let dist = dist64(grid_center(g, pc, pr), cc);
     let need = dist + cr as f64;
     // First guess from the exact ratio; then walk up until the f32 radius really covers it.
-    let guess = super::rounding::ceil_f64(need / pr as f64 * QR as f64);
-    if !guess.is_finite() || guess > (Q_MAX + 1) as f64 {
-        return None;
-    }
-    let mut q = (guess as i32).max(1);
-    // One step down too, in case the f32 product rounds above the exact ratio.
-    if q > 1 {
-        q -= 1;
-    }
+    let mut q = first_radius_code(need / pr as f64 * QR as f64)?;
     while q <= qmax {
         if (pr * radius_coef(q)) as f64 >= need {
             return Some((base + (q - 1) as u16, q, dist));
@@ -206,6 +198,21 @@ fn fit(t: &Tables, g: [i32; 3], pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) ->
         q += 1;
     }
     None
+}
+
+/// Where [`fit`] starts walking for the exact ratio `y` (radius codes needed): one below
+/// `⌈y⌉`, in case the f32 product rounds above the exact ratio, and at least 1; `None` when
+/// `⌈y⌉ > Q_MAX + 1` or `y` is not finite. The same codes as [`fit_reference`]'s `ceil_f64` and
+/// float tests, from one truncation: `⌈y⌉ = t + (t < y)` with `t = trunc(y)` (y ≤ 18 here).
+#[inline(always)]
+fn first_radius_code(y: f64) -> Option<i32> {
+    // Also catches NaN; ⌈y⌉ > 18 iff y > 18.
+    if !(y <= (Q_MAX + 1) as f64 && y > f64::NEG_INFINITY) {
+        return None;
+    }
+    let t = y as i32;
+    let c = t + ((t as f64) < y) as i32;
+    Some(if c > 1 { c - 1 } else { 1 })
 }
 
 /// Encodes a child sphere `(cc, cr)` against decoded parent `(pc, pr)`: the legal state of
@@ -546,6 +553,35 @@ mod tests {
             with_ties += got.is_some_and(|t| t.len > 1) as u32;
         }
         assert!(with_ties > 10_000, "{with_ties}");
+    }
+
+    /// `first_radius_code` agrees with the `ceil_f64` form of `fit_reference`, around every
+    /// integer, at the limits and at random.
+    #[test]
+    fn first_radius_code_matches_ceil() {
+        let want = |y: f64| {
+            let guess = crate::codec::rounding::ceil_f64(y);
+            if !guess.is_finite() || guess > (Q_MAX + 1) as f64 {
+                return None;
+            }
+            let q = (guess as i32).max(1);
+            Some(if q > 1 { q - 1 } else { q })
+        };
+        let mut ys = vec![f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 0.0, -0.0, -1e300, 1e300, f64::MIN_POSITIVE, -3e9];
+        for k in -30..=30 {
+            let h = k as f64;
+            let (mut up, mut down) = (h, h);
+            for _ in 0..4 {
+                ys.extend([up, down, h + 0.5]);
+                up = up.next_up();
+                down = down.next_down();
+            }
+        }
+        let mut rng = crate::rng::SplitMix64(0x5DEE_CE66_D1CE_4E5B);
+        ys.extend((0..1_000_000).map(|_| rng.next_f64() * 40.0 - 10.0));
+        for y in ys {
+            assert_eq!(first_radius_code(y), want(y), "{y}");
+        }
     }
 
     /// `round_on_grid` agrees with `round_f64` and the `|g| <= 6` test, around every

@@ -53,7 +53,8 @@ pub(crate) fn round_f64(x: f64) -> f64 {
     }
 }
 
-/// `x.ceil()`.
+/// `x.ceil()`; test-only now, for the reference encoders the fast ones are checked against.
+#[cfg(test)]
 #[inline]
 pub(crate) fn ceil_f64(x: f64) -> f64 {
     if x.abs() < 2_147_483_648.0 {
