@@ -5,7 +5,7 @@
 //! `cargo run --release -p sct-format --example samples_encoding -- FILE.samples [FILTER]`
 //! (FILTER: variants whose name contains it, or `=NAME` for one); `… FILE extract=K:OUT`
 //! writes every K-th chunk to OUT (a small file for callgrind); `… FILE rewrite=OUT` writes
-//! FILE's content with today's writer (how the fuzz seeds are made).
+//! FILE's content with today's writer (how the fuzz seeds are made); `… FILE read` only reads.
 
 use std::time::Duration;
 
@@ -297,6 +297,10 @@ fn main() {
     let path = args.get(1).expect("usage: samples_encoding FILE.samples [FILTER]");
     let filter = args.get(2).cloned().unwrap_or_default();
     let f = SamplesFile::read_file(std::path::Path::new(path), &Limits::default()).unwrap();
+    if filter == "read" {
+        // Just the reader (for callgrind, old against new files).
+        return;
+    }
     if let Some(out) = filter.strip_prefix("rewrite=") {
         // The same content through today's writer (fuzz seeds).
         f.write_file(std::path::Path::new(out)).unwrap();

@@ -676,15 +676,10 @@ fn put_planes(samples: &[Node], out: &mut Vec<u8>) {
 
 /// Byte k of `bytes_of(s)` for the i-th sample s of `tile` into `planes[k][i]`.
 #[inline]
-fn scatter<const K: usize>(tile: &[Node], planes: [&mut [u8]; K], mut bytes_of: impl FnMut(&Node) -> [u8; K]) {
-    let mut planes = planes.map(|p| p.get_mut(..tile.len()).unwrap_or_default());
-    for (i, s) in tile.iter().enumerate() {
-        let b = bytes_of(s);
-        for (p, b) in planes.iter_mut().zip(b) {
-            if let Some(slot) = p.get_mut(i) {
-                *slot = b;
-            }
-        }
+fn scatter(tile: &[Node], [p0, p1, p2, p3]: [&mut [u8]; 4], mut bytes_of: impl FnMut(&Node) -> [u8; 4]) {
+    let planes = p0.iter_mut().zip(p1.iter_mut()).zip(p2.iter_mut()).zip(p3.iter_mut());
+    for (s, (((b0, b1), b2), b3)) in tile.iter().zip(planes) {
+        [*b0, *b1, *b2, *b3] = bytes_of(s);
     }
 }
 
@@ -711,12 +706,12 @@ fn samples_from_planes(bytes: &[u8], out: &mut [Node]) {
     }
 }
 
-/// `set(o, [planes[0][i], …])` for the i-th sample o of `tile`.
+/// `set(o, [planes[0][i], …, planes[3][i]])` for the i-th sample o of `tile`.
 #[inline]
-fn gather<const K: usize>(tile: &mut [Node], planes: [&[u8]; K], mut set: impl FnMut(&mut Node, [u8; K])) {
-    let planes = planes.map(|p| p.get(..tile.len()).unwrap_or_default());
-    for (i, o) in tile.iter_mut().enumerate() {
-        set(o, std::array::from_fn(|k| planes[k].get(i).copied().unwrap_or_default()));
+fn gather(tile: &mut [Node], [p0, p1, p2, p3]: [&[u8]; 4], mut set: impl FnMut(&mut Node, [u8; 4])) {
+    let planes = p0.iter().zip(p1).zip(p2).zip(p3);
+    for (o, (((b0, b1), b2), b3)) in tile.iter_mut().zip(planes) {
+        set(o, [*b0, *b1, *b2, *b3]);
     }
 }
 
