@@ -33,8 +33,8 @@ pub const SAMPLE_BYTES: usize = 36;
 pub const SMPC: [u8; 4] = *b"SMPC";
 /// Section tag of the chunked samples as byte planes (spec §8), which writers write: the
 /// chunks of `SMPC` with each chunk's samples split into 36 byte planes and centres stored as
-/// differences, which zstd compresses to a fifth to a third less in about 35 % fewer
-/// instructions (and inflates in about half).
+/// differences. On voxel samples (bunny, spot) zstd level 1 makes them 22–31 % smaller than
+/// columns with about 38 % fewer instructions, and inflates them with about 55 % fewer.
 pub const SMPS: [u8; 4] = *b"SMPS";
 /// Most samples in one `SMPC` chunk; writers cut chunks of exactly this many but the last,
 /// so the bytes depend neither on the thread count nor on how samples were pushed. 2.4 MB
@@ -1450,14 +1450,14 @@ mod tests {
         assert_eq!(SamplesFile::read(&new, &Limits::default()).unwrap(), old);
     }
 
-    /// The SMPS seed is what today's writer makes of the SMPC seed (made with
+    /// The SMPS fuzz seed is the SMPC seed's content rewritten by the SMPS writer (made with
     /// `cargo run --release -p sct-format --example samples_encoding -- cube_smpc.samples rewrite=cube_smps.samples`).
     #[test]
-    fn smps_seed_is_current() {
+    fn smps_seed_is_the_smpc_seed_rewritten() {
+        let smps = include_bytes!("../../fuzz/seeds/samples_reader/cube_smps.samples");
+        assert!(!chunk_counts(smps).is_empty());
         let old = SamplesFile::read(include_bytes!("../../fuzz/seeds/samples_reader/cube_smpc.samples"), &Limits::default()).unwrap();
-        let mut new = Vec::new();
-        old.write_to(&mut new).unwrap();
-        assert!(new == include_bytes!("../../fuzz/seeds/samples_reader/cube_smps.samples"));
+        assert_eq!(SamplesFile::read(smps, &Limits::default()).unwrap(), old);
     }
 
     /// The planes as spec §8 lays them out, on two samples: byte k of sample i at k·n + i,
