@@ -1123,7 +1123,8 @@ fn sample_slabs<E: Send>(
                             // Per-triangle areas (EQ 17) need the whole triangle's sample count:
                             // counted row by row, while only this slab's voxels are shaded and
                             // kept (each voxel, hence each alpha drop, belongs to one slab).
-                            (Method::Scanline, _) => scanline::scanline_triangle(&t, &mat, kp, (x0, x1), &mut bufs.recs),
+                            // Straight into the parts: nothing rescales its records afterwards.
+                            (Method::Scanline, _) => scanline::scanline_triangle(&t, &mat, kp, (x0, x1), &mut bufs.parts),
                             _ => voxel_triangle(&t, &mat, opts.area, kp, ALL_X, (x0, x1), &mut bufs.recs),
                         };
                         bufs.parts.extend(&bufs.recs);
@@ -1134,8 +1135,8 @@ fn sample_slabs<E: Send>(
                     let mut out = outs.lock().ok().and_then(|mut o| o.pop()).unwrap_or_default();
                     out.clear();
                     out.reserve(if opts.merge { before * 4 / 5 } else { before });
-                    for part in &bufs.parts.parts {
-                        let idx_mask = sort_order(part, &mut bufs.items, &mut bufs.tmp);
+                    for (i, part) in bufs.parts.parts.iter().enumerate() {
+                        let idx_mask = sort_order(part, bufs.parts.key_range(i), &mut bufs.items, &mut bufs.tmp);
                         merge_sorted(&bufs.items, idx_mask, part, kp, radius, h, h2, opts.merge, &mut out);
                     }
                     let before = before as u64;
@@ -1188,6 +1189,29 @@ fn slab_target() -> f64 {
 /// (2k and 4k records per part, or 8-bit radix digits, measured slower; 16k the same.)
 const PART_RECS: f64 = 8192.0;
 
+/// Where an emitter puts its records.
+trait RecSink {
+    fn push(&mut self, r: Rec);
+}
+
+impl RecSink for Vec<Rec> {
+    #[inline]
+    fn push(&mut self, r: Rec) {
+        Vec::push(self, r);
+    }
+}
+
+impl RecSink for SlabParts {
+    /// Appends a record to the part of its key.
+    #[inline]
+    fn push(&mut self, r: Rec) {
+        let i = self.part_of(r.key);
+        if let Some(p) = self.parts.get_mut(i) {
+            p.push(r);
+        }
+    }
+}
+
 /// A slab's records in parts by key: part `i` holds the keys `base + i·2^shift ..` (clamped
 /// to the first and last part), where `base` is the key of the slab's first x with the
 /// lowest y and z. The parts are in key order and each key lies in one part, in the order
@@ -1229,15 +1253,23 @@ impl SlabParts {
     /// part at once measured slower, most runs being short).
     fn extend(&mut self, recs: &[Rec]) {
         for r in recs {
-            let i = self.part_of(r.key);
-            if let Some(p) = self.parts.get_mut(i) {
-                p.push(*r);
-            }
+            self.push(*r);
         }
     }
 
     fn len(&self) -> usize {
         self.parts.iter().map(Vec::len).sum()
+    }
+
+    /// (lowest key, key bits) of part `i`'s keys when known from its place: the first and
+    /// last parts also hold clamped strays, so only the parts between them.
+    fn key_range(&self, i: usize) -> Option<(u64, u32)> {
+        let i = i as u64;
+        if i == 0 || i >= self.last {
+            return None;
+        }
+        let lo = (i << self.shift).checked_add(self.base)?;
+        Some((lo, self.shift))
     }
 }
 
@@ -1245,10 +1277,14 @@ impl SlabParts {
 /// low bits of an item under the returned mask. Normally an item is the key (relative to
 /// the smallest) above the index, so one radix sort of plain `u64`s by their key bits
 /// orders them; when the two do not fit in 64 bits, items are bare indices (comparison sort).
-fn sort_order(recs: &[Rec], items: &mut Vec<u64>, tmp: &mut Vec<u64>) -> u64 {
+/// `range` = (lo, bits) when every key is known to lie in `lo .. lo + 2^bits` (a middle part
+/// of [`SlabParts`]), which saves a scan for the smallest and largest keys.
+fn sort_order(recs: &[Rec], range: Option<(u64, u32)>, items: &mut Vec<u64>, tmp: &mut Vec<u64>) -> u64 {
     items.clear();
-    let (lo, hi) = recs.iter().fold((u64::MAX, 0), |(l, h), r| (l.min(r.key), h.max(r.key)));
-    let key_bits = 64 - hi.saturating_sub(lo).leading_zeros();
+    let (lo, key_bits) = range.unwrap_or_else(|| {
+        let (lo, hi) = recs.iter().fold((u64::MAX, 0), |(l, h), r| (l.min(r.key), h.max(r.key)));
+        (lo, 64 - hi.saturating_sub(lo).leading_zeros())
+    });
     let idx_bits = 64 - (recs.len() as u64).leading_zeros();
     if key_bits + idx_bits > 64 {
         items.extend(0..recs.len() as u64);
@@ -1269,7 +1305,19 @@ fn merge_sorted(items: &[u64], idx_mask: u64, recs: &[Rec], kp: &KeyPack, r: f32
     // Items carry their keys above the index (unless bare indices): runs of one voxel are
     // found without reading the records.
     let same_voxel = |i: usize, j: usize| if idx_mask == u64::MAX { rec(i).key == rec(j).key } else { (items[i] ^ items[j]) & !idx_mask == 0 };
-    let center = |key: u64| kp.unpack(key).map(|v| ((v as f64 + 0.5) * h) as f32);
+    // Keys ascend, so neighbours mostly share x and y (the bits above z): their centre
+    // coordinates are taken once per (x, y) column, only z per key.
+    let mut column = (u64::MAX, [0.0f32; 2]);
+    let z_mask = kp.bits[2].checked_sub(1).map_or(0, |b| u64::MAX >> (63 - b));
+    let mut center = |key: u64| -> [f32; 3] {
+        let c = |v: i64| ((v as f64 + 0.5) * h) as f32;
+        let hi = key.checked_shr(kp.bits[2]).unwrap_or(0);
+        if hi != column.0 {
+            let v = kp.unpack(key);
+            column = (hi, [c(v[0]), c(v[1])]);
+        }
+        [column.1[0], column.1[1], c((key & z_mask) as i64 + kp.lo[2])]
+    };
     // Neighbouring voxels mostly carry the same colour (always for untextured meshes without
     // vertex colours): encode a colour once for a run of equal ones (equal bits: one integer
     // compare; a colour equal as floats but not in bits, ±0, only encodes again).
@@ -2518,7 +2566,7 @@ mod tests {
             })
             .collect();
         let (mut items, mut tmp) = (Vec::new(), Vec::new());
-        let mask = sort_order(&recs, &mut items, &mut tmp);
+        let mask = sort_order(&recs, None, &mut items, &mut tmp);
         assert_ne!(mask, u64::MAX);
         let mut bare: Vec<u64> = (0..recs.len() as u64).collect();
         bare.sort_by_key(|&i| recs[i as usize].key);
@@ -2533,6 +2581,10 @@ mod tests {
             merge_sorted(&items, mask, &recs, &kp, 0.5, 0.1, 0.01, merge, &mut a);
             merge_sorted(&bare, u64::MAX, &recs, &kp, 0.5, 0.1, 0.01, merge, &mut b);
             assert_eq!(a.len(), if merge { voxels } else { recs.len() });
+            // Centres (x and y taken once per column) are those of the unpacked keys.
+            let want: Vec<u64> = if merge { keys.clone() } else { items.iter().map(|&it| recs[(it & mask) as usize].key).collect() };
+            let centre = |k: u64| kp.unpack(k).map(|v| ((v as f64 + 0.5) * 0.1) as f32);
+            assert!(a.iter().zip(&want).all(|(n, &k)| n.center == centre(k)));
             let bits = |n: &Node| (n.center, n.normal.map(f32::to_bits), n.area.to_bits(), n.color);
             assert_eq!(a.iter().map(bits).collect::<Vec<_>>(), b.iter().map(bits).collect::<Vec<_>>());
         }
@@ -2566,9 +2618,13 @@ mod tests {
             }
             let mut by_parts = Vec::new();
             let mut last_key = 0;
-            for p in &parts.parts {
+            for (pi, p) in parts.parts.iter().enumerate() {
                 let (mut items, mut tmp) = (Vec::new(), Vec::new());
-                let mask = sort_order(p, &mut items, &mut tmp);
+                // A middle part's place bounds its keys: its sort skips the scan for them.
+                if let Some((lo, bits)) = parts.key_range(pi) {
+                    assert!(p.iter().all(|r| (r.key - lo) >> bits == 0), "{xs:?}: part {pi}");
+                }
+                let mask = sort_order(p, parts.key_range(pi), &mut items, &mut tmp);
                 assert!(p.iter().all(|r| r.key >= last_key));
                 last_key = p.iter().map(|r| r.key).max().unwrap_or(last_key);
                 by_parts.extend(items.iter().map(|&it| p[(it & mask) as usize].normal[0]));

@@ -8,7 +8,7 @@
 //! voxels. Counting and emitting read the same spans, so every slab divides by the same
 //! count and the slabs' samples partition the triangle's.
 
-use super::{face_axes, shade_color, unit_or, KeyPack, Mat, Planes, Rec, Tri};
+use super::{face_axes, shade_color, unit_or, KeyPack, Mat, Planes, Rec, RecSink, Tri};
 use crate::mesh::{floor_i64, norm};
 
 /// `x.ceil() as i64` (saturating, NaN → 0) without a libm call, like [`floor_i64`].
@@ -198,18 +198,18 @@ fn partition_point(lo: i64, hi: i64, pred: impl Fn(i64) -> bool) -> i128 {
 /// lies in `keep` (the caller's slab); the others still count in the EQ 17 area. A
 /// triangle that covers no column centre gets one sample at its centroid. Returns the
 /// number of alpha-dropped samples among those emitted.
-pub(super) fn scanline_triangle(t: &Tri, mat: &Mat, kp: &KeyPack, keep: (i64, i64), out: &mut Vec<Rec>) -> u64 {
+pub(super) fn scanline_triangle(t: &Tri, mat: &Mat, kp: &KeyPack, keep: (i64, i64), out: &mut impl RecSink) -> u64 {
     let (fnrm, d, _, _) = face_axes(t);
     // One copy per depth axis: the axis indices become constants.
     match d {
-        0 => scanline_axis::<0>(t, fnrm, mat, kp, keep, out),
-        1 => scanline_axis::<1>(t, fnrm, mat, kp, keep, out),
-        _ => scanline_axis::<2>(t, fnrm, mat, kp, keep, out),
+        0 => scanline_axis::<0, _>(t, fnrm, mat, kp, keep, out),
+        1 => scanline_axis::<1, _>(t, fnrm, mat, kp, keep, out),
+        _ => scanline_axis::<2, _>(t, fnrm, mat, kp, keep, out),
     }
 }
 
 /// [`scanline_triangle`] with depth axis `D` (`fnrm` = the face normal of [`face_axes`]).
-fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPack, keep: (i64, i64), out: &mut Vec<Rec>) -> u64 {
+fn scanline_axis<const D: usize, S: RecSink>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPack, keep: (i64, i64), out: &mut S) -> u64 {
     let (a, b) = ((D + 1) % 3, (D + 2) % 3);
     let q = t.p.map(|p| [p[a], p[b]]);
     let spans = Spans::new(&q, (kp.lo[a], kp.hi[a]), (kp.lo[b], kp.hi[b]));
@@ -227,7 +227,7 @@ fn scanline_axis<const D: usize>(t: &Tri, fnrm: [f64; 3], mat: &Mat, kp: &KeyPac
     let planes = Planes::new(t, &q, fnrm, mat);
     let area = 0.5 * norm(fnrm);
     let mut dropped = 0;
-    let mut push = |out: &mut Vec<Rec>, key: [i64; 3], shaded: (Option<[f32; 4]>, [f32; 3]), each: f32| match shaded {
+    let mut push = |out: &mut S, key: [i64; 3], shaded: (Option<[f32; 4]>, [f32; 3]), each: f32| match shaded {
         (Some(color), normal) => out.push(Rec { key: kp.pack(key), area: each, normal, color }),
         (None, _) => dropped += 1,
     };
