@@ -443,7 +443,7 @@ mod tests {
             x ^= x << 17;
             x
         };
-        let mut value = |r: u64| {
+        let value = |r: u64| {
             if r % 5 == 0 {
                 special[(r >> 8) as usize % special.len()]
             } else {
