@@ -97,18 +97,25 @@ fn unzz(z: u8, pred: u8, bits: u32) -> Option<u8> {
     Some(((pred as i32 + s) & ((1 << bits) - 1)) as u8)
 }
 
-fn pred_normal_a(p: &Node) -> u16 {
-    if normal::usable(p.normal) {
-        normal::oct_encode_fast(p.normal)
-    } else {
-        normal::oct_encode_fast([0.0, 0.0, 1.0])
-    }
+/// The parent's share of both normal predictions, worked out once per pair: whether its
+/// axis is usable, and A's prediction (also B's fallback).
+#[derive(Clone, Copy)]
+struct ParentAxis {
+    usable: bool,
+    pred_a: u16,
 }
 
-fn pred_normal_b(p: &Node, a: [f32; 3]) -> u16 {
+fn parent_axis(p: &Node) -> ParentAxis {
+    let usable = normal::usable(p.normal);
+    let pred_a = if usable { normal::oct_encode_fast(p.normal) } else { normal::oct_encode_fast([0.0, 0.0, 1.0]) };
+    ParentAxis { usable, pred_a }
+}
+
+/// B's prediction from the parent `p` (with `pa = parent_axis(p)`) and A's decoded axis `a`.
+fn pred_normal_b(p: &Node, pa: ParentAxis, a: [f32; 3]) -> u16 {
     let n = p.normal;
-    if !normal::usable(n) {
-        return pred_normal_a(p);
+    if !pa.usable {
+        return pa.pred_a;
     }
     let l2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
     let d = 2.0 * (n[0] * a[0] + n[1] * a[1] + n[2] * a[2]) / l2;
@@ -116,7 +123,34 @@ fn pred_normal_b(p: &Node, a: [f32; 3]) -> u16 {
     if normal::usable(r) {
         normal::oct_encode_fast(r)
     } else {
-        pred_normal_a(p)
+        pa.pred_a
+    }
+}
+
+/// The predictions as first written (each re-checking the parent), kept for an identity test.
+#[cfg(test)]
+fn pred_normal_a_reference(p: &Node) -> u16 {
+    if normal::usable(p.normal) {
+        normal::oct_encode_fast(p.normal)
+    } else {
+        normal::oct_encode_fast([0.0, 0.0, 1.0])
+    }
+}
+
+/// See [`pred_normal_a_reference`].
+#[cfg(test)]
+fn pred_normal_b_reference(p: &Node, a: [f32; 3]) -> u16 {
+    let n = p.normal;
+    if !normal::usable(n) {
+        return pred_normal_a_reference(p);
+    }
+    let l2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+    let d = 2.0 * (n[0] * a[0] + n[1] * a[1] + n[2] * a[2]) / l2;
+    let r = [d * n[0] - a[0], d * n[1] - a[1], d * n[2] - a[2]];
+    if normal::usable(r) {
+        normal::oct_encode_fast(r)
+    } else {
+        pred_normal_a_reference(p)
     }
 }
 
@@ -290,6 +324,7 @@ pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mu
             area_bytes[k] = code as u8;
             area_bytes[n + k] = (code >> 8) as u8;
             let (area_a, area_b) = areas(p, code);
+            let pa = parent_axis(p);
             let mut dec_a: Option<Node> = None;
             for (h, c) in pair.iter().enumerate() {
                 let i = 2 * k + h;
@@ -297,8 +332,8 @@ pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mu
                 states[i] = s as u8;
                 states[m + i] = (s >> 8) as u8;
                 let (pred, pc) = match &dec_a {
-                    None => (pred_normal_a(p), quant4(p.color)),
-                    Some(da) => (pred_normal_b(p, da.normal), quant4(pred_color_b(p, area_a, area_b, da.color, ch))),
+                    None => (pa.pred_a, quant4(p.color)),
+                    Some(da) => (pred_normal_b(p, pa, da.normal), quant4(pred_color_b(p, area_a, area_b, da.color, ch))),
                 };
                 let (nc, axis, cone) = normal::encode_cone_toward(c.normal, c.cone, pred, |a, b| zz(a, b, 8) as u32);
                 norms[i] = zz(nc as u8, pred as u8, 8);
@@ -350,13 +385,14 @@ pub fn decode(params: CodecParams, parents: &[Node], bytes: &[u8], offset: u64, 
             return Err(Error::malformed(area_off + k as u64, format!("default block: area code {code} > {AREA_ONE}")));
         }
         let (area_a, area_b) = areas(p, code);
+        let pa = parent_axis(p);
         let mut dec_a: Option<Node> = None;
         for h in 0..2 {
             let i = 2 * k + h;
             let s = states[i] as u16 | (states[m + i] as u16) << 8;
             let (pred, pc) = match &dec_a {
-                None => (pred_normal_a(p), quant4(p.color)),
-                Some(a) => (pred_normal_b(p, a.normal), quant4(pred_color_b(p, area_a, area_b, a.color, ch))),
+                None => (pa.pred_a, quant4(p.color)),
+                Some(a) => (pred_normal_b(p, pa, a.normal), quant4(pred_color_b(p, area_a, area_b, a.color, ch))),
             };
             let u = unzz(norms[i], pred as u8, 8).unwrap_or(0);
             let v = unzz(norms[m + i], (pred >> 8) as u8, 8).unwrap_or(0);
@@ -392,6 +428,39 @@ mod tests {
                     assert_eq!(zz(code, pred, bits), zz_reference(code, pred, bits), "{code} {pred} {bits}");
                 }
             }
+        }
+    }
+
+    /// Predictions from `parent_axis` equal the first form, which re-checked the parent, for
+    /// random, special (zero, NaN, ±inf, subnormal, huge) and mixed parent and A axes.
+    #[test]
+    fn normal_predictions_match_reference() {
+        let special = [0.0f32, -0.0, 1.0, -1.0, 1e-20, -1e-30, 1e-45, 3e38, -3e38, f32::NAN, f32::INFINITY, f32::NEG_INFINITY];
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let value = |r: u64| {
+            if r % 5 == 0 {
+                special[(r >> 8) as usize % special.len()]
+            } else {
+                ((r >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0) as f32
+            }
+        };
+        for _ in 0..400_000 {
+            let mut v = [0f32; 6];
+            for e in &mut v {
+                let r = next();
+                *e = value(r);
+            }
+            let p = Node { center: [0.0; 3], radius: 1.0, normal: [v[0], v[1], v[2]], cone: 0.0, area: 1.0, color: [0; 4] };
+            let a = [v[3], v[4], v[5]];
+            let pa = parent_axis(&p);
+            assert_eq!(pa.pred_a, pred_normal_a_reference(&p), "{v:?}");
+            assert_eq!(pred_normal_b(&p, pa, a), pred_normal_b_reference(&p, a), "{v:?}");
         }
     }
 
@@ -476,7 +545,7 @@ mod tests {
         let zero_b = (0..n).filter(|k| out[2 * m + 2 * k + 1] == 0 && out[3 * m + 2 * k + 1] == 0).count();
         assert!(zero_b * 10 >= n * 7, "{zero_b} of {n} B normals predicted exactly");
         // The precise (closest) codes would match the prediction far less often.
-        let precise = (0..n).filter(|&k| normal::oct_encode(kids[2 * k + 1].normal) == pred_normal_b(&parents[k], dec[2 * k].normal)).count();
+        let precise = (0..n).filter(|&k| normal::oct_encode(kids[2 * k + 1].normal) == pred_normal_b(&parents[k], parent_axis(&parents[k]), dec[2 * k].normal)).count();
         assert!(precise * 10 < zero_b * 7, "precise codes match {precise} times, chosen {zero_b}");
         // Balanced pairs: area codes on the 8-code grid.
         assert!(out[8 * m..8 * m + n].iter().all(|&c| c % 8 == 0));
