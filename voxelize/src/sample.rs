@@ -1112,20 +1112,25 @@ fn sample_slabs<E: Send>(
                     bufs.parts.reset(kp, (x0, x1), per_slab);
                     let mut dropped = 0u64;
                     for &gi in list {
-                        // A triangle's records (few, in L1) go to the slab's parts by key.
-                        bufs.recs.clear();
                         let (pi, ti) = tris[gi as usize];
                         let p = &pp[pi as usize];
                         let t = p.tri(ti as usize);
                         let mat = p.mat.view();
-                        dropped += match (opts.method, opts.area) {
-                            (Method::Voxel, AreaMode::Exact) => voxel_triangle(&t, &mat, AreaMode::Exact, kp, (x0, x1), ALL_X, &mut bufs.recs),
+                        if opts.method == Method::Scanline {
                             // Per-triangle areas (EQ 17) need the whole triangle's sample count:
                             // counted row by row, while only this slab's voxels are shaded and
                             // kept (each voxel, hence each alpha drop, belongs to one slab).
                             // Straight into the parts: nothing rescales its records afterwards.
-                            (Method::Scanline, _) => scanline::scanline_triangle(&t, &mat, kp, (x0, x1), &mut bufs.parts),
-                            _ => voxel_triangle(&t, &mat, opts.area, kp, ALL_X, (x0, x1), &mut bufs.recs),
+                            dropped += scanline::scanline_triangle(&t, &mat, kp, (x0, x1), &mut bufs.parts);
+                            continue;
+                        }
+                        // The voxel method rescales a triangle's EQ 17 areas once it has them
+                        // all, so its records (few, in L1) pass through `recs` to the parts.
+                        bufs.recs.clear();
+                        dropped += if (opts.method, opts.area) == (Method::Voxel, AreaMode::Exact) {
+                            voxel_triangle(&t, &mat, AreaMode::Exact, kp, (x0, x1), ALL_X, &mut bufs.recs)
+                        } else {
+                            voxel_triangle(&t, &mat, opts.area, kp, ALL_X, (x0, x1), &mut bufs.recs)
                         };
                         bufs.parts.extend(&bufs.recs);
                     }
