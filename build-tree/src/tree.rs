@@ -406,7 +406,9 @@ fn build_tree_impl(
     // nor overlaps them. Peak here: samples 40 + leaves 40 + src 4 + leaf sources 4 + flags
     // 2 bytes per sample.
     let mut nodes: Vec<Node> = Vec::with_capacity(total);
-    nodes.resize(leaves, Node::default());
+    // Filled on every thread: the first touch of these pages (half the tree's) is a page
+    // fault each, which `resize` took on one thread while the other waited.
+    nodes.par_extend(rayon::iter::repeat_n(Node::default(), leaves));
     // By chunk (each chunk's leaves level by level): a chunk's samples lie close together
     // in memory far more often than a whole level's.
     chunks
@@ -488,8 +490,9 @@ fn build_tree_impl(
 
     // Pass 3: parents bottom-up, one level at a time (a level depends only on the next).
     let t2 = Instant::now();
+    let level_sizes: Vec<usize> = (0..levels).map(|d| counts.iter().map(|c| c[d] as usize).sum()).collect();
+    compute_attributes(&mut nodes, &internal, &level_sizes);
     let tree = SceneTree::from_bfs(nodes, internal).map_err(|e| BuildError::Internal(e.to_string()))?;
-    let tree = compute_attributes(tree);
     stats.attributes_s = t2.elapsed().as_secs_f64();
 
     stats.leaves = leaves as u64;
@@ -514,30 +517,41 @@ fn in_range(s: &Node) -> bool {
         & (s.cone <= std::f32::consts::PI)
 }
 
-/// Fills every internal node from its children, bottom level first.
-pub(crate) fn compute_attributes(mut tree: SceneTree) -> SceneTree {
-    let levels = tree.level_count();
-    for d in (0..levels.saturating_sub(1)).rev() {
-        let range = tree.level(d);
-        let child_start = tree.level(d + 1).start;
-        let flags: Vec<bool> = tree.internal_flags()[range.clone()].to_vec();
-        // Child offset of each chunk's first parent, so chunks run independently.
-        let chunk_firsts: Vec<usize> = flags
-            .chunks(PAR_NODES)
-            .scan(child_start, |acc, ch| {
+/// Fills every internal node of a breadth-first tree (`level_sizes` nodes per level) from
+/// its children, bottom level first. Everything runs on every thread: the chunks' child
+/// offsets come from per-chunk counts made in parallel (a serial count over every flag of a
+/// level, and a copy of them, left one thread idle before each level).
+fn compute_attributes(nodes: &mut [Node], internal: &[bool], level_sizes: &[usize]) {
+    let starts: Vec<usize> = level_sizes
+        .iter()
+        .scan(0usize, |at, &k| {
+            let s = *at;
+            *at += k;
+            Some(s)
+        })
+        .collect();
+    for d in (0..level_sizes.len().saturating_sub(1)).rev() {
+        let range = starts[d]..starts[d] + level_sizes[d];
+        let child_start = starts[d + 1];
+        let flags = &internal[range.clone()];
+        let per_chunk: Vec<usize> = flags.par_chunks(PAR_NODES).map(|ch| ch.iter().filter(|&&b| b).count()).collect();
+        // Offset (in the child level) of each chunk's first child, so chunks run independently.
+        let chunk_firsts: Vec<usize> = per_chunk
+            .iter()
+            .scan(0usize, |acc, &k| {
                 let first = *acc;
-                *acc += 2 * ch.iter().filter(|&&b| b).count();
+                *acc += 2 * k;
                 Some(first)
             })
             .collect();
-        let (head, tail) = tree.nodes_mut().split_at_mut(child_start);
-        let children: &[Node] = tail;
-        head[range.clone()]
+        let (head, children) = nodes.split_at_mut(child_start);
+        let children: &[Node] = children;
+        head[range]
             .par_chunks_mut(PAR_NODES)
             .zip(flags.par_chunks(PAR_NODES))
             .zip(chunk_firsts.par_iter())
             .for_each(|((parents, fl), &first)| {
-                let mut c = first - child_start;
+                let mut c = first;
                 for (p, &is_int) in parents.iter_mut().zip(fl) {
                     if is_int {
                         *p = parent_of(&children[c], &children[c + 1]);
@@ -546,7 +560,6 @@ pub(crate) fn compute_attributes(mut tree: SceneTree) -> SceneTree {
                 }
             });
     }
-    tree
 }
 
 /// One leaf from the samples `members` (Table 2): mean position, a radius that covers

@@ -537,7 +537,8 @@ enum NodeSource<'a> {
 impl<'a> TreeInput<'a> {
     fn shape(tree: &SceneTree) -> (Vec<std::ops::Range<usize>>, usize, Option<Node>, bool) {
         let levels = (0..tree.level_count()).map(|d| tree.level(d)).collect();
-        let alpha = tree.nodes().iter().any(|n| n.color[3] != 255);
+        // On every thread: for an opaque tree this reads every node.
+        let alpha = tree.nodes().par_iter().any(|n| n.color[3] != 255);
         (levels, tree.leaf_count(), tree.nodes().first().copied(), alpha)
     }
 
@@ -704,7 +705,8 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
         let level_flags = &flags[range.clone()];
         let chunks: Vec<(usize, usize)> =
             (0..level_len).step_by(block_nodes).map(|s| (s, (s + block_nodes).min(level_len))).collect();
-        let internal: Vec<usize> = chunks.iter().map(|&(s, e)| level_flags[s..e].iter().filter(|&&f| f).count()).collect();
+        let internal: Vec<usize> =
+            chunks.par_iter().map(|&(s, e)| level_flags[s..e].iter().filter(|&&f| f).count()).collect();
         entry.node_count = level_len as u64;
         entry.first_block = blocks.len() as u32;
         entry.block_count = chunks.len() as u32;
@@ -713,9 +715,6 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
         let mut next_parents = ParentQueue::default();
         for (batch_chunks, batch_internal) in chunks.chunks(batch).zip(internal.chunks(batch)) {
             let (Some(&(first, _)), Some(&(_, last))) = (batch_chunks.first(), batch_chunks.last()) else { continue };
-            // Every block's parents, contiguous as the codec wants them.
-            let block_parents =
-                batch_chunks.iter().map(|&(s, e)| parents.range(s / 2, e / 2)).collect::<Result<Vec<_>>>()?;
             let level_nodes = tree.nodes.batch(range.start + first..range.start + last, &mut batch_nodes)?;
             // The previous batch goes to the sink while this one is encoded.
             let (written, encoded) = rayon::join(
@@ -724,16 +723,17 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
                     batch_chunks
                         .par_iter()
                         .zip(batch_internal)
-                        .zip(&block_parents)
-                        .map(|((&(s, e), &k), p)| {
+                        .map(|(&(s, e), &k)| {
+                            // The block's parents, contiguous as the codec wants them (copied
+                            // here, on its worker, when they span segments).
+                            let p = parents.range(s / 2, e / 2)?;
                             let nodes = &level_nodes[s - first..e - first];
-                            encode_block(opts, params, p, nodes, &level_flags[s..e], k)
+                            encode_block(opts, params, &p, nodes, &level_flags[s..e], k)
                         })
                         .collect::<Vec<Result<EncodedBlock>>>()
                 },
             );
             written?;
-            drop(block_parents);
             parents.release(last / 2);
             for ((&(s, e), r), &k) in batch_chunks.iter().zip(encoded).zip(batch_internal) {
                 let mut b = r?;
