@@ -337,6 +337,7 @@ fn parent_cone_bounded(a: &Node, va: [f64; 3], b: &Node, vb: [f64; 3]) -> Option
 /// roundings each of terms ≤ 2 in size: ≤ 2⁻⁵⁰ in all); the slack 2⁻⁴⁸ also covers
 /// `|a_k|, |u_k| ≤ 1 + 2⁻⁵²` and the rounding of the bounds themselves. Rounding to f32 is
 /// monotone, so agreement at both bounds decides the exact component.
+#[inline(always)]
 fn rotated_axis_f32(a: [f64; 3], u: [f64; 3], s: Interval, c: Interval) -> Option<[f32; 3]> {
     const SLACK: f64 = 1.0 / (1u64 << 48) as f64;
     let e = (c.hi - c.lo) + (s.hi - s.lo) + SLACK;

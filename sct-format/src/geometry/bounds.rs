@@ -102,7 +102,7 @@ fn atan_unit(q: f64) -> f64 {
 
 /// An interval holding `y.atan2(x)` for `y ≥ 0` (a vector norm), or `None` outside the
 /// cases handled here (zero, huge or tiny arguments, NaN): the caller then calls libm.
-#[inline]
+#[inline(always)]
 pub(super) fn atan2(y: f64, x: f64) -> Option<Interval> {
     if y == 0.0 && x > 0.0 {
         // atan2(±0, x > 0) = ±0 exactly (C99 F.9.1.4).
@@ -173,7 +173,7 @@ const SIN_COS_REL: f64 = 1.0 / (1u64 << 46) as f64;
 
 /// Intervals holding `p.sin()` and `p.cos()` for every `p` in `phi`, or `None` unless
 /// `phi` lies in (0, 1], where sin rises, cos falls and both are 1-Lipschitz.
-#[inline]
+#[inline(always)]
 pub(super) fn sin_cos(phi: Interval) -> Option<(Interval, Interval)> {
     if !(phi.lo > 0.0 && phi.hi <= 1.0) {
         return None;
