@@ -209,11 +209,17 @@ fn covering_cone(n: [f32; 3], ua: Option<[f64; 3]>, ta: f32, ub: Option<[f64; 3]
 /// is nondecreasing in each f64 angle (every step rounds monotonically).
 fn covering_cone_bounded(n: [f32; 3], ua: [f64; 3], ta: f32, ub: [f64; 3], tb: f32) -> Option<f32> {
     let n = normalize(to64(n))?;
-    let angle = |m: [f64; 3]| bounds::atan2(norm(cross(n, m)), dot(n, m));
-    let (ia, ib) = (angle(ua)?, angle(ub)?);
+    let (ia, ib) = (angle_bounds(n, ua)?, angle_bounds(n, ub)?);
     let at = |xa: f64, xb: f64| cone_from_need((xa + ta as f64).max(xb + tb as f64));
     let (lo, hi) = (at(ia.lo, ib.lo), at(ia.hi, ib.hi));
     (lo.to_bits() == hi.to_bits()).then_some(lo)
+}
+
+/// An enclosure of [`angle_between`] of unit `n` and `m` (inlined: it was an out-of-line
+/// closure called twice per parent).
+#[inline(always)]
+fn angle_bounds(n: [f64; 3], m: [f64; 3]) -> Option<Interval> {
+    bounds::atan2(norm(cross(n, m)), dot(n, m))
 }
 
 /// The stored cone angle for a needed f64 angle: grown by the margin, rounded up.
