@@ -302,7 +302,9 @@ fn build_tree_impl(
     if n > (u32::MAX / 2) as usize {
         return Err(BuildError::Input(format!("{n} samples exceed the 2^31 - 1 a tree can hold")));
     }
-    if !samples.par_chunks(PAR_NODES).all(|c| c.iter().fold(true, |ok, s| ok & in_range(s))) {
+    let want_sum = matches!(opts.weld, Weld::RelativeToMeanRadius(_));
+    let (valid, radius_sum) = check_and_sum_radii(&samples, want_sum);
+    if !valid {
         let i = samples.iter().position(|s| !s.is_finite()).unwrap_or_default();
         return Err(BuildError::Input(format!("sample {i} has a non-finite or out-of-range attribute: {:?}", samples[i])));
     }
@@ -310,7 +312,7 @@ fn build_tree_impl(
         Weld::Off => -1.0,
         Weld::Absolute(t) => t.max(0.0),
         Weld::RelativeToMeanRadius(f) => {
-            let mean = samples.par_iter().map(|s| s.radius as f64).sum::<f64>() / n as f64;
+            let mean = radius_sum / n as f64;
             (mean * f.max(0.0) as f64) as f32
         }
     };
@@ -500,6 +502,23 @@ fn build_tree_impl(
     stats.depth = depth;
     stats.welded = n as u64 - leaves as u64;
     Ok((tree, stats, map))
+}
+
+/// Whether every sample passes [`in_range`], and (when `want_sum`) the sum of the radii,
+/// in one parallel pass over the samples (it was two). The sum is taken per fixed chunk and
+/// the chunks' sums added in order: a float sum's rounding depends on its grouping, and
+/// rayon's own `sum` groups by how the work happened to be split, so the mean radius, and
+/// with it the weld tolerance, could differ between runs and thread counts.
+fn check_and_sum_radii(samples: &[Node], want_sum: bool) -> (bool, f64) {
+    let parts: Vec<(bool, f64)> = samples
+        .par_chunks(PAR_NODES)
+        .map(|c| {
+            let ok = c.iter().fold(true, |ok, s| ok & in_range(s));
+            let sum = if want_sum { c.iter().map(|s| s.radius as f64).sum() } else { 0.0 };
+            (ok, sum)
+        })
+        .collect();
+    parts.iter().fold((true, 0.0), |(ok, sum), &(k, s)| (ok & k, sum + s))
 }
 
 /// [`Node::is_finite`] as comparisons without short cuts, which the compiler vectorises
@@ -717,6 +736,30 @@ mod tests {
             }
         }
         i
+    }
+
+    /// The radius sum is the chunks' serial sums added in chunk order, whatever the number
+    /// of threads, on radii spread over many magnitudes (where the grouping changes the
+    /// rounding).
+    #[test]
+    fn radius_sum_does_not_depend_on_threads() {
+        let mut rng = sct_format::rng::SplitMix64(11);
+        let samples: Vec<Node> = (0..5 * PAR_NODES + 123)
+            .map(|_| {
+                let radius = rng.next_f32() * 10f32.powi((rng.next_u64() % 12) as i32 - 6);
+                Node { center: [0.0; 3], radius, normal: [0.0, 0.0, 1.0], cone: 0.0, area: 1.0, color: [0; 4] }
+            })
+            .collect();
+        let want: f64 = samples.chunks(PAR_NODES).map(|c| c.iter().map(|s| s.radius as f64).sum::<f64>()).sum();
+        for threads in [1, 2, 3, 4] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let (ok, sum) = pool.install(|| check_and_sum_radii(&samples, true));
+            assert!(ok);
+            assert_eq!(sum.to_bits(), want.to_bits(), "{threads} threads");
+        }
+        let mut bad = samples.clone();
+        bad[3 * PAR_NODES + 7].radius = f32::NAN;
+        assert!(!check_and_sum_radii(&bad, false).0);
     }
 
     /// The vectorisable check accepts exactly what [`Node::is_finite`] accepts.
