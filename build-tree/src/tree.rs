@@ -698,24 +698,31 @@ fn split_at_plane(items: &mut [Item], axis: usize, mid: f32) -> (usize, Aabb, Aa
 }
 
 /// [`split_at_plane`] on a fixed axis (the key's offset a constant).
+///
+/// The unclassified items `[i, j)` are the slice `rest`, shrunk from the front or the back,
+/// so no access needs a bounds check (indexing `items[i]` and `items[j]` took two per item).
 fn split_on<const AXIS: usize>(items: &mut [Item], mid: f32) -> (usize, Aabb, Aabb) {
     let (mut lb, mut rb) = (Aabb::EMPTY, Aabb::EMPTY);
-    let mut i = 0usize;
-    let mut j = items.len();
-    while i < j {
-        // One load of the item serves the test, its box and the swap.
-        let it = items[i];
+    let mut left = 0usize;
+    let mut rest = items;
+    // One load of the item serves the test, its box and the swap.
+    while let Some(&it) = rest.first() {
+        let r = std::mem::take(&mut rest);
         if it.0[AXIS] < mid {
             lb.add(&it);
-            i += 1;
-        } else {
-            j -= 1;
-            items[i] = items[j];
-            items[j] = it;
+            left += 1;
+            rest = r.get_mut(1..).unwrap_or_default();
+        } else if let Some((last, init)) = r.split_last_mut() {
+            // `items[i] = items[j - 1]; items[j - 1] = it` (one item left: it stays).
+            if let Some(first) = init.first_mut() {
+                *first = *last;
+                *last = it;
+            }
             rb.add(&it);
+            rest = init;
         }
     }
-    (i, lb, rb)
+    (left, lb, rb)
 }
 
 #[cfg(test)]
