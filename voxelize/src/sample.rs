@@ -565,6 +565,15 @@ impl KeyPack {
         let v: [u64; 3] = std::array::from_fn(|i| (k[i].max(self.lo[i]).min(self.hi[i]) - self.lo[i]) as u64);
         (v[0] << self.shift_x) | (v[1] << self.bits[2]) | v[2]
     }
+    /// Where axis `k`'s field starts in a key.
+    #[inline]
+    fn shift(&self, k: usize) -> u32 {
+        match k {
+            0 => self.shift_x,
+            1 => self.bits[2],
+            _ => 0,
+        }
+    }
     #[inline]
     fn unpack(&self, key: u64) -> [i64; 3] {
         let mask = |b: u32| if b == 0 { 0 } else { u64::MAX >> (64 - b) };
