@@ -140,16 +140,13 @@ impl<'p, 'm> RowShade<'p, 'm> {
         (b - self.planes.o[1]) as f32
     }
 
-    /// The unit normal at `b` on the row.
+    /// The unit normal at `db` ([`RowShade::db`]) on the row.
     #[inline(always)]
-    fn normal(&self, b: f64) -> [f32; 3] {
+    fn normal(&self, db: f32) -> [f32; 3] {
         let p = self.planes;
         match p.flat_n {
             Some(n) => n,
-            None => {
-                let db = self.db(b);
-                unit_or(self.n.each_ref().map(|r| r[0] + r[1] * db), p.face_n)
-            }
+            None => unit_or(self.n.each_ref().map(|r| r[0] + r[1] * db), p.face_n),
         }
     }
 }
@@ -200,14 +197,15 @@ impl ColumnShade for RowShade<'_, '_> {
                 shade_color(vc, uv, uv2, p.mat)
             }
         };
-        (c, self.normal(b))
+        (c, self.normal(db))
     }
 }
 
-/// A colour that is the same all over the triangle ([`Planes`]' `flat_c`; untextured meshes).
+/// A colour that is the same all over the triangle and kept by alpha ([`Planes`]' `flat_c`;
+/// untextured meshes).
 struct FlatColour<'p, 'm> {
     rows: RowShade<'p, 'm>,
-    c: Option<[f32; 4]>,
+    c: [f32; 4],
 }
 
 impl ColumnShade for FlatColour<'_, '_> {
@@ -218,16 +216,19 @@ impl ColumnShade for FlatColour<'_, '_> {
 
     #[inline(always)]
     fn at(&self, b: f64) -> (Option<[f32; 4]>, [f32; 3]) {
-        (self.c, self.rows.normal(b))
+        (Some(self.c), self.rows.normal(self.rows.db(b)))
     }
 }
 
-/// An opaque material with one colour texture and a vertex colour shared by the corners
-/// (textured OBJ and most textured glTF): [`shade_color`] without its material branches,
-/// base × vertex colour taken once per triangle (the same product).
+/// An opaque material with one colour texture, untransformed and with decoded texels, and
+/// a vertex colour shared by the corners (textured OBJ and most textured glTF):
+/// [`shade_color`] and [`Tex::sample`] without their material branches, base × vertex
+/// colour taken once per triangle (the same product).
 struct TexturedOpaque<'p, 'm> {
     rows: RowShade<'p, 'm>,
     tex: Tex<'m>,
+    /// The texture's decoded texels.
+    lin: &'m [[f32; 4]],
     /// `base[k] · vc[k]`.
     tint: [f32; 4],
 }
@@ -239,7 +240,8 @@ impl<'p, 'm> TexturedOpaque<'p, 'm> {
         let (Some(tex), None, AlphaMode::Opaque, Some(vc), None) = (mat.tex, &mat.alpha_tex, mat.alpha, planes.vc, planes.flat_c) else {
             return None;
         };
-        Some(TexturedOpaque { rows: RowShade::new(planes), tex, tint: std::array::from_fn(|k| mat.base[k] * vc[k]) })
+        let lin = tex.img.linear.filter(|_| tex.plain)?;
+        Some(TexturedOpaque { rows: RowShade::new(planes), tex, lin, tint: std::array::from_fn(|k| mat.base[k] * vc[k]) })
     }
 }
 
@@ -252,10 +254,12 @@ impl ColumnShade for TexturedOpaque<'_, '_> {
     #[inline(always)]
     fn at(&self, b: f64) -> (Option<[f32; 4]>, [f32; 3]) {
         let db = self.rows.db(b);
-        let s = self.tex.sample(self.rows.uv.each_ref().map(|r| r[0] + r[1] * db));
+        let uv = self.rows.uv.each_ref().map(|r| r[0] + r[1] * db);
+        // `Tex::sample` of an untransformed binding with decoded texels.
+        let s = self.tex.interior_in(self.lin, uv).unwrap_or_else(|| self.tex.sample(uv));
         // Opaque: alpha is 1 whatever the texel's.
         let c = [self.tint[0] * s[0], self.tint[1] * s[1], self.tint[2] * s[2], 1.0];
-        (Some(c), self.rows.normal(b))
+        (Some(c), self.rows.normal(db))
     }
 }
 
@@ -338,7 +342,7 @@ fn scanline_axis<const D: usize, S: RecSink>(t: &Tri, fnrm: [f64; 3], mat: &Mat,
         whole_in_slab: in_slab(cells[0].0) && in_slab(cells[0].1),
         fast: FastKeys::new::<D>(t, fnrm, kp, (klo, khi)),
     };
-    if let Some(c) = planes.flat_c {
+    if let Some(Some(c)) = planes.flat_c {
         rows.emit(FlatColour { rows: RowShade::new(&planes), c }, out)
     } else if let Some(tex) = TexturedOpaque::new(&planes) {
         rows.emit(tex, out)
@@ -504,7 +508,8 @@ impl<const D: usize> TriRows<'_, '_, D> {
             let mut key_b = kp.pack(zero).wrapping_add(f.offset).wrapping_add((first as u64) << f.shift_b);
             // `ib + ½` counted in f64: exact below 2^50.
             let mut cb = first as f64 + 0.5;
-            for _ in 0..=last.abs_diff(first) {
+            // `last − first < 2^51`.
+            for _ in 0..last.abs_diff(first) + 1 {
                 // The depth expression of `depth_key` (never NaN here).
                 push(key_b.wrapping_add(f.depth_field(drow + gb * (cb - p0[b]))), shade.at(cb));
                 key_b = key_b.wrapping_add(1 << f.shift_b);
