@@ -79,8 +79,16 @@ impl Spans {
             // Dividing (not multiplying by a slope) keeps the bound exact whenever the
             // centre lies exactly on the edge and the arithmetic is exact.
             match *e {
-                Edge::Lower { a0, b0, da, db } => lo = lo.max(b0 + (a - a0) * db / da),
-                Edge::Upper { a0, b0, da, db } => hi = hi.min(b0 + (a - a0) * db / da),
+                // Selects rather than `f64::max`/`min` (no NaN fix-ups): a NaN bound is
+                // skipped all the same.
+                Edge::Lower { a0, b0, da, db } => {
+                    let v = b0 + (a - a0) * db / da;
+                    lo = if v > lo { v } else { lo };
+                }
+                Edge::Upper { a0, b0, da, db } => {
+                    let v = b0 + (a - a0) * db / da;
+                    hi = if v < hi { v } else { hi };
+                }
                 Edge::Side { a0, sign } => {
                     if !((a - a0) * sign >= 0.0) {
                         return (1, 0);
