@@ -412,12 +412,14 @@ struct TexelGrid {
     /// `w − 1`, `h − 1`: the texel coordinates whose 2×2 block needs no wrapping lie below.
     x_end: f64,
     y_end: f64,
+    /// Texels per row (`w`).
+    stride: usize,
 }
 
 impl<'a> Tex<'a> {
     fn new(img: TexImage<'a>, tr: &'a TextureRef) -> Self {
         let (w, h) = (f64::from(img.img.width), f64::from(img.img.height));
-        Tex { img, tr, plain: tr.transform == [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], grid: TexelGrid { w, h, x_end: w - 1.0, y_end: h - 1.0 } }
+        Tex { img, tr, plain: tr.transform == [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], grid: TexelGrid { w, h, x_end: w - 1.0, y_end: h - 1.0, stride: img.img.width as usize } }
     }
 
     /// Linear RGBA at texture coordinates `uv` (before the transform), bit for bit
@@ -442,7 +444,12 @@ impl<'a> Tex<'a> {
     /// texels, wrapping, non-finite coordinates, no decoded table), left to [`TexImage::sample`].
     #[inline(always)]
     fn interior(&self, uv: [f32; 2]) -> Option<[f32; 4]> {
-        let lin = self.img.linear?;
+        self.interior_in(self.img.linear?, uv)
+    }
+
+    /// [`Tex::interior`] with the decoded texels `lin` (this binding's) at hand.
+    #[inline(always)]
+    fn interior_in(&self, lin: &[[f32; 4]], uv: [f32; 2]) -> Option<[f32; 4]> {
         let g = &self.grid;
         // `bilinear` computes these from i64 sizes: the same f64 values.
         let x = f64::from(uv[0]) * g.w - 0.5;
@@ -451,12 +458,12 @@ impl<'a> Tex<'a> {
         if !(x >= 0.0 && y >= 0.0 && x < g.x_end && y < g.y_end) {
             return None;
         }
-        // Truncation is the floor of these non-negative values (i64, not usize: single
-        // conversion instructions).
-        let (xi, yi) = (x as i64, y as i64);
-        let (fx, fy) = ((x - xi as f64) as f32, (y - yi as f64) as f32);
+        // Truncation is the floor of these non-negative values below 2^32 (u32: the
+        // saturating conversion is a float clamp, cheaper than i64's fix-ups).
+        let (xi, yi) = (x as u32, y as u32);
+        let (fx, fy) = ((x - f64::from(xi)) as f32, (y - f64::from(yi)) as f32);
         // `0 ≤ xi < w − 1` and `0 ≤ yi < h − 1`: the block lies in the table.
-        let w = self.img.img.width as usize;
+        let w = g.stride;
         let i = yi as usize * w + xi as usize;
         let block = lin.get(i..i + w + 2)?;
         let (&[a, b], &[c, d]) = (block.first_chunk::<2>()?, block.last_chunk::<2>()?);
@@ -564,6 +571,15 @@ impl KeyPack {
         // `clamp` would also check lo ≤ hi, which `new` guarantees, on every sample).
         let v: [u64; 3] = std::array::from_fn(|i| (k[i].max(self.lo[i]).min(self.hi[i]) - self.lo[i]) as u64);
         (v[0] << self.shift_x) | (v[1] << self.bits[2]) | v[2]
+    }
+    /// Where axis `k`'s field starts in a key.
+    #[inline]
+    fn shift(&self, k: usize) -> u32 {
+        match k {
+            0 => self.shift_x,
+            1 => self.bits[2],
+            _ => 0,
+        }
     }
     #[inline]
     fn unpack(&self, key: u64) -> [i64; 3] {

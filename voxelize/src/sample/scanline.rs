@@ -8,7 +8,8 @@
 //! voxels. Counting and emitting read the same spans, so every slab divides by the same
 //! count and the slabs' samples partition the triangle's.
 
-use super::{face_axes, shade_color, unit_or, KeyPack, Mat, Planes, Rec, RecSink, Tri};
+use super::{face_axes, shade_color, unit_or, KeyPack, Mat, Planes, Rec, RecSink, Tex, Tri};
+use crate::mesh::AlphaMode;
 use crate::mesh::{floor_i64, norm};
 
 /// `x.ceil() as i64` (saturating, NaN → 0) without a libm call, like [`floor_i64`].
@@ -78,8 +79,16 @@ impl Spans {
             // Dividing (not multiplying by a slope) keeps the bound exact whenever the
             // centre lies exactly on the edge and the arithmetic is exact.
             match *e {
-                Edge::Lower { a0, b0, da, db } => lo = lo.max(b0 + (a - a0) * db / da),
-                Edge::Upper { a0, b0, da, db } => hi = hi.min(b0 + (a - a0) * db / da),
+                // Selects rather than `f64::max`/`min` (no NaN fix-ups): a NaN bound is
+                // skipped all the same.
+                Edge::Lower { a0, b0, da, db } => {
+                    let v = b0 + (a - a0) * db / da;
+                    lo = if v > lo { v } else { lo };
+                }
+                Edge::Upper { a0, b0, da, db } => {
+                    let v = b0 + (a - a0) * db / da;
+                    hi = if v < hi { v } else { hi };
+                }
                 Edge::Side { a0, sign } => {
                     if !((a - a0) * sign >= 0.0) {
                         return (1, 0);
@@ -133,7 +142,34 @@ impl<'p, 'm> RowShade<'p, 'm> {
         RowShade { planes, n: [[0.0; 2]; 3], c: [[0.0; 2]; 4], uv: [[0.0; 2]; 2], uv2: [[0.0; 2]; 2] }
     }
 
+    /// `b − o` as the planes take it.
+    #[inline(always)]
+    fn db(&self, b: f64) -> f32 {
+        (b - self.planes.o[1]) as f32
+    }
+
+    /// The unit normal at `db` ([`RowShade::db`]) on the row.
+    #[inline(always)]
+    fn normal(&self, db: f32) -> [f32; 3] {
+        let p = self.planes;
+        match p.flat_n {
+            Some(n) => n,
+            None => unit_or(self.n.each_ref().map(|r| r[0] + r[1] * db), p.face_n),
+        }
+    }
+}
+
+/// The shading of a row's column centres: [`RowShade`] for any material, or a copy of it
+/// specialised to a common one (chosen once per triangle, so the sample loop carries no
+/// material branches). Every implementation gives [`Planes::shade`]'s values bit for bit.
+trait ColumnShade {
     /// Moves to the row through `a`.
+    fn row(&mut self, a: f64);
+    /// (colour or `None` = dropped by alpha, unit normal) at `b` on the row.
+    fn at(&self, b: f64) -> (Option<[f32; 4]>, [f32; 3]);
+}
+
+impl ColumnShade for RowShade<'_, '_> {
     #[inline]
     fn row(&mut self, a: f64) {
         let p = self.planes;
@@ -155,11 +191,10 @@ impl<'p, 'm> RowShade<'p, 'm> {
         }
     }
 
-    /// (colour or `None` = dropped by alpha, unit normal) at `b` on the row.
     #[inline(always)]
-    fn shade(&self, b: f64) -> (Option<[f32; 4]>, [f32; 3]) {
+    fn at(&self, b: f64) -> (Option<[f32; 4]>, [f32; 3]) {
         let p = self.planes;
-        let db = (b - p.o[1]) as f32;
+        let db = self.db(b);
         let at = |r: &[f32; 2]| r[0] + r[1] * db;
         let c = match p.flat_c {
             Some(c) => c,
@@ -170,11 +205,69 @@ impl<'p, 'm> RowShade<'p, 'm> {
                 shade_color(vc, uv, uv2, p.mat)
             }
         };
-        let n = match p.flat_n {
-            Some(n) => n,
-            None => unit_or(self.n.each_ref().map(at), p.face_n),
+        (c, self.normal(db))
+    }
+}
+
+/// A colour that is the same all over the triangle and kept by alpha ([`Planes`]' `flat_c`;
+/// untextured meshes).
+struct FlatColour<'p, 'm> {
+    rows: RowShade<'p, 'm>,
+    c: [f32; 4],
+}
+
+impl ColumnShade for FlatColour<'_, '_> {
+    #[inline]
+    fn row(&mut self, a: f64) {
+        self.rows.row(a);
+    }
+
+    #[inline(always)]
+    fn at(&self, b: f64) -> (Option<[f32; 4]>, [f32; 3]) {
+        (Some(self.c), self.rows.normal(self.rows.db(b)))
+    }
+}
+
+/// An opaque material with one colour texture, untransformed and with decoded texels, and
+/// a vertex colour shared by the corners (textured OBJ and most textured glTF):
+/// [`shade_color`] and [`Tex::sample`] without their material branches, base × vertex
+/// colour taken once per triangle (the same product).
+struct TexturedOpaque<'p, 'm> {
+    rows: RowShade<'p, 'm>,
+    tex: Tex<'m>,
+    /// The texture's decoded texels.
+    lin: &'m [[f32; 4]],
+    /// `base[k] · vc[k]`.
+    tint: [f32; 4],
+}
+
+impl<'p, 'm> TexturedOpaque<'p, 'm> {
+    /// The specialisation for `planes`, when their material and triangle fit it.
+    fn new(planes: &'p Planes<'m>) -> Option<Self> {
+        let mat = planes.mat;
+        let (Some(tex), None, AlphaMode::Opaque, Some(vc), None) = (mat.tex, &mat.alpha_tex, mat.alpha, planes.vc, planes.flat_c) else {
+            return None;
         };
-        (c, n)
+        let lin = tex.img.linear.filter(|_| tex.plain)?;
+        Some(TexturedOpaque { rows: RowShade::new(planes), tex, lin, tint: std::array::from_fn(|k| mat.base[k] * vc[k]) })
+    }
+}
+
+impl ColumnShade for TexturedOpaque<'_, '_> {
+    #[inline]
+    fn row(&mut self, a: f64) {
+        self.rows.row(a);
+    }
+
+    #[inline(always)]
+    fn at(&self, b: f64) -> (Option<[f32; 4]>, [f32; 3]) {
+        let db = self.rows.db(b);
+        let uv = self.rows.uv.each_ref().map(|r| r[0] + r[1] * db);
+        // `Tex::sample` of an untransformed binding with decoded texels.
+        let s = self.tex.interior_in(self.lin, uv).unwrap_or_else(|| self.tex.sample(uv));
+        // Opaque: alpha is 1 whatever the texel's.
+        let c = [self.tint[0] * s[0], self.tint[1] * s[1], self.tint[2] * s[2], 1.0];
+        (Some(c), self.rows.normal(db))
     }
 }
 
@@ -226,77 +319,213 @@ fn scanline_axis<const D: usize, S: RecSink>(t: &Tri, fnrm: [f64; 3], mat: &Mat,
     let (klo, khi) = cells[D];
     let planes = Planes::new(t, &q, fnrm, mat);
     let area = 0.5 * norm(fnrm);
-    let mut dropped = 0;
-    let mut push = |out: &mut S, key: [i64; 3], shaded: (Option<[f32; 4]>, [f32; 3]), each: f32| match shaded {
-        (Some(color), normal) => out.push(Rec { key: kp.pack(key), area: each, normal, color }),
-        (None, _) => dropped += 1,
-    };
     if total == 0 {
         let cen: [f64; 3] = std::array::from_fn(|k| (t.p[0][k] + t.p[1][k] + t.p[2][k]) / 3.0);
         let key: [i64; 3] = std::array::from_fn(|k| floor_i64(cen[k]).clamp(cells[k].0, cells[k].1));
-        if in_slab(key[0]) {
-            push(out, key, planes.shade([cen[a], cen[b]]), area as f32);
+        if !in_slab(key[0]) {
+            return 0;
         }
-        return dropped;
+        return match planes.shade([cen[a], cen[b]]) {
+            (Some(color), normal) => {
+                out.push(Rec { key: kp.pack(key), area: area as f32, normal, color });
+                0
+            }
+            (None, _) => 1,
+        };
     }
-    let mut shade = RowShade::new(&planes);
     let each = (area / total as f64) as f32;
     // Depth plane through corner 0: depth = p0 + ga·(a − a0) + gb·(b − b0).
     let (ga, gb) = (-fnrm[a] / fnrm[D], -fnrm[b] / fnrm[D]);
-    let p0 = t.p[0];
-    // Most triangles lie in one slab: no row needs cutting to it.
-    let whole_in_slab = in_slab(cells[0].0) && in_slab(cells[0].1);
-    let mut rows = spans.rows;
-    if a == 0 {
-        rows = (rows.0.max(keep.0), rows.1.min(keep.1));
+    let rows = TriRows::<D> {
+        spans: &spans,
+        kept: &kept,
+        kp,
+        keep,
+        depth_cells: (klo, khi),
+        ga,
+        gb,
+        p0: t.p[0],
+        each,
+        // Most triangles lie in one slab: no row needs cutting to it.
+        whole_in_slab: in_slab(cells[0].0) && in_slab(cells[0].1),
+        fast: FastKeys::new::<D>(t, fnrm, kp, (klo, khi)),
+    };
+    if let Some(Some(c)) = planes.flat_c {
+        rows.emit(FlatColour { rows: RowShade::new(&planes), c }, out)
+    } else if let Some(tex) = TexturedOpaque::new(&planes) {
+        rows.emit(tex, out)
+    } else {
+        rows.emit(RowShade::new(&planes), out)
     }
-    for ia in rows.0..=rows.1 {
-        let (mut first, mut last) = usize::try_from(ia.abs_diff(spans.rows.0)).ok().and_then(|i| kept.get(i)).copied().unwrap_or_else(|| spans.row(ia));
-        if first > last {
-            continue;
+}
+
+/// `1.5·2^52`: adding it to an `f64` of magnitude below 2^51 rounds that to an integer, which
+/// then sits in the low bits of the sum's representation.
+const ROUND_MAGIC: f64 = 6_755_399_441_055_744.0;
+
+/// `floor(x) + ROUND_MAGIC.to_bits()` (wrapping) for `|x| < 2^50`: the floor without the
+/// saturation and NaN fix-ups of an `as i64` conversion (which this range never needs).
+#[inline(always)]
+fn floor_biased(x: f64) -> u64 {
+    let z = x + ROUND_MAGIC;
+    // `z − ROUND_MAGIC` is exact: `x` rounded to an integer, one above the floor when `x`
+    // was rounded up.
+    z.to_bits().wrapping_sub(u64::from(z - ROUND_MAGIC > x))
+}
+
+/// Largest magnitude of a voxel index or coordinate (grid units) for [`FastKeys`]: column
+/// centres `ib + ½` and depths stay exact, finite, and in [`floor_biased`]'s range.
+const FAST_LIMIT: f64 = (1u64 << 50) as f64;
+
+/// [`KeyPack::pack`] of a row's samples as a running sum: the key of `(ia, ib, depth)` is a
+/// row part plus `ib` and the biased depth floor shifted into their fields (wrapping), with
+/// no clamps per sample. Valid because every index is already in the key range (rows and
+/// columns are clamped to it by [`Spans`], the depth by clamping its float to the triangle's
+/// depth cells intersected with the key range), and all values are small enough for exact
+/// column centres and [`floor_biased`]. `None` (the exact per-sample path) otherwise.
+struct FastKeys {
+    /// Minus the b field's and the biased depth field's zero points (wrapping).
+    offset: u64,
+    shift_b: u32,
+    shift_d: u32,
+    /// The depth cells `klo..=khi` within the key range, as `[klo, khi + ½]`: clamping the
+    /// depth to these before the floor equals clamping the floor to `klo..=khi`.
+    lo: f64,
+    hi: f64,
+}
+
+impl FastKeys {
+    fn new<const D: usize>(t: &Tri, fnrm: [f64; 3], kp: &KeyPack, (klo, khi): (i64, i64)) -> Option<FastKeys> {
+        let b = (D + 2) % 3;
+        let small = |v: f64| v.abs() < FAST_LIMIT;
+        let key_range_small = (0..3).all(|k| small(kp.lo[k] as f64) && small(kp.hi[k] as f64));
+        // |fnrm[D]| is the largest component: the depth slopes are at most 1 in magnitude,
+        // so depths along the (small) rows stay small and finite.
+        let plane_small = t.p.iter().flatten().all(|&v| small(v)) && fnrm[D].is_finite() && fnrm[D] != 0.0;
+        if !(key_range_small && plane_small && klo <= khi) {
+            return None;
         }
-        let ca = ia as f64 + 0.5;
-        let drow = p0[D] + ga * (ca - p0[a]);
-        // The same expression (and so the same voxel) in every slab's call.
-        let depth_key = |ib: i64| floor_i64(drow + gb * ((ib as f64 + 0.5) - p0[b])).clamp(klo, khi);
-        if b == 0 {
-            (first, last) = (first.max(keep.0), last.min(keep.1));
-        } else if D == 0 && !whole_in_slab {
-            // Depth is x here: the slab's columns are those whose depth voxel lies in it. The
-            // computed depth is monotone along the row (rounding is monotone), so they form
-            // one run: the whole row or none of it when its ends say so, else found by
-            // bisection on the exact keys.
-            let x = |ib: i64| depth_key(ib).clamp(kp.lo[0], kp.hi[0]);
-            let (x_first, x_last) = (x(first), x(last));
-            if x_first.max(x_last) < keep.0 || x_first.min(x_last) > keep.1 {
+        // Clamping to `klo..=khi` and then to the key range is clamping to these.
+        let cells = [klo, khi].map(|k| k.max(kp.lo[D]).min(kp.hi[D]));
+        let (shift_b, shift_d) = (kp.shift(b), kp.shift(D));
+        let depth_zero = (ROUND_MAGIC.to_bits() as i64).wrapping_add(kp.lo[D]) as u64;
+        let offset = 0u64.wrapping_sub((kp.lo[b] as u64) << shift_b).wrapping_sub(depth_zero << shift_d);
+        Some(FastKeys { offset, shift_b, shift_d, lo: cells[0] as f64, hi: cells[1] as f64 + 0.5 })
+    }
+
+    /// The depth field of a key for `depth` (not NaN): its voxel clamped to the triangle's
+    /// depth cells and the key range, biased by `ROUND_MAGIC` (which `offset` takes back).
+    #[inline(always)]
+    fn depth_field(&self, depth: f64) -> u64 {
+        let depth = if depth < self.lo { self.lo } else { depth };
+        let depth = if depth > self.hi { self.hi } else { depth };
+        floor_biased(depth) << self.shift_d
+    }
+}
+
+/// One triangle's rows as a slab's call emits them ([`scanline_axis`], depth axis `D`).
+struct TriRows<'s, 'k, const D: usize> {
+    spans: &'s Spans,
+    /// The spans of the first rows, kept by the count.
+    kept: &'s [(i64, i64)],
+    kp: &'k KeyPack,
+    keep: (i64, i64),
+    /// The depth voxels a point of the triangle can lie in.
+    depth_cells: (i64, i64),
+    ga: f64,
+    gb: f64,
+    p0: [f64; 3],
+    /// EQ 17 area of a sample.
+    each: f32,
+    whole_in_slab: bool,
+    fast: Option<FastKeys>,
+}
+
+impl<const D: usize> TriRows<'_, '_, D> {
+    /// Emits the slab's samples row by row, shaded by `shade`; returns the number dropped
+    /// by alpha.
+    fn emit<S: RecSink>(&self, mut shade: impl ColumnShade, out: &mut S) -> u64 {
+        let (a, b) = ((D + 1) % 3, (D + 2) % 3);
+        let (kp, keep, p0, (ga, gb)) = (self.kp, self.keep, self.p0, (self.ga, self.gb));
+        let (klo, khi) = self.depth_cells;
+        let spans = self.spans;
+        let mut dropped = 0;
+        let mut rows = spans.rows;
+        if a == 0 {
+            rows = (rows.0.max(keep.0), rows.1.min(keep.1));
+        }
+        for ia in rows.0..=rows.1 {
+            let (mut first, mut last) =
+                usize::try_from(ia.abs_diff(spans.rows.0)).ok().and_then(|i| self.kept.get(i)).copied().unwrap_or_else(|| spans.row(ia));
+            if first > last {
                 continue;
             }
-            let (from, to) = if x_first.min(x_last) >= keep.0 && x_first.max(x_last) <= keep.1 {
-                (i128::from(first), i128::from(last) + 1) // the whole run
-            } else if gb >= 0.0 {
-                (partition_point(first, last, |ib| x(ib) >= keep.0), partition_point(first, last, |ib| x(ib) > keep.1))
-            } else {
-                (partition_point(first, last, |ib| x(ib) <= keep.1), partition_point(first, last, |ib| x(ib) < keep.0))
+            let ca = ia as f64 + 0.5;
+            let drow = p0[D] + ga * (ca - p0[a]);
+            // The same expression (and so the same voxel) in every slab's call.
+            let depth_key = |ib: i64| floor_i64(drow + gb * ((ib as f64 + 0.5) - p0[b])).clamp(klo, khi);
+            if b == 0 {
+                (first, last) = (first.max(keep.0), last.min(keep.1));
+            } else if D == 0 && !self.whole_in_slab {
+                // Depth is x here: the slab's columns are those whose depth voxel lies in it. The
+                // computed depth is monotone along the row (rounding is monotone), so they form
+                // one run: the whole row or none of it when its ends say so, else found by
+                // bisection on the exact keys.
+                let x = |ib: i64| depth_key(ib).clamp(kp.lo[0], kp.hi[0]);
+                let (x_first, x_last) = (x(first), x(last));
+                if x_first.max(x_last) < keep.0 || x_first.min(x_last) > keep.1 {
+                    continue;
+                }
+                let (from, to) = if x_first.min(x_last) >= keep.0 && x_first.max(x_last) <= keep.1 {
+                    (i128::from(first), i128::from(last) + 1) // the whole run
+                } else if gb >= 0.0 {
+                    (partition_point(first, last, |ib| x(ib) >= keep.0), partition_point(first, last, |ib| x(ib) > keep.1))
+                } else {
+                    (partition_point(first, last, |ib| x(ib) <= keep.1), partition_point(first, last, |ib| x(ib) < keep.0))
+                };
+                if from >= to {
+                    continue;
+                }
+                // `first ≤ from < to ≤ last + 1`: both fit in i64.
+                (first, last) = (from as i64, (to - 1) as i64);
+            }
+            if first > last {
+                continue;
+            }
+            shade.row(ca);
+            let mut push = |key: u64, (color, normal): (Option<[f32; 4]>, [f32; 3])| match color {
+                Some(color) => out.push(Rec { key, area: self.each, normal, color }),
+                None => dropped += 1,
             };
-            if from >= to {
+            let Some(f) = &self.fast else {
+                for ib in first..=last {
+                    let mut key = [0i64; 3];
+                    key[a] = ia;
+                    key[b] = ib;
+                    key[D] = depth_key(ib);
+                    push(kp.pack(key), shade.at(ib as f64 + 0.5));
+                }
                 continue;
+            };
+            // `kp.pack` of the row's first column at the zero points of the b and depth
+            // fields, then those fields added per sample.
+            let mut zero = [0i64; 3];
+            zero[a] = ia;
+            zero[b] = kp.lo[b];
+            zero[D] = kp.lo[D];
+            let mut key_b = kp.pack(zero).wrapping_add(f.offset).wrapping_add((first as u64) << f.shift_b);
+            // `ib + ½` counted in f64: exact below 2^50.
+            let mut cb = first as f64 + 0.5;
+            // `last − first < 2^51`.
+            for _ in 0..last.abs_diff(first) + 1 {
+                // The depth expression of `depth_key` (never NaN here).
+                push(key_b.wrapping_add(f.depth_field(drow + gb * (cb - p0[b]))), shade.at(cb));
+                key_b = key_b.wrapping_add(1 << f.shift_b);
+                cb += 1.0;
             }
-            // `first ≤ from < to ≤ last + 1`: both fit in i64.
-            (first, last) = (from as i64, (to - 1) as i64);
         }
-        if first > last {
-            continue;
-        }
-        shade.row(ca);
-        for ib in first..=last {
-            let mut key = [0i64; 3];
-            key[a] = ia;
-            key[b] = ib;
-            key[D] = depth_key(ib);
-            push(out, key, shade.shade(ib as f64 + 0.5), each);
-        }
+        dropped
     }
-    dropped
 }
 
 #[cfg(test)]
@@ -410,6 +639,159 @@ mod tests {
         }
         assert!(axes.iter().all(|&n| n > 500), "{axes:?}");
         assert!(centroid_only > 20, "{centroid_only} triangles without a column centre");
+    }
+
+    /// `floor_biased` is the floor over its whole range: integers, halves, their neighbours,
+    /// ±0, the ends of the range and random values of every magnitude.
+    #[test]
+    fn floor_biased_is_the_floor() {
+        let mut rng = sct_format::rng::SplitMix64(31);
+        let mut xs = vec![0.0, -0.0, FAST_LIMIT.next_down(), -FAST_LIMIT.next_down(), 0.5, -0.5];
+        for i in -40i64..=40 {
+            let x = i as f64 * 0.5;
+            xs.extend([x, x.next_up(), x.next_down()]);
+        }
+        for _ in 0..200_000 {
+            let x = (rng.next_f64() * 2.0 - 1.0) * 2f64.powi((rng.next_u64() % 51) as i32);
+            xs.extend([x, x.floor(), x.floor().next_down()]);
+        }
+        for x in xs {
+            assert_eq!(floor_biased(x).wrapping_sub(ROUND_MAGIC.to_bits()) as i64, floor_i64(x), "{x:e}");
+        }
+    }
+
+    /// The depth field clamps like the exact path: the floor clamped to the triangle's
+    /// depth cells, then to the key range (cells inside, across and beyond it; depths far
+    /// outside the cells, on their edges and at half voxels).
+    #[test]
+    fn depth_field_clamps_like_the_exact_path() {
+        let mut rng = sct_format::rng::SplitMix64(41);
+        let kp = KeyPack::new([-50.0; 3], [50.0; 3]).expect("keys");
+        let t = Tri { p: [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], n: [[0.0; 3]; 3], c: [[1.0; 4]; 3], uv: [[0.0; 2]; 3], uv2: [[0.0; 2]; 3] };
+        let fnrm = [0.0, 0.0, 1.0];
+        for _ in 0..20_000 {
+            let klo = (rng.next_u64() % 140) as i64 - 70;
+            let khi = klo + (rng.next_u64() % 6) as i64;
+            let f = FastKeys::new::<2>(&t, fnrm, &kp, (klo, khi)).expect("fast");
+            let x = klo as f64 - 3.0 + rng.next_f64() * ((khi - klo) as f64 + 6.0);
+            for x in [x, x.floor(), x.floor().next_down(), x.floor() + 0.5, (khi + 1) as f64, (khi + 1) as f64 - 0.5, (khi + 1) as f64 - 0.25, (klo as f64).next_down()] {
+                let want = floor_i64(x).clamp(klo, khi).clamp(kp.lo[2], kp.hi[2]);
+                let got = f.depth_field(x).wrapping_sub(ROUND_MAGIC.to_bits()) as i64;
+                assert_eq!(got, want, "{x} in {klo}..={khi}");
+            }
+        }
+    }
+
+    /// A whole triangle's samples by the definitions, column by column: the depth voxel from
+    /// `floor_i64` clamped to the triangle's cells, `KeyPack::pack` with its clamps, and
+    /// `Planes::shade` — the emission's reference (test only). `None` for a triangle without
+    /// column centres; else the records and the number dropped by alpha.
+    fn reference(t: &Tri, mat: &Mat, kp: &KeyPack) -> Option<(Vec<Rec>, u64)> {
+        let (fnrm, d, a, b) = face_axes(t);
+        let q = t.p.map(|p| [p[a], p[b]]);
+        let spans = Spans::new(&q, (kp.lo[a], kp.hi[a]), (kp.lo[b], kp.hi[b]));
+        let total = spans.count();
+        if total == 0 {
+            return None;
+        }
+        let planes = Planes::new(t, &q, fnrm, mat);
+        let (lo, hi) = t.p.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| (l.min(p[d]), h.max(p[d])));
+        let (ga, gb, p0) = (-fnrm[a] / fnrm[d], -fnrm[b] / fnrm[d], t.p[0]);
+        let each = (0.5 * norm(fnrm) / total as f64) as f32;
+        let (mut recs, mut dropped) = (Vec::new(), 0);
+        for ia in spans.rows.0..=spans.rows.1 {
+            let (first, last) = spans.row(ia);
+            let ca = ia as f64 + 0.5;
+            let drow = p0[d] + ga * (ca - p0[a]);
+            for ib in first..=last {
+                let cb = ib as f64 + 0.5;
+                let mut key = [0; 3];
+                (key[a], key[b]) = (ia, ib);
+                key[d] = floor_i64(drow + gb * (cb - p0[b])).clamp(floor_i64(lo), floor_i64(hi));
+                match planes.shade([ca, cb]) {
+                    (Some(color), normal) => recs.push(Rec { key: kp.pack(key), area: each, normal, color }),
+                    (None, _) => dropped += 1,
+                }
+            }
+        }
+        Some((recs, dropped))
+    }
+
+    /// The emission (running keys, float-clamped depth floors, specialised shading) gives the
+    /// reference's records bit for bit and in its order: random triangles in every
+    /// orientation, flat and varying normals and colours, opaque textures (plain and
+    /// transformed, coordinates inside and beyond the image), blended, masked and
+    /// alpha-textured materials; and with a key range too large for the running keys, where
+    /// the exact per-sample path runs (also for corners beyond 2^50).
+    #[test]
+    fn rows_match_the_per_sample_definition() {
+        use super::super::{decode_textures, TexImage};
+        use crate::mesh::{Image, LoadedScene, Material, TextureRef, Wrap};
+        let mut rng = sct_format::rng::SplitMix64(37);
+        let (w, h) = (9u32, 6u32);
+        let rgba: Vec<[u8; 4]> = (0..w * h).map(|_| std::array::from_fn(|_| (rng.next_u64() >> 56) as u8)).collect();
+        let plain = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let tr = |transform| TextureRef { image: 0, tex_coord: 0, transform, wrap_s: Wrap::Repeat, wrap_t: Wrap::MirroredRepeat };
+        let scene = LoadedScene {
+            images: vec![Image { width: w, height: h, rgba, source: "test".into() }],
+            materials: vec![Material { texture: Some(tr(plain)), ..Default::default() }],
+            ..Default::default()
+        };
+        let linear = decode_textures(&scene);
+        let img = TexImage { img: &scene.images[0], linear: linear[0].as_deref() };
+        let (tr_plain, tr_moved) = (tr(plain), tr([[0.5, 0.1, 0.25], [0.0, 0.7, 0.1]]));
+        let tex = |r| Some(Tex::new(img, r));
+        let base = [0.9, 0.8, 0.7, 0.6];
+        let mats = [
+            Mat { base, tex: None, alpha_tex: None, alpha: AlphaMode::Opaque },
+            Mat { base, tex: tex(&tr_plain), alpha_tex: None, alpha: AlphaMode::Opaque },
+            Mat { base, tex: tex(&tr_moved), alpha_tex: None, alpha: AlphaMode::Opaque },
+            Mat { base, tex: tex(&tr_plain), alpha_tex: None, alpha: AlphaMode::Blend },
+            Mat { base, tex: tex(&tr_plain), alpha_tex: None, alpha: AlphaMode::Mask(0.4) },
+            Mat { base, tex: None, alpha_tex: tex(&tr_plain), alpha: AlphaMode::Mask(0.3) },
+        ];
+        let small = KeyPack::new([-80.0; 3], [80.0; 3]).expect("keys");
+        let huge = KeyPack::new([-1e16, -6.0, -6.0], [1e16, 6.0, 6.0]).expect("keys");
+        let bits = |r: &Rec| (r.key, r.area.to_bits(), r.normal.map(f32::to_bits), r.color.map(f32::to_bits));
+        let (mut fast, mut exact, mut dropped_any, mut compared) = (0, 0, 0, 0);
+        for i in 0..6000 {
+            let mat = &mats[i % mats.len()];
+            let (kp, o, scale): (&KeyPack, [f64; 3], f64) = if i % 5 == 4 {
+                let far = if i % 2 == 0 { 2f64.powi(51) } else { 1000.5 };
+                (&huge, [far + rng.next_f64() * 100.0, rng.next_f64() * 6.0 - 4.0, rng.next_f64() * 6.0 - 4.0], 1.5)
+            } else {
+                (&small, std::array::from_fn(|_| rng.next_f64() * 80.0 - 40.0), [0.8, 4.0, 30.0][i % 3])
+            };
+            let p: [[f64; 3]; 3] = std::array::from_fn(|_| std::array::from_fn(|k| o[k] + rng.next_f64() * scale));
+            let flat_n = i % 7 == 0;
+            let n0: [f32; 3] = std::array::from_fn(|_| rng.next_f64() as f32 - 0.5);
+            let n = std::array::from_fn(|_| if flat_n { n0 } else { std::array::from_fn(|_| rng.next_f64() as f32 - 0.5) });
+            let shared_c = i % 3 != 0;
+            let c0 = [0.5, 0.25, 1.0, 0.75];
+            let c = std::array::from_fn(|_| if shared_c { c0 } else { std::array::from_fn(|_| rng.next_f64() as f32) });
+            let uv = std::array::from_fn(|_| [(rng.next_f64() * 1.4 - 0.2) as f32, (rng.next_f64() * 1.4 - 0.2) as f32]);
+            let t = Tri { p, n, c, uv, uv2: uv };
+            let Some((want, want_dropped)) = reference(&t, mat, kp) else {
+                continue;
+            };
+            let (fnrm, d, _, _) = face_axes(&t);
+            let cells = t.p.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| (l.min(p[d]), h.max(p[d])));
+            let cells = (floor_i64(cells.0), floor_i64(cells.1));
+            let takes_fast = match d {
+                0 => FastKeys::new::<0>(&t, fnrm, kp, cells).is_some(),
+                1 => FastKeys::new::<1>(&t, fnrm, kp, cells).is_some(),
+                _ => FastKeys::new::<2>(&t, fnrm, kp, cells).is_some(),
+            };
+            assert_eq!(takes_fast, std::ptr::eq(kp, &small));
+            (fast, exact) = if takes_fast { (fast + 1, exact) } else { (fast, exact + 1) };
+            let mut got = Vec::new();
+            let got_dropped = scanline_triangle(&t, mat, kp, (i64::MIN, i64::MAX), &mut got);
+            assert_eq!(got_dropped, want_dropped, "{p:?}");
+            assert_eq!(got.iter().map(bits).collect::<Vec<_>>(), want.iter().map(bits).collect::<Vec<_>>(), "{p:?} material {}", i % mats.len());
+            dropped_any += u32::from(got_dropped > 0);
+            compared += got.len();
+        }
+        assert!(fast > 2000 && exact > 300 && dropped_any > 500 && compared > 50_000, "{fast} {exact} {dropped_any} {compared}");
     }
 
     /// Triangles that project to a line have no spans (they get the centroid sample).
