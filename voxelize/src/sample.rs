@@ -1290,14 +1290,34 @@ fn sort_order(recs: &[Rec], range: Option<(u64, u32)>, items: &mut Vec<u64>, tmp
         let (lo, hi) = recs.iter().fold((u64::MAX, 0), |(l, h), r| (l.min(r.key), h.max(r.key)));
         (lo, 64 - hi.saturating_sub(lo).leading_zeros())
     });
-    let idx_bits = 64 - (recs.len() as u64).leading_zeros();
+    let n = recs.len();
+    let idx_bits = 64 - (n as u64).leading_zeros();
     if key_bits + idx_bits > 64 {
-        items.extend(0..recs.len() as u64);
+        items.extend(0..n as u64);
         items.sort_by_key(|&i| recs[i as usize].key);
         return u64::MAX;
     }
-    items.extend(recs.iter().enumerate().map(|(i, r)| ((r.key - lo) << idx_bits) | i as u64));
-    radix_sort_bits(items, tmp, idx_bits, key_bits);
+    let item = |i: usize, r: &Rec| ((r.key - lo) << idx_bits) | i as u64;
+    let (passes, d) = radix_digits(n, key_bits);
+    if passes != 2 || !radix_worth(n, key_bits) {
+        items.extend(recs.iter().enumerate().map(|(i, r)| item(i, r)));
+        radix_sort_bits(items, tmp, idx_bits, key_bits);
+        return (1u64 << idx_bits) - 1;
+    }
+    // The usual case (a part of a slab: two digits): both digits counted in one read.
+    items.extend(recs.iter().enumerate().map(|(i, r)| item(i, r)));
+    let mut counts = vec![0u32; 2 << d];
+    let (c0, c1) = counts.split_at_mut(1 << d);
+    // Masks from the counters' lengths: the counting goes unchecked.
+    let (Some(m0), Some(m1)) = (c0.len().checked_sub(1), c1.len().checked_sub(1)) else {
+        return u64::MAX; // unreachable: both halves hold 2^d counters
+    };
+    for &x in items.iter() {
+        let v = (x >> idx_bits) as usize;
+        c0[v & m0] += 1;
+        c1[(v >> d) & m1] += 1;
+    }
+    radix_passes(items, tmp, idx_bits, d, &mut counts);
     (1u64 << idx_bits) - 1
 }
 
@@ -1375,29 +1395,58 @@ fn merge_sorted(items: &[u64], idx_mask: u64, recs: &[Rec], kp: &KeyPack, r: f32
 /// fields: the dense runs' keys) sort in two passes; 2^14 counters still sit in L2.
 const RADIX_DIGIT_BITS: u32 = 14;
 
+/// Whether a radix sort beats a comparison sort for `n` items with `bits` key bits.
+fn radix_worth(n: usize, bits: u32) -> bool {
+    n > 64 && n <= u32::MAX as usize && bits > 0
+}
+
+/// (passes, digit bits) of a radix sort of `n` items by `bits` key bits: digits of at most
+/// [`RADIX_DIGIT_BITS`], and at most about n/2 counters (for short inputs, time would go to
+/// the counters), so a slab part's 8–16k items with 23–24 key bits take two passes.
+fn radix_digits(n: usize, bits: u32) -> (u32, u32) {
+    let widest = (usize::BITS - n.leading_zeros()).saturating_sub(1).clamp(8, RADIX_DIGIT_BITS);
+    let passes = bits.min(64).div_ceil(widest);
+    (passes, bits.div_ceil(passes.max(1)))
+}
+
 /// Stable LSD radix sort of `items` by their bits `shift .. shift + bits` (the bits above are
-/// zero), in passes of at most [`RADIX_DIGIT_BITS`] (fewer for short inputs, whose time would
-/// go to clearing counters); passes where every item has the same digit are skipped.
+/// zero), in the passes of [`radix_digits`]; passes where every item has the same digit are
+/// skipped.
 fn radix_sort_bits(items: &mut [u64], tmp: &mut Vec<u64>, shift: u32, bits: u32) {
     let n = items.len();
-    if n <= 64 || n > u32::MAX as usize || bits == 0 {
+    if !radix_worth(n, bits) {
         items.sort_by_key(|&x| x >> shift.min(63)); // stable
         return;
     }
-    let widest = (usize::BITS - n.leading_zeros()).saturating_sub(2).clamp(8, RADIX_DIGIT_BITS);
-    let passes = bits.min(64).div_ceil(widest);
-    let d = bits.div_ceil(passes);
-    let mut count = vec![0u32; 1 << d];
+    let (passes, d) = radix_digits(n, bits);
+    // Every pass's counters filled in one read of the items.
+    let mut counts = vec![0u32; (passes as usize) << d];
+    let m = (1u64 << d) - 1;
+    for &x in items.iter() {
+        let mut v = x >> shift;
+        for c in counts.chunks_exact_mut(1 << d) {
+            if let Some(c) = c.get_mut((v & m) as usize) {
+                *c += 1;
+            }
+            v >>= d;
+        }
+    }
+    radix_passes(items, tmp, shift, d, &mut counts);
+}
+
+/// The passes of an LSD radix sort whose digit counts (pass p's `2^d` counters at
+/// `p·2^d`, one pass per block) are in `counts`: digit p is bits `shift + p·d ..` of an item.
+fn radix_passes(items: &mut [u64], tmp: &mut Vec<u64>, shift: u32, d: u32, counts: &mut [u32]) {
+    let n = items.len();
     // The scratch buffer is reused across calls: grown (zeroed) only when too short.
     if tmp.len() < n {
         tmp.resize(n, 0);
     }
     let tmp = &mut tmp[..n];
     let mut in_items = true; // where the current data lives
-    for p in 0..passes {
+    for (p, count) in counts.chunks_exact_mut(1 << d).enumerate() {
         let (src, dst): (&[u64], &mut [u64]) = if in_items { (items, &mut *tmp) } else { (&*tmp, items) };
-        // Digit p: bits shift + p·d .. of the item.
-        if scatter_by_digit(src, dst, shift + p * d, &mut count) {
+        if scatter_by_digit(src, dst, shift + p as u32 * d, count) {
             in_items = !in_items;
         }
     }
@@ -1406,18 +1455,16 @@ fn radix_sort_bits(items: &mut [u64], tmp: &mut Vec<u64>, shift: u32, bits: u32)
     }
 }
 
-/// One counting-sort pass of [`radix_sort_bits`]: moves `src` into `dst` stably ordered by the
-/// digit `(x >> sh) & (count.len() − 1)` (`count.len()` a power of two; masking by it lets the
-/// counter indexing go unchecked). Returns false, moving nothing, when all digits are equal.
+/// One counting-sort pass of [`radix_passes`]: moves `src` into `dst` stably ordered by the
+/// digit `(x >> sh) & (count.len() − 1)`, where `count` holds each digit's count
+/// (`count.len()` a power of two; masking by it lets the counter indexing go unchecked).
+/// Returns false, moving nothing, when all digits are equal.
 fn scatter_by_digit(src: &[u64], dst: &mut [u64], sh: u32, count: &mut [u32]) -> bool {
-    let Some(m) = count.len().checked_sub(1) else {
+    let (Some(m), Some(&first)) = (count.len().checked_sub(1), src.first()) else {
         return false;
     };
-    count.fill(0);
-    for &x in src {
-        count[(x >> sh) as usize & m] += 1;
-    }
-    if count.contains(&(src.len() as u32)) {
+    // All digits are equal when the first item's digit counts them all.
+    if count[(first >> sh) as usize & m] as usize == src.len() {
         return false;
     }
     let mut pos = 0;
