@@ -1326,69 +1326,108 @@ fn sort_order(recs: &[Rec], range: Option<(u64, u32)>, items: &mut Vec<u64>, tmp
 /// normal and colour are area-weighted means).
 #[allow(clippy::too_many_arguments)]
 fn merge_sorted(items: &[u64], idx_mask: u64, recs: &[Rec], kp: &KeyPack, r: f32, h: f64, h2: f64, merge: bool, out: &mut Vec<Node>) {
-    let rec = |j: usize| &recs[(items[j] & idx_mask) as usize];
-    // Items carry their keys above the index (unless bare indices): runs of one voxel are
-    // found without reading the records.
-    let same_voxel = |i: usize, j: usize| if idx_mask == u64::MAX { rec(i).key == rec(j).key } else { (items[i] ^ items[j]) & !idx_mask == 0 };
+    // One copy of the loop per case: the flags do not take registers in it. Items carry
+    // their keys above the index unless they are bare indices (idx_mask all ones).
+    let shape = NodeShape { kp, r, h, h2 };
+    match (merge, idx_mask != u64::MAX) {
+        (true, true) => merge_loop::<true, true>(items, idx_mask, recs, &shape, out),
+        (true, false) => merge_loop::<true, false>(items, idx_mask, recs, &shape, out),
+        (false, _) => merge_loop::<false, false>(items, idx_mask, recs, &shape, out),
+    }
+}
+
+/// What turns a voxel key and a record's area into a node's centre, radius and area.
+struct NodeShape<'k> {
+    kp: &'k KeyPack,
+    r: f32,
+    h: f64,
+    h2: f64,
+}
+
+/// [`merge_sorted`]'s loop; `KEYED`: runs of one voxel are found from the items' key bits,
+/// without reading the records.
+fn merge_loop<const MERGE: bool, const KEYED: bool>(items: &[u64], idx_mask: u64, recs: &[Rec], shape: &NodeShape, out: &mut Vec<Node>) {
+    let &NodeShape { kp, r, h, h2 } = shape;
     // Keys ascend, so neighbours mostly share x and y (the bits above z): their centre
-    // coordinates are taken once per (x, y) column, only z per key.
+    // coordinates are taken once per (x, y) column, only z per key. (Each key field has at
+    // least 1 bit and they sum to at most 64, so z's are fewer than 64: the shift is exact.)
+    let z_bits = kp.bits[2] & 63;
+    let z_mask = (1u64 << z_bits) - 1;
+    let z_lo = kp.lo[2];
+    let c = |v: i64| ((v as f64 + 0.5) * h) as f32;
     let mut column = (u64::MAX, [0.0f32; 2]);
-    let z_mask = kp.bits[2].checked_sub(1).map_or(0, |b| u64::MAX >> (63 - b));
-    let mut center = |key: u64| -> [f32; 3] {
-        let c = |v: i64| ((v as f64 + 0.5) * h) as f32;
-        let hi = key.checked_shr(kp.bits[2]).unwrap_or(0);
-        if hi != column.0 {
-            let v = kp.unpack(key);
-            column = (hi, [c(v[0]), c(v[1])]);
-        }
-        [column.1[0], column.1[1], c((key & z_mask) as i64 + kp.lo[2])]
-    };
     // Neighbouring voxels mostly carry the same colour (always for untextured meshes without
     // vertex colours): encode a colour once for a run of equal ones (equal bits: one integer
     // compare; a colour equal as floats but not in bits, ±0, only encodes again).
     let bits = |c: [f32; 4]| c.map(f32::to_bits);
     let mut memo = (bits([f32::NAN; 4]), srgb8([f32::NAN; 4]));
-    let mut enc = |c: [f32; 4]| -> [u8; 4] {
-        if bits(c) != memo.0 {
-            memo = (bits(c), srgb8(c));
-        }
-        memo.1
-    };
+    // A local vector: its length and pointer stay in registers across the loop.
+    let mut nodes = std::mem::take(out);
+    nodes.reserve(items.len());
     let n = items.len();
     let mut i = 0;
     while i < n {
-        let first = rec(i);
+        let it = items[i];
+        let first = &recs[(it & idx_mask) as usize];
+        let key = first.key;
         let mut j = i + 1;
-        if merge {
-            while j < n && same_voxel(i, j) {
-                j += 1;
+        if MERGE {
+            if KEYED {
+                while j < n && (items[j] ^ it) & !idx_mask == 0 {
+                    j += 1;
+                }
+            } else {
+                while j < n && recs[items[j] as usize].key == key {
+                    j += 1;
+                }
             }
         }
+        let hi = key >> z_bits;
+        if hi != column.0 {
+            let v = kp.unpack(key);
+            column = (hi, [c(v[0]), c(v[1])]);
+        }
+        let center = [column.1[0], column.1[1], c((key & z_mask) as i64 + z_lo)];
         if j == i + 1 {
             // The common case: nothing to merge.
-            out.push(Node { center: center(first.key), radius: r, normal: first.normal, cone: 0.0, area: (f64::from(first.area) * h2) as f32, color: enc(first.color) });
-            i = j;
-            continue;
-        }
-        let (mut a, mut wsum, mut nn, mut c) = (0.0f64, 0.0f64, [0.0f64; 3], [0.0f64; 4]);
-        for m in i..j {
-            let x = rec(m);
-            // Zero-area pieces (edge slivers) still count a little so colour is defined.
-            let w = f64::from(x.area).max(1e-12);
-            a += f64::from(x.area);
-            wsum += w;
-            for (s, v) in nn.iter_mut().zip(x.normal) {
-                *s += w * f64::from(v);
+            if bits(first.color) != memo.0 {
+                memo = (bits(first.color), srgb8(first.color));
             }
-            for (s, v) in c.iter_mut().zip(x.color) {
-                *s += w * f64::from(v);
+            nodes.push(Node { center, radius: r, normal: first.normal, cone: 0.0, area: (f64::from(first.area) * h2) as f32, color: memo.1 });
+        } else {
+            let (normal, area, color) = merge_run(&items[i..j], idx_mask, recs, h2);
+            if bits(color) != memo.0 {
+                memo = (bits(color), srgb8(color));
             }
+            nodes.push(Node { center, radius: r, normal, cone: 0.0, area, color: memo.1 });
         }
-        let l = norm(nn);
-        let normal = if l > 1e-9 * wsum { nn.map(|x| (x / l) as f32) } else { first.normal };
-        out.push(Node { center: center(first.key), radius: r, normal, cone: 0.0, area: (a * h2) as f32, color: enc(c.map(|x| (x / wsum) as f32)) });
         i = j;
     }
+    *out = nodes;
+}
+
+/// (normal, area, colour) of a run of records of one voxel (out of line: rare, and it would
+/// crowd the registers of [`merge_sorted`]'s loop).
+#[inline(never)]
+fn merge_run(run: &[u64], idx_mask: u64, recs: &[Rec], h2: f64) -> ([f32; 3], f32, [f32; 4]) {
+    let (mut a, mut wsum, mut nn, mut c) = (0.0f64, 0.0f64, [0.0f64; 3], [0.0f64; 4]);
+    for &it in run {
+        let x = &recs[(it & idx_mask) as usize];
+        // Zero-area pieces (edge slivers) still count a little so colour is defined.
+        let w = f64::from(x.area).max(1e-12);
+        a += f64::from(x.area);
+        wsum += w;
+        for (s, v) in nn.iter_mut().zip(x.normal) {
+            *s += w * f64::from(v);
+        }
+        for (s, v) in c.iter_mut().zip(x.color) {
+            *s += w * f64::from(v);
+        }
+    }
+    let l = norm(nn);
+    let first = run.first().map_or([0.0; 3], |&it| recs[(it & idx_mask) as usize].normal);
+    let normal = if l > 1e-9 * wsum { nn.map(|x| (x / l) as f32) } else { first };
+    (normal, (a * h2) as f32, c.map(|x| (x / wsum) as f32))
 }
 
 /// Widest radix digit: slab keys of up to 28 bits (a slab's x cells above a unit's y and z
