@@ -1406,9 +1406,9 @@ fn merge_loop<const MERGE: bool, const KEYED: bool>(items: &[u64], idx_mask: u64
     *out = nodes;
 }
 
-/// (normal, area, colour) of a run of records of one voxel (out of line: rare, and it would
-/// crowd the registers of [`merge_sorted`]'s loop).
-#[inline(never)]
+/// (normal, area, colour) of a run of records of one voxel (its own function with its own
+/// locals; inlined: a call per run measured +4 % instructions in the voxel method's merge).
+#[inline(always)]
 fn merge_run(run: &[u64], idx_mask: u64, recs: &[Rec], h2: f64) -> ([f32; 3], f32, [f32; 4]) {
     let (mut a, mut wsum, mut nn, mut c) = (0.0f64, 0.0f64, [0.0f64; 3], [0.0f64; 4]);
     for &it in run {
