@@ -2735,6 +2735,17 @@ mod tests {
         assert_eq!(p.range(|v| v[0]), (f64::INFINITY, f64::NEG_INFINITY));
     }
 
+    /// Slab parts (4k–16k items, 23–24 key bits) sort in two passes.
+    #[test]
+    fn slab_parts_take_two_radix_passes() {
+        for n in [4096, 5000, 8192, 16_383] {
+            for bits in [23, 24] {
+                assert_eq!(radix_digits(n, bits), (2, 12), "n {n}, bits {bits}");
+            }
+        }
+        assert_eq!(radix_digits(16_384, 28), (2, 14));
+    }
+
     #[test]
     fn radix_sort_is_a_stable_sort() {
         let mut rng = sct_format::rng::SplitMix64(3);
