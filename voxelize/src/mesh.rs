@@ -392,38 +392,44 @@ pub fn linear_to_srgb8(c: f32) -> u8 {
 /// Tables of the exact linear → 8-bit sRGB encoder ([`linear_to_srgb8`]); hold on to
 /// [`Srgb8::get`] to encode many values without re-checking the lazy initialisation.
 pub struct Srgb8 {
-    mid: [f32; 255],
-    start: [u8; 4097],
+    /// The 255 midpoints between 8-bit codes, in linear, then +∞ (so code 255 compares false).
+    mid: [f32; 256],
+    /// The code at the start of each cell of 2^16 floats below 1.0 (by bit pattern).
+    start: [u8; SRGB8_CELLS],
 }
+
+/// Bits of a float's pattern below its encoder cell's index: a cell spans 1/128 of its value
+/// (7 mantissa bits), at most 0.88 of an 8-bit step, so it holds at most one midpoint.
+const SRGB8_CELL_SHIFT: u32 = 16;
+/// Cells of the floats in [0, 1) (1.0 is 0x3F80_0000).
+const SRGB8_CELLS: usize = 0x3F80_0000 >> SRGB8_CELL_SHIFT;
 
 impl Srgb8 {
     /// The shared tables.
     pub fn get() -> &'static Srgb8 {
         static T: std::sync::OnceLock<Srgb8> = std::sync::OnceLock::new();
         T.get_or_init(|| {
-            let mid: [f32; 255] = std::array::from_fn(|i| srgb_to_linear((i as f32 + 0.5) / 255.0));
-            let start = std::array::from_fn(|j| mid.partition_point(|&m| m < j as f32 / 4096.0) as u8);
+            let mid: [f32; 256] = std::array::from_fn(|i| if i < 255 { srgb_to_linear((i as f32 + 0.5) / 255.0) } else { f32::INFINITY });
+            let start = std::array::from_fn(|j| mid.partition_point(|&m| m < f32::from_bits((j as u32) << SRGB8_CELL_SHIFT)) as u8);
             Srgb8 { mid, start }
         })
     }
 
     /// The code is the number of midpoints between 8-bit codes (in linear) below `c`: the
-    /// same rounding as encoding with powf. A 4096-entry table gives that count at the start
-    /// of c's 1/4096 cell, and at most a step or two of the midpoint list finishes it exactly.
+    /// same rounding as encoding with powf. The table gives that count at the start of c's
+    /// cell (positive floats order like their bits), and one comparison with the next
+    /// midpoint finishes it exactly (a cell holds at most one; tested for every float).
     #[inline]
     pub fn encode(&self, c: f32) -> u8 {
-        // One integer test for the common case 0 < c < 1 (positive floats order like their
-        // bits; 0x3F80_0000 is 1.0).
-        if c.to_bits().wrapping_sub(1) >= 0x3F80_0000 - 1 {
+        // One integer test for the common case 0 < c < 1 (0x3F80_0000 is 1.0).
+        let b = c.to_bits();
+        if b.wrapping_sub(1) >= 0x3F80_0000 - 1 {
             // c ≤ 0 (or −0), c ≥ 1, NaN or an infinity: NaN and infinities give 0, as the
             // exact encoder did.
             return if c >= 1.0 && c != f32::INFINITY { 255 } else { 0 };
         }
-        let mut code = self.start[((c * 4096.0) as u32 as usize).min(4096)] as usize;
-        while code < 255 && self.mid[code] < c {
-            code += 1;
-        }
-        code as u8
+        let code = self.start.get((b >> SRGB8_CELL_SHIFT) as usize).copied().unwrap_or(255);
+        code + u8::from(self.mid[code as usize] < c)
     }
 }
 
@@ -736,6 +742,39 @@ mod tests {
                 assert_eq!(g.map(|n| n.map(f32::to_bits)), w.map(|n| n.map(f32::to_bits)), "crease {crease}");
             }
         }
+    }
+
+    /// The encoder before the cell table (a 4096-entry start table and a walk along the
+    /// midpoints), kept as the reference of the exhaustive test below.
+    fn encode_before_cells(c: f32) -> u8 {
+        static T: std::sync::OnceLock<([f32; 255], [u8; 4097])> = std::sync::OnceLock::new();
+        let (mid, start) = T.get_or_init(|| {
+            let mid: [f32; 255] = std::array::from_fn(|i| srgb_to_linear((i as f32 + 0.5) / 255.0));
+            (mid, std::array::from_fn(|j| mid.partition_point(|&m| m < j as f32 / 4096.0) as u8))
+        });
+        if c.to_bits().wrapping_sub(1) >= 0x3F80_0000 - 1 {
+            return if c >= 1.0 && c != f32::INFINITY { 255 } else { 0 };
+        }
+        let mut code = start[((c * 4096.0) as u32 as usize).min(4096)] as usize;
+        while code < 255 && mid[code] < c {
+            code += 1;
+        }
+        code as u8
+    }
+
+    /// The cell-table encoder gives the bytes of the one before it for every float in
+    /// [0, 1] (the values its table covers; all others take the same early branch in both),
+    /// and for every 4099th bit pattern elsewhere.
+    #[test]
+    fn srgb_cell_encoder_equals_the_previous_encoder_for_every_float() {
+        use rayon::prelude::*;
+        let t = Srgb8::get();
+        let bad = (0..=0x3F80_0000u32 >> 16).into_par_iter().find_map_any(|hi| {
+            (hi << 16..=(hi << 16 | 0xFFFF).min(0x3F80_0000)).map(f32::from_bits).find(|&c| t.encode(c) != encode_before_cells(c))
+        });
+        assert_eq!(bad, None);
+        let bad = (0x3F80_0000u64..=u32::MAX as u64 + 0x3F80_0000).step_by(4099).map(|b| f32::from_bits(b as u32)).find(|&c| t.encode(c) != encode_before_cells(c));
+        assert_eq!(bad, None);
     }
 
     /// The table-driven encoder equals a binary search over the midpoints everywhere.
