@@ -41,13 +41,30 @@ fn normalized([x, y, z]: [f32; 3]) -> [f32; 3] {
     [x / l, y / l, z / l]
 }
 
+/// `c / 255 · 2 − 1` (f32) for every code byte `c`: a code's octahedral coordinate. Built at
+/// compile time (IEEE arithmetic, the same values as at run time; checked in a test), so that
+/// decoding a code costs a lookup instead of a division.
+static OCT_COORD: [f32; 256] = {
+    let mut t = [0f32; 256];
+    let mut i = 0;
+    while i < 256 {
+        t[i] = i as f32 / 255.0 * 2.0 - 1.0;
+        i += 1;
+    }
+    t
+};
+
+/// The octahedral coordinate of code byte `c` (see [`OCT_COORD`]).
+#[inline]
+fn coord(c: u8) -> f32 {
+    OCT_COORD[c as usize]
+}
+
 /// The octahedron-surface point of `code`, before [`oct_decode`] normalises it.
 #[inline]
 fn oct_unnormalized(code: u16) -> [f32; 3] {
-    let u = (code & 0xff) as f32;
-    let v = (code >> 8) as f32;
-    let mut x = u / 255.0 * 2.0 - 1.0;
-    let mut y = v / 255.0 * 2.0 - 1.0;
+    let mut x = coord(code as u8);
+    let mut y = coord((code >> 8) as u8);
     let z = 1.0 - x.abs() - y.abs();
     if z < 0.0 {
         let (ox, oy) = (x, y);
@@ -337,9 +354,8 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
     let cv = vs.map(|v| zz(v as u8, (pred >> 8) as u8));
     // The inner 2×2 (block rows and columns 1 and 2), index 0 or 1 here: 1 - |x|, m₀x, x²
     // (f64) per column, and the same for y per row.
-    let coord = |c: u16| c as f32 / 255.0 * 2.0 - 1.0;
-    let xs = [coord(us[1]), coord(us[2])];
-    let ys = [coord(vs[1]), coord(vs[2])];
+    let xs = [coord(us[1] as u8), coord(us[2] as u8)];
+    let ys = [coord(vs[1] as u8), coord(vs[2] as u8)];
     let omx = xs.map(|x| 1.0 - x.abs());
     let mx = xs.map(|x| m[0] * x as f64);
     let my = ys.map(|y| m[1] * y as f64);
@@ -545,6 +561,15 @@ mod tests {
             }
         }
         assert!(differ > 1000);
+    }
+
+    /// The compile-time coordinate table holds what run-time arithmetic gives.
+    #[test]
+    fn oct_coord_table_matches_run_time() {
+        let k = std::hint::black_box(255.0f32);
+        for c in 0..=255u8 {
+            assert_eq!(coord(c).to_bits(), (c as f32 / k * 2.0 - 1.0).to_bits(), "{c}");
+        }
     }
 
     /// The compile-time table holds what run-time arithmetic gives.
