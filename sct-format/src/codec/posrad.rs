@@ -164,22 +164,24 @@ pub fn contains(c_out: [f32; 3], r_out: f32, c_in: [f32; 3], r_in: f32) -> bool 
     dist64(c_out, c_in) + r_in as f64 <= r_out as f64
 }
 
-/// `a / QP` (f32) for grid coordinates `a = -QP..=QP` (index `a + QP`): the tables' offsets,
-/// built at compile time (IEEE division, the same values as at run time; checked in a test)
-/// so that no division lies on the search's dependency chain.
-static GRID_COORD: [f32; SIDE] = {
-    let mut t = [0f32; SIDE];
+/// `a / QP` (f32) at index `a + QP`, for `a` from `-QP` to 9 (the grid uses `-QP..=QP`; the
+/// table is padded to 16 entries so that a masked index needs no bounds check): the tables'
+/// offsets, built at compile time (IEEE division, the same values as at run time; checked in a
+/// test) so that no division lies on the search's dependency chain.
+static GRID_COORD: [f32; 16] = {
+    let mut t = [0f32; 16];
     let mut i = 0;
-    while i < SIDE {
+    while i < t.len() {
         t[i] = (i as i32 - QP) as f32 / QP as f32;
         i += 1;
     }
     t
 };
 
-/// `q / QR` (f32) for radius codes `q = 0..=Q_MAX + 1`, as [`GRID_COORD`].
-static RADIUS_COEF: [f32; (Q_MAX + 2) as usize] = {
-    let mut t = [0f32; (Q_MAX + 2) as usize];
+/// `q / QR` (f32) for `q` in `0..32` (radius codes are at most `Q_MAX + 1`; padded as
+/// [`GRID_COORD`]).
+static RADIUS_COEF: [f32; 32] = {
+    let mut t = [0f32; 32];
     let mut q = 0;
     while q < t.len() {
         t[q] = q as f32 / QR as f32;
@@ -192,14 +194,14 @@ static RADIUS_COEF: [f32; (Q_MAX + 2) as usize] = {
 /// the same f32 operations as [`decode_state`] on the table's offset `g / QP`.
 #[inline]
 fn grid_center(g: [i32; 3], pc: [f32; 3], pr: f32) -> [f32; 3] {
-    let f = |a: usize| pc[a] + pr * GRID_COORD[(g[a] + QP) as usize];
+    let f = |a: usize| pc[a] + pr * GRID_COORD[(g[a] + QP) as usize & 15];
     [f(0), f(1), f(2)]
 }
 
 /// Decoded radius coefficient of radius code `q` (`0..=Q_MAX + 1`): the table's `q / QR`.
 #[inline]
 fn radius_coef(q: i32) -> f32 {
-    RADIUS_COEF[q as usize]
+    RADIUS_COEF[q as usize & 31]
 }
 
 /// Smallest radius code `q` at grid point `g` (each coordinate in `-QP..=QP`) whose decoded
@@ -496,6 +498,7 @@ mod tests {
         for a in -QP..=QP {
             assert_eq!(GRID_COORD[(a + QP) as usize].to_bits(), (a as f32 / qp).to_bits(), "{a}");
         }
+        const { assert!(Q_MAX + 1 < 32) };
         for q in 0..=Q_MAX + 1 {
             assert_eq!(radius_coef(q).to_bits(), (q as f32 / qr).to_bits(), "{q}");
         }
