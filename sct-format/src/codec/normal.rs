@@ -334,11 +334,10 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
     // A usable axis projects into [0, 255]² (|x|, |y| ≤ 1 after the division by the L1 norm):
     // truncation is the floor there.
     let (iu, iv) = (p[0] as i32, p[1] as i32);
-    let (fu, fv) = (iu as f32, iv as f32);
     let bound = COS2_MAX_ERROR * n2;
-    // The block's codes are u ∈ [fu − 1, fu + 2] ∩ [0, 255], likewise v.
-    let (pu, pv) = ((pred & 0xff) as f32, (pred >> 8) as f32);
-    if pu >= fu - 1.0 && pu <= fu + 2.0 && pv >= fv - 1.0 && pv <= fv + 2.0 {
+    // The block's codes are u ∈ [iu − 1, iu + 2] ∩ [0, 255], likewise v.
+    let in_block = |c: u16, i: i32| (c as i32 - (i - 1)) as u32 <= 3;
+    if in_block(pred & 0xff, iu) && in_block(pred >> 8, iv) {
         let w = oct_unnormalized(pred);
         let (d, l2) = dot_len2(m, w);
         // The search's bound test, negated.
