@@ -297,6 +297,48 @@ fn cone_code_within_bound(axis: [f32; 3], dec: [f32; 3], cone: f32) -> u8 {
         let parallel = a[1] * b[2] == a[2] * b[1] && a[2] * b[0] == a[0] * b[2] && a[0] * b[1] == a[1] * b[0];
         return (!parallel) as u8;
     }
+    cone_code_small_angle(axis, dec, cone)
+}
+
+/// Largest angle (rad) for which [`cone_code_small_angle`] certifies the next code up: above
+/// 0.64° + 1e-6 rad (the search's bound with the f32 rounding), below one cone step minus the
+/// f32 rounding of the table (0.0123), and small enough that `atan x ≥ x·(1 − x²/3)` loses less
+/// than 1e-4 of `x²`.
+const SMALL_ANGLE: f64 = 0.0115;
+
+/// [`cone_code_over`] for `cone > 0` without a square root or division when the angle is
+/// small. `c1 = cone_encode_up(cone)` is the smallest code the answer can be; with `room =
+/// T[c1] − cone` the answer is `c1` when `x = |a×b| / a·b ≤ room − 1e-12` (`atan x ≤ x`), and
+/// `c1 + 1` when `x ≤ SMALL_ANGLE` and `x·(1 − x²/3) > room + 1e-12` (then the angle is above
+/// `room` but more than one step below `T[c1 + 1]`). Both are tested squared, `cn²` against
+/// `room²·dot²`: the cross product's components and the dot product carry one or two
+/// roundings of exact products (relative 1e-16, far inside the 1e-12 margins that
+/// [`cone_code_over`]'s bracket also uses for `atan2` and the sum `cone + angle`). Anything
+/// else goes to [`cone_code_over`].
+#[inline]
+fn cone_code_small_angle(axis: [f32; 3], dec: [f32; 3], cone: f32) -> u8 {
+    let base = cone as f64;
+    let c1 = cone_encode_up(base);
+    if c1 == 255 {
+        return 255;
+    }
+    let a = [axis[0] as f64, axis[1] as f64, axis[2] as f64];
+    let b = [dec[0] as f64, dec[1] as f64, dec[2] as f64];
+    let c = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    let cn2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+    let dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    if dot > 0.0 {
+        let dot2 = dot * dot;
+        let room = CONE_TABLE[c1 as usize] as f64 - base;
+        let below = room - 1e-12;
+        if below > 0.0 && cn2 <= below * below * dot2 {
+            return c1;
+        }
+        let above = room + 1e-12;
+        if cn2 <= SMALL_ANGLE * SMALL_ANGLE * dot2 && cn2 > above * above * (1.0 + 1e-4) * dot2 {
+            return c1 + 1;
+        }
+    }
     cone_code_over(axis, dec, cone)
 }
 
@@ -569,6 +611,48 @@ mod tests {
         for c in 0..=255u8 {
             assert_eq!(coord(c).to_bits(), (c as f32 / k * 2.0 - 1.0).to_bits(), "{c}");
         }
+    }
+
+    /// The small-angle cone code equals the `atan2` evaluation for decoded axes within the
+    /// search's bound, for random cones and for cones placed so that cone + angle lands within
+    /// ±1e-9 of a table value (both certificates and the fallback are taken).
+    #[test]
+    fn cone_code_small_angle_matches_atan2() {
+        let mut rng = crate::rng::SplitMix64(0x0C0E_5A11_A6E1_0001);
+        let (mut low, mut high) = (0u32, 0u32);
+        for i in 0..300_000u64 {
+            let v = unit(i * 6);
+            let code = oct_encode(v);
+            let r = rng.next_u64();
+            // The precise code and neighbours that stay within the bound.
+            let cands = [code, code.wrapping_add(1), code.wrapping_sub(1), code.wrapping_add(256), code.wrapping_sub(256)];
+            let dec = oct_decode(cands[(r % 5) as usize]);
+            let theta = angle(v, dec);
+            if !(theta <= 0.0112) {
+                continue;
+            }
+            let cone = match (r >> 8) % 4 {
+                0 => (rng.next_f64() * 3.2) as f32,
+                1 => (r >> 16) as u8 as f32 * CONE_STEP as f32,
+                _ => {
+                    // cone + theta near the table value of a random code.
+                    let k = 1 + ((r >> 16) % 250) as usize;
+                    let off = (rng.next_f64() - 0.5) * 2e-9;
+                    (CONE_TABLE[k] as f64 - theta + off) as f32
+                }
+            };
+            if !(cone > 0.0) {
+                continue;
+            }
+            let want = cone_encode_up(cone as f64 + theta);
+            let got = cone_code_small_angle(v, dec, cone);
+            assert_eq!(got, want, "{v:?} {dec:?} {cone}");
+            assert_eq!(got, cone_code_over(v, dec, cone));
+            let c1 = cone_encode_up(cone as f64);
+            low += (got == c1) as u32;
+            high += (got == c1 + 1) as u32;
+        }
+        assert!(low > 10_000 && high > 10_000, "{low} {high}");
     }
 
     /// The compile-time table holds what run-time arithmetic gives.
