@@ -91,8 +91,16 @@ fn oct_project(n: [f32; 3]) -> [f32; 2] {
 #[inline]
 pub fn oct_encode_fast(n: [f32; 3]) -> u16 {
     let p = oct_project(n);
-    let c = |v: f32| super::rounding::round_byte_f32(v) as u16;
-    c(p[0]) | c(p[1]) << 8
+    round_projected(p[0]) | round_projected(p[1]) << 8
+}
+
+/// `round_byte_f32(v)` for what [`oct_project`] returns for any input: a value in [0, 255]
+/// (`|n₀| / (|n₀| + |n₁| + |n₂|) ≤ 1`, also after the fold) or NaN (non-finite components).
+/// There no range test is needed: the truncation is exact and NaN truncates to 0.
+#[inline]
+fn round_projected(v: f32) -> u16 {
+    let t = v as i32;
+    (t + (v - t as f32 >= 0.5) as i32) as u16
 }
 
 /// Angle in radians between two non-zero vectors (f64, atan2 form: accurate near 0 and π).
@@ -653,6 +661,47 @@ mod tests {
             high += (got == c1 + 1) as u32;
         }
         assert!(low > 10_000 && high > 10_000, "{low} {high}");
+    }
+
+    /// `round_projected` equals `round_byte_f32` on [0, 255] (every 97th float, and ±8 ulps
+    /// around every half-integer) and NaN, and `oct_project` stays in that set for special and
+    /// random bit-pattern inputs.
+    #[test]
+    fn round_projected_matches_round_byte() {
+        let check = |v: f32| assert_eq!(round_projected(v), crate::codec::rounding::round_byte_f32(v) as u16, "{v}");
+        let mut b = 0u32;
+        while b <= 255f32.to_bits() {
+            check(f32::from_bits(b));
+            b += 97;
+        }
+        for h in 0..=510 {
+            let x = h as f32 * 0.5;
+            let (mut up, mut down) = (x, x);
+            for _ in 0..8 {
+                check(up);
+                check(down);
+                up = up.next_up();
+                down = down.next_down().max(0.0);
+            }
+        }
+        check(f32::NAN);
+        let in_range = |v: f32| v.is_nan() || (0.0..=255.0).contains(&v);
+        let special = [0.0f32, -0.0, 1e-45, -1.0, 1.0, 3e38, -3.4e38, f32::INFINITY, f32::NEG_INFINITY, f32::NAN];
+        for &a in &special {
+            for &b in &special {
+                for &c in &special {
+                    let p = oct_project([a, b, c]);
+                    assert!(in_range(p[0]) && in_range(p[1]), "{a} {b} {c}: {p:?}");
+                }
+            }
+        }
+        let mut rng = crate::rng::SplitMix64(0x0C7A_11ED_0000_0003);
+        for _ in 0..1_000_000 {
+            let r = rng.next_u64();
+            let n = [f32::from_bits(r as u32), f32::from_bits((r >> 32) as u32), f32::from_bits((r >> 16) as u32)];
+            let p = oct_project(n);
+            assert!(in_range(p[0]) && in_range(p[1]), "{n:?}: {p:?}");
+        }
     }
 
     /// The compile-time table holds what run-time arithmetic gives.
