@@ -636,7 +636,7 @@ mod tests {
             let cands = [code, code.wrapping_add(1), code.wrapping_sub(1), code.wrapping_add(256), code.wrapping_sub(256)];
             let dec = oct_decode(cands[(r % 5) as usize]);
             let theta = angle(v, dec);
-            if !(theta <= 0.0112) {
+            if theta.is_nan() || theta > 0.0112 {
                 continue;
             }
             let cone = match (r >> 8) % 4 {
@@ -649,7 +649,7 @@ mod tests {
                     (CONE_TABLE[k] as f64 - theta + off) as f32
                 }
             };
-            if !(cone > 0.0) {
+            if cone.is_nan() || cone <= 0.0 {
                 continue;
             }
             let want = cone_encode_up(cone as f64 + theta);
