@@ -154,7 +154,13 @@ fn pred_normal_b_reference(p: &Node, a: [f32; 3]) -> u16 {
     }
 }
 
-/// Only the first `ch` channels are predicted (the others are not stored).
+/// Only the first `ch` channels are predicted (the others are not stored). `(area_a, area_b)`
+/// must be `areas(p, code)`.
+///
+/// A channel of A equal to the parent's predicts the parent's value without the division: with
+/// `area_b > 0` the parent's area is finite and positive and `area_a` lies in `[0, A_P]`, so
+/// `(A_P·c − a_A·c) / a_B` is `c·(A_P − a_A) / a_B` up to one f64 rounding of exact products,
+/// and `a_B` is the f32 rounding of `A_P − a_A`: the quotient is within `c·2⁻²³ < 1/2` of `c`.
 fn pred_color_b(p: &Node, area_a: f32, area_b: f32, ca: [u8; 4], ch: usize) -> [u8; 4] {
     // Also catches NaN.
     if area_b.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
@@ -163,8 +169,26 @@ fn pred_color_b(p: &Node, area_a: f32, area_b: f32, ca: [u8; 4], ch: usize) -> [
     let (ap, aa, ab) = (p.area as f64, area_a as f64, area_b as f64);
     let mut out = [0u8; 4];
     for i in 0..ch {
+        out[i] = if ca[i] == p.color[i] {
+            p.color[i]
+        } else {
+            // NaN (hostile parent area) clamps to 0 via `as`; no panic.
+            super::rounding::round_byte_f64((ap * p.color[i] as f64 - aa * ca[i] as f64) / ab)
+        };
+    }
+    out
+}
+
+/// [`pred_color_b`] as first written (a division per channel), kept for an identity test.
+#[cfg(test)]
+fn pred_color_b_reference(p: &Node, area_a: f32, area_b: f32, ca: [u8; 4], ch: usize) -> [u8; 4] {
+    if area_b.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return p.color;
+    }
+    let (ap, aa, ab) = (p.area as f64, area_a as f64, area_b as f64);
+    let mut out = [0u8; 4];
+    for i in 0..ch {
         let v = (ap * p.color[i] as f64 - aa * ca[i] as f64) / ab;
-        // NaN (hostile parent area) clamps to 0 via `as`; no panic.
         out[i] = super::rounding::round_byte_f64(v);
     }
     out
@@ -462,6 +486,40 @@ mod tests {
             assert_eq!(pa.pred_a, pred_normal_a_reference(&p), "{v:?}");
             assert_eq!(pred_normal_b(&p, pa, a), pred_normal_b_reference(&p, a), "{v:?}");
         }
+    }
+
+    /// The equal-channel shortcut of `pred_color_b` gives the divided form's bytes for every
+    /// area code, over special (zero, subnormal, huge, infinite, NaN, negative) and random
+    /// parent areas and colours, A's channels equal to the parent's or not.
+    #[test]
+    fn color_prediction_matches_reference() {
+        let special = [0.0f32, -0.0, 1e-45, 1e-40, 1.1754944e-38, 1e-20, 1.0, 3.0, 1e20, 3e38, f32::MAX, f32::INFINITY, f32::NAN, -1.0, -3e38];
+        let mut rng = crate::rng::SplitMix64(0xC010_0B1D_5EED_0001);
+        let mut checked = 0u64;
+        for round in 0..40 {
+            let area = if round < special.len() { special[round] } else { f32::from_bits(rng.next_u64() as u32 & 0x7fff_ffff) };
+            for code in 0..=AREA_ONE {
+                let r = rng.next_u64();
+                let pc = [r as u8, (r >> 8) as u8, (r >> 16) as u8, (r >> 24) as u8];
+                let mut ca = [(r >> 32) as u8, (r >> 40) as u8, (r >> 48) as u8, (r >> 56) as u8];
+                // Mostly A's channels equal to the parent's (the shortcut), extremes included.
+                for (j, c) in ca.iter_mut().enumerate() {
+                    if (r >> (60 - j)) & 1 == 0 {
+                        *c = pc[j];
+                    }
+                }
+                let p = Node { center: [0.0; 3], radius: 1.0, normal: [0.0, 0.0, 1.0], cone: 0.0, area, color: pc };
+                let (aa, ab) = areas(&p, code);
+                for ch in [3, 4] {
+                    assert_eq!(pred_color_b(&p, aa, ab, ca, ch), pred_color_b_reference(&p, aa, ab, ca, ch), "{area} {code} {pc:?} {ca:?}");
+                    let flat = [0u8, 255, 1, 254][(r as usize >> 20) % 4];
+                    let p = Node { color: [flat; 4], ..p };
+                    assert_eq!(pred_color_b(&p, aa, ab, [flat; 4], ch), pred_color_b_reference(&p, aa, ab, [flat; 4], ch), "{area} {code} {flat}");
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 300_000);
     }
 
     #[test]

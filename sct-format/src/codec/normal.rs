@@ -41,13 +41,30 @@ fn normalized([x, y, z]: [f32; 3]) -> [f32; 3] {
     [x / l, y / l, z / l]
 }
 
+/// `c / 255 · 2 − 1` (f32) for every code byte `c`: a code's octahedral coordinate. Built at
+/// compile time (IEEE arithmetic, the same values as at run time; checked in a test), so that
+/// decoding a code costs a lookup instead of a division.
+static OCT_COORD: [f32; 256] = {
+    let mut t = [0f32; 256];
+    let mut i = 0;
+    while i < 256 {
+        t[i] = i as f32 / 255.0 * 2.0 - 1.0;
+        i += 1;
+    }
+    t
+};
+
+/// The octahedral coordinate of code byte `c` (see [`OCT_COORD`]).
+#[inline]
+fn coord(c: u8) -> f32 {
+    OCT_COORD[c as usize]
+}
+
 /// The octahedron-surface point of `code`, before [`oct_decode`] normalises it.
 #[inline]
 fn oct_unnormalized(code: u16) -> [f32; 3] {
-    let u = (code & 0xff) as f32;
-    let v = (code >> 8) as f32;
-    let mut x = u / 255.0 * 2.0 - 1.0;
-    let mut y = v / 255.0 * 2.0 - 1.0;
+    let mut x = coord(code as u8);
+    let mut y = coord((code >> 8) as u8);
     let z = 1.0 - x.abs() - y.abs();
     if z < 0.0 {
         let (ox, oy) = (x, y);
@@ -74,8 +91,16 @@ fn oct_project(n: [f32; 3]) -> [f32; 2] {
 #[inline]
 pub fn oct_encode_fast(n: [f32; 3]) -> u16 {
     let p = oct_project(n);
-    let c = |v: f32| super::rounding::round_byte_f32(v) as u16;
-    c(p[0]) | c(p[1]) << 8
+    round_projected(p[0]) | round_projected(p[1]) << 8
+}
+
+/// `round_byte_f32(v)` for what [`oct_project`] returns for any input: a value in [0, 255]
+/// (`|n₀| / (|n₀| + |n₁| + |n₂|) ≤ 1`, also after the fold) or NaN (non-finite components).
+/// There no range test is needed: the truncation is exact and NaN truncates to 0.
+#[inline]
+fn round_projected(v: f32) -> u16 {
+    let t = v as i32;
+    (t + (v - t as f32 >= 0.5) as i32) as u16
 }
 
 /// Angle in radians between two non-zero vectors (f64, atan2 form: accurate near 0 and π).
@@ -88,7 +113,28 @@ pub fn angle(a: [f32; 3], b: [f32; 3]) -> f64 {
 }
 
 /// True when `n` is finite and not (numerically) zero.
+#[inline]
 pub fn usable(n: [f32; 3]) -> bool {
+    usable_len2(len2_f64(n))
+}
+
+/// `|n|²` in f64 (the squares of f32 values are exact).
+#[inline]
+fn len2_f64(n: [f32; 3]) -> f64 {
+    let m = [n[0] as f64, n[1] as f64, n[2] as f64];
+    m[0] * m[0] + m[1] * m[1] + m[2] * m[2]
+}
+
+/// [`usable`] from the `l2` of [`len2_f64`], one range test for both conditions: finite
+/// components give a finite sum (each square < 1.2e77), a non-finite one an infinite or NaN sum.
+#[inline]
+fn usable_len2(l2: f64) -> bool {
+    l2 > 1e-30 && l2 < f64::INFINITY
+}
+
+/// [`usable`] as first written (finiteness per component, then the sum), kept for an identity test.
+#[cfg(test)]
+fn usable_reference(n: [f32; 3]) -> bool {
     n.iter().all(|v| v.is_finite()) && n.iter().map(|v| (*v as f64).powi(2)).sum::<f64>() > 1e-30
 }
 
@@ -259,6 +305,48 @@ fn cone_code_within_bound(axis: [f32; 3], dec: [f32; 3], cone: f32) -> u8 {
         let parallel = a[1] * b[2] == a[2] * b[1] && a[2] * b[0] == a[0] * b[2] && a[0] * b[1] == a[1] * b[0];
         return (!parallel) as u8;
     }
+    cone_code_small_angle(axis, dec, cone)
+}
+
+/// Largest angle (rad) for which [`cone_code_small_angle`] certifies the next code up: above
+/// 0.64° + 1e-6 rad (the search's bound with the f32 rounding), below one cone step minus the
+/// f32 rounding of the table (0.0123), and small enough that `atan x ≥ x·(1 − x²/3)` loses less
+/// than 1e-4 of `x²`.
+const SMALL_ANGLE: f64 = 0.0115;
+
+/// [`cone_code_over`] for `cone > 0` without a square root or division when the angle is
+/// small. `c1 = cone_encode_up(cone)` is the smallest code the answer can be; with `room =
+/// T[c1] − cone` the answer is `c1` when `x = |a×b| / a·b ≤ room − 1e-12` (`atan x ≤ x`), and
+/// `c1 + 1` when `x ≤ SMALL_ANGLE` and `x·(1 − x²/3) > room + 1e-12` (then the angle is above
+/// `room` but more than one step below `T[c1 + 1]`). Both are tested squared, `cn²` against
+/// `room²·dot²`: the cross product's components and the dot product carry one or two
+/// roundings of exact products (relative 1e-16, far inside the 1e-12 margins that
+/// [`cone_code_over`]'s bracket also uses for `atan2` and the sum `cone + angle`). Anything
+/// else goes to [`cone_code_over`].
+#[inline]
+fn cone_code_small_angle(axis: [f32; 3], dec: [f32; 3], cone: f32) -> u8 {
+    let base = cone as f64;
+    let c1 = cone_encode_up(base);
+    if c1 == 255 {
+        return 255;
+    }
+    let a = [axis[0] as f64, axis[1] as f64, axis[2] as f64];
+    let b = [dec[0] as f64, dec[1] as f64, dec[2] as f64];
+    let c = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    let cn2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+    let dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    if dot > 0.0 {
+        let dot2 = dot * dot;
+        let room = CONE_TABLE[c1 as usize] as f64 - base;
+        let below = room - 1e-12;
+        if below > 0.0 && cn2 <= below * below * dot2 {
+            return c1;
+        }
+        let above = room + 1e-12;
+        if cn2 <= SMALL_ANGLE * SMALL_ANGLE * dot2 && cn2 > above * above * (1.0 + 1e-4) * dot2 {
+            return c1 + 1;
+        }
+    }
     cone_code_over(axis, dec, cone)
 }
 
@@ -279,24 +367,27 @@ const COS2_MAX_ERROR: f64 = 0.9998752377928093;
 /// beat it: that is checked first, before the block is set up (about a third of the bunny's
 /// children stop there).
 ///
-/// Costs, `u` and `v` surface coordinates are worked out once per row and column of the block
-/// (the same f32 operations as [`oct_unnormalized`], so the same values); a candidate costing
-/// more than the best so far is skipped before any floating point. On the upper hemisphere
-/// (`z ≥ 0`, no fold) the f64 terms `m₀x`, `x²` of a column and `m₁y`, `y²` of a row are
-/// computed once: `m·w = (m₀x + m₁y) + m₂z` and `|w|² = (x² + y²) + z²` are then the same
-/// operations in the same order as [`dot_len2`], so the same values.
+/// The inner 2×2 of the block (the precise code's candidates) share their rows' and columns'
+/// coordinates (the same f32 operations as [`oct_unnormalized`], so the same values); on the
+/// upper hemisphere (`z ≥ 0`, no fold) also the f64 terms `m₀x`, `x²` of a column and `m₁y`,
+/// `y²` of a row: `m·w = (m₀x + m₁y) + m₂z` and `|w|² = (x² + y²) + z²` are then the same
+/// operations in the same order as [`dot_len2`], so the same values. The outer ring is
+/// evaluated directly, and only for candidates that cost no more than the best so far (a
+/// candidate costing more is skipped before any floating point).
 pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, u8) -> u32) -> (u16, [f32; 3], u8) {
-    if !usable(axis) {
+    let m = [axis[0] as f64, axis[1] as f64, axis[2] as f64];
+    let n2 = m[0] * m[0] + m[1] * m[1] + m[2] * m[2];
+    if !usable_len2(n2) {
         return encode_cone_decoded(axis, cone);
     }
     let p = oct_project(axis);
-    let (fu, fv) = (super::rounding::floor_f32(p[0]), super::rounding::floor_f32(p[1]));
-    let m = [axis[0] as f64, axis[1] as f64, axis[2] as f64];
-    let n2 = m[0] * m[0] + m[1] * m[1] + m[2] * m[2];
+    // A usable axis projects into [0, 255]² (|x|, |y| ≤ 1 after the division by the L1 norm):
+    // truncation is the floor there.
+    let (iu, iv) = (p[0] as i32, p[1] as i32);
     let bound = COS2_MAX_ERROR * n2;
-    // The block's codes are u ∈ [fu − 1, fu + 2] ∩ [0, 255] (fu ∈ [0, 255]), likewise v.
-    let (pu, pv) = ((pred & 0xff) as f32, (pred >> 8) as f32);
-    if pu >= fu - 1.0 && pu <= fu + 2.0 && pv >= fv - 1.0 && pv <= fv + 2.0 {
+    // The block's codes are u ∈ [iu − 1, iu + 2] ∩ [0, 255], likewise v.
+    let in_block = |c: u16, i: i32| (c as i32 - (i - 1)) as u32 <= 3;
+    if in_block(pred & 0xff, iu) && in_block(pred >> 8, iv) {
         let w = oct_unnormalized(pred);
         let (d, l2) = dot_len2(m, w);
         // The search's bound test, negated.
@@ -305,30 +396,27 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
             return (pred, dec, cone_code_within_bound(axis, dec, cone));
         }
     }
-    // fu, fv are whole numbers in [0, 255] (the projection of a usable axis), so clamping
-    // in integers gives the float clamp's codes.
-    const D: [i32; 4] = [-1, 0, 1, 2];
-    let (iu, iv) = (fu as i32, fv as i32);
-    let us = D.map(|d| (iu + d).clamp(0, 255) as u16);
-    let vs = D.map(|d| (iv + d).clamp(0, 255) as u16);
-    let xs = us.map(|u| u as f32 / 255.0 * 2.0 - 1.0);
-    let ys = vs.map(|v| v as f32 / 255.0 * 2.0 - 1.0);
+    // iu, iv lie in [0, 255], so clamping in integers gives the float clamp's codes.
+    let block = |c: i32| [(c - 1).max(0), c, (c + 1).min(255), (c + 2).min(255)].map(|c| c as u16);
+    let (us, vs) = (block(iu), block(iv));
     let cu = us.map(|u| zz(u as u8, pred as u8));
     let cv = vs.map(|v| zz(v as u8, (pred >> 8) as u8));
-    // Per column / row: 1 - |x|, m₀x, x² (f64), and the same for y.
+    // The inner 2×2 (block rows and columns 1 and 2), index 0 or 1 here: 1 - |x|, m₀x, x²
+    // (f64) per column, and the same for y per row.
+    let xs = [coord(us[1] as u8), coord(us[2] as u8)];
+    let ys = [coord(vs[1] as u8), coord(vs[2] as u8)];
     let omx = xs.map(|x| 1.0 - x.abs());
-    let omy = ys.map(|y| 1.0 - y.abs());
     let mx = xs.map(|x| m[0] * x as f64);
     let my = ys.map(|y| m[1] * y as f64);
     let x2 = xs.map(|x| (x as f64) * (x as f64));
     let y2 = ys.map(|y| (y as f64) * (y as f64));
-    // oct_unnormalized of code us[i] | vs[j] << 8.
+    // oct_unnormalized of inner code us[1 + i] | vs[1 + j] << 8.
     let surface = |i: usize, j: usize| {
         let (mut x, mut y) = (xs[i], ys[j]);
         let z = omx[i] - y.abs();
         if z < 0.0 {
             let (ox, oy) = (x, y);
-            x = omy[j] * sgn(ox);
+            x = (1.0 - oy.abs()) * sgn(ox);
             y = omx[i] * sgn(oy);
         }
         [x, y, z]
@@ -345,9 +433,9 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
     // The precise code: oct_encode_decoded's four candidates are the inner 2×2 of the block.
     let mut cand = [(0u16, 0f64, 0f64); 4];
     for (k, c) in cand.iter_mut().enumerate() {
-        let (i, j) = (1 + (k >> 1), 1 + (k & 1));
+        let (i, j) = (k >> 1, k & 1);
         let (d, l2) = dl(i, j);
-        *c = (us[i] | vs[j] << 8, d, l2);
+        *c = (us[1 + i] | vs[1 + j] << 8, d, l2);
     }
     let k0 = pick_precise(&cand);
     let (c0, d0, l0) = cand[k0];
@@ -356,7 +444,9 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
     let mut best_ij = (1 + (k0 >> 1), 1 + (k0 & 1));
     // A cost of 0 is the prediction itself: nothing can beat it.
     if k0c > 0 {
-        let mut best_cos = d0 / (n2 * l0).sqrt();
+        // The best's cosine, needed only against a candidate of equal cost: the precise
+        // code's is worked out when first needed.
+        let mut best_cos: Option<f64> = None;
         for i in 0..4 {
             // Costs are sums of non-negative row and column terms: a whole row can cost too much.
             if cu[i] > best.0 {
@@ -373,22 +463,24 @@ pub fn encode_cone_toward(axis: [f32; 3], cone: f32, pred: u16, zz: impl Fn(u8, 
                     let c = cand[((i - 1) << 1) | (j - 1)];
                     (c.1, c.2)
                 } else {
-                    dl(i, j)
+                    dot_len2(m, oct_unnormalized(code))
                 };
                 if d <= 0.0 || d * d < bound * l2 {
                     continue;
                 }
                 let c = d / (n2 * l2).sqrt();
-                if k < best.0 || c > best_cos {
+                if k < best.0 || c > *best_cos.get_or_insert_with(|| d0 / (n2 * l0).sqrt()) {
                     best = (k, code);
                     best_ij = (i, j);
-                    best_cos = c;
+                    best_cos = Some(c);
                 }
             }
         }
     }
     // oct_decode(best.1): the same surface point.
-    let dec = normalized(surface(best_ij.0, best_ij.1));
+    let (bi, bj) = best_ij;
+    let w = if (1..=2).contains(&bi) && (1..=2).contains(&bj) { surface(bi - 1, bj - 1) } else { oct_unnormalized(best.1) };
+    let dec = normalized(w);
     // A code other than the precise one passed the bound test to be chosen.
     let within_bound = best.1 != c0 || !(d0 <= 0.0 || d0 * d0 < bound * l0);
     let cone_code = if within_bound { cone_code_within_bound(axis, dec, cone) } else { cone_code_over(axis, dec, cone) };
@@ -520,6 +612,98 @@ mod tests {
         assert!(differ > 1000);
     }
 
+    /// The compile-time coordinate table holds what run-time arithmetic gives.
+    #[test]
+    fn oct_coord_table_matches_run_time() {
+        let k = std::hint::black_box(255.0f32);
+        for c in 0..=255u8 {
+            assert_eq!(coord(c).to_bits(), (c as f32 / k * 2.0 - 1.0).to_bits(), "{c}");
+        }
+    }
+
+    /// The small-angle cone code equals the `atan2` evaluation for decoded axes within the
+    /// search's bound, for random cones and for cones placed so that cone + angle lands within
+    /// ±1e-9 of a table value (both certificates and the fallback are taken).
+    #[test]
+    fn cone_code_small_angle_matches_atan2() {
+        let mut rng = crate::rng::SplitMix64(0x0C0E_5A11_A6E1_0001);
+        let (mut low, mut high) = (0u32, 0u32);
+        for i in 0..300_000u64 {
+            let v = unit(i * 6);
+            let code = oct_encode(v);
+            let r = rng.next_u64();
+            // The precise code and neighbours that stay within the bound.
+            let cands = [code, code.wrapping_add(1), code.wrapping_sub(1), code.wrapping_add(256), code.wrapping_sub(256)];
+            let dec = oct_decode(cands[(r % 5) as usize]);
+            let theta = angle(v, dec);
+            if theta.is_nan() || theta > 0.0112 {
+                continue;
+            }
+            let cone = match (r >> 8) % 4 {
+                0 => (rng.next_f64() * 3.2) as f32,
+                1 => (r >> 16) as u8 as f32 * CONE_STEP as f32,
+                _ => {
+                    // cone + theta near the table value of a random code.
+                    let k = 1 + ((r >> 16) % 250) as usize;
+                    let off = (rng.next_f64() - 0.5) * 2e-9;
+                    (CONE_TABLE[k] as f64 - theta + off) as f32
+                }
+            };
+            if cone.is_nan() || cone <= 0.0 {
+                continue;
+            }
+            let want = cone_encode_up(cone as f64 + theta);
+            let got = cone_code_small_angle(v, dec, cone);
+            assert_eq!(got, want, "{v:?} {dec:?} {cone}");
+            assert_eq!(got, cone_code_over(v, dec, cone));
+            let c1 = cone_encode_up(cone as f64);
+            low += (got == c1) as u32;
+            high += (got == c1 + 1) as u32;
+        }
+        assert!(low > 10_000 && high > 10_000, "{low} {high}");
+    }
+
+    /// `round_projected` equals `round_byte_f32` on [0, 255] (every 97th float, and ±8 ulps
+    /// around every half-integer) and NaN, and `oct_project` stays in that set for special and
+    /// random bit-pattern inputs.
+    #[test]
+    fn round_projected_matches_round_byte() {
+        let check = |v: f32| assert_eq!(round_projected(v), crate::codec::rounding::round_byte_f32(v) as u16, "{v}");
+        let mut b = 0u32;
+        while b <= 255f32.to_bits() {
+            check(f32::from_bits(b));
+            b += 97;
+        }
+        for h in 0..=510 {
+            let x = h as f32 * 0.5;
+            let (mut up, mut down) = (x, x);
+            for _ in 0..8 {
+                check(up);
+                check(down);
+                up = up.next_up();
+                down = down.next_down().max(0.0);
+            }
+        }
+        check(f32::NAN);
+        let in_range = |v: f32| v.is_nan() || (0.0..=255.0).contains(&v);
+        let special = [0.0f32, -0.0, 1e-45, -1.0, 1.0, 3e38, -3.4e38, f32::INFINITY, f32::NEG_INFINITY, f32::NAN];
+        for &a in &special {
+            for &b in &special {
+                for &c in &special {
+                    let p = oct_project([a, b, c]);
+                    assert!(in_range(p[0]) && in_range(p[1]), "{a} {b} {c}: {p:?}");
+                }
+            }
+        }
+        let mut rng = crate::rng::SplitMix64(0x0C7A_11ED_0000_0003);
+        for _ in 0..1_000_000 {
+            let r = rng.next_u64();
+            let n = [f32::from_bits(r as u32), f32::from_bits((r >> 32) as u32), f32::from_bits((r >> 16) as u32)];
+            let p = oct_project(n);
+            assert!(in_range(p[0]) && in_range(p[1]), "{n:?}: {p:?}");
+        }
+    }
+
     /// The compile-time table holds what run-time arithmetic gives.
     #[test]
     fn cone_table_matches_run_time() {
@@ -564,6 +748,30 @@ mod tests {
         assert_eq!(cone_encode_up(0.0), 0);
         assert_eq!(cone_encode_up(10.0), 255);
         assert_eq!(cone_decode(255), std::f32::consts::PI);
+    }
+
+    /// The one-sum `usable` equals the per-component form on special, tiny, huge and random
+    /// components.
+    #[test]
+    fn usable_matches_reference() {
+        let special = [0.0f32, -0.0, 1.0, -1.0, 1e-15, 1e-16, -7e-16, 1e-20, 1e-45, 3e38, -3.4e38, f32::MAX, f32::NAN, f32::INFINITY, f32::NEG_INFINITY];
+        for &a in &special {
+            for &b in &special {
+                for &c in &special {
+                    assert_eq!(usable([a, b, c]), usable_reference([a, b, c]), "{a} {b} {c}");
+                }
+            }
+        }
+        let mut rng = crate::rng::SplitMix64(0x1357_9BDF_2468_ACE0);
+        for _ in 0..1_000_000 {
+            let r = rng.next_u64();
+            // Random bit patterns: every exponent, NaNs and infinities included.
+            let v = [f32::from_bits(r as u32), f32::from_bits((r >> 32) as u32), f32::from_bits((r >> 16) as u32 ^ 0x3000_0000)];
+            assert_eq!(usable(v), usable_reference(v), "{v:?}");
+            // Lengths around the 1e-15 threshold.
+            let w = v.map(|x| if x.is_finite() { x.abs().min(1.0) * 1e-15 } else { x });
+            assert_eq!(usable(w), usable_reference(w), "{w:?}");
+        }
     }
 
     /// The fast 4×4 search picks the same code, decoded axis and cone code as the

@@ -164,18 +164,44 @@ pub fn contains(c_out: [f32; 3], r_out: f32, c_in: [f32; 3], r_in: f32) -> bool 
     dist64(c_out, c_in) + r_in as f64 <= r_out as f64
 }
 
-/// The decoded centre of grid point `g` in parent `(pc, pr)`: the same f32 operations as
-/// [`decode_state`] on the table's offset `g / QP`, without the table lookups.
+/// `a / QP` (f32) at index `a + QP`, for `a` from `-QP` to 9 (the grid uses `-QP..=QP`; the
+/// table is padded to 16 entries so that a masked index needs no bounds check): the tables'
+/// offsets, built at compile time (IEEE division, the same values as at run time; checked in a
+/// test) so that no division lies on the search's dependency chain.
+static GRID_COORD: [f32; 16] = {
+    let mut t = [0f32; 16];
+    let mut i = 0;
+    while i < t.len() {
+        t[i] = (i as i32 - QP) as f32 / QP as f32;
+        i += 1;
+    }
+    t
+};
+
+/// `q / QR` (f32) for `q` in `0..32` (radius codes are at most `Q_MAX + 1`; padded as
+/// [`GRID_COORD`]).
+static RADIUS_COEF: [f32; 32] = {
+    let mut t = [0f32; 32];
+    let mut q = 0;
+    while q < t.len() {
+        t[q] = q as f32 / QR as f32;
+        q += 1;
+    }
+    t
+};
+
+/// The decoded centre of grid point `g` (each coordinate in `-QP..=QP`) in parent `(pc, pr)`:
+/// the same f32 operations as [`decode_state`] on the table's offset `g / QP`.
 #[inline]
 fn grid_center(g: [i32; 3], pc: [f32; 3], pr: f32) -> [f32; 3] {
-    let f = |a: usize| pc[a] + pr * (g[a] as f32 / QP as f32);
+    let f = |a: usize| pc[a] + pr * GRID_COORD[(g[a] + QP) as usize & 15];
     [f(0), f(1), f(2)]
 }
 
-/// Decoded radius coefficient of radius code `q`: the table's `q / QR`.
+/// Decoded radius coefficient of radius code `q` (`0..=Q_MAX + 1`): the table's `q / QR`.
 #[inline]
 fn radius_coef(q: i32) -> f32 {
-    q as f32 / QR as f32
+    RADIUS_COEF[q as usize & 31]
 }
 
 /// Smallest radius code `q` at grid point `g` (each coordinate in `-QP..=QP`) whose decoded
@@ -295,11 +321,11 @@ fn search(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: bool) -> Opti
             // Squared offset from v per axis for the neighbour offsets -1, 0, 1 (the same f64
             // values the sum below always used); an axis offset is worth trying only if it
             // fits with the others at their nearest (offset 0, since g is the nearest point).
+            // `g - vg` is exact (|vg - g| ≤ 1/2, both below 7), so `(g - vg) ± 1` is the one
+            // rounding of the same value as `(g ± 1) - vg`.
             let sq = |a: usize| {
-                [-1, 0, 1].map(|d| {
-                    let e = (g[a] + d) as f64 - vg[a];
-                    e * e
-                })
+                let e = g[a] as f64 - vg[a];
+                [e - 1.0, e, e + 1.0].map(|e| e * e)
             };
             let (s0, s1, s2) = (sq(0), sq(1), sq(2));
             // No neighbour can fit when moving any one axis to its nearer neighbour already
@@ -397,11 +423,11 @@ fn search_reference(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: boo
             // Squared offset from v per axis for the neighbour offsets -1, 0, 1 (the same f64
             // values the sum below always used); an axis offset is worth trying only if it
             // fits with the others at their nearest (offset 0, since g is the nearest point).
+            // `g - vg` is exact (|vg - g| ≤ 1/2, both below 7), so `(g - vg) ± 1` is the one
+            // rounding of the same value as `(g ± 1) - vg`.
             let sq = |a: usize| {
-                [-1, 0, 1].map(|d| {
-                    let e = (g[a] + d) as f64 - vg[a];
-                    e * e
-                })
+                let e = g[a] as f64 - vg[a];
+                [e - 1.0, e, e + 1.0].map(|e| e * e)
             };
             let (s0, s1, s2) = (sq(0), sq(1), sq(2));
             for (di, &e0) in s0.iter().enumerate() {
@@ -461,6 +487,27 @@ mod tests {
         assert_eq!(maxq, Q_MAX);
         assert_eq!(t.index([0, 0, 0], Q_MAX + 1), None);
         assert_eq!(t.index([6, 6, 6], 1), None);
+    }
+
+    /// The compile-time coordinate and radius tables hold what run-time division gives, and
+    /// what the state tables hold.
+    #[test]
+    fn const_tables_match_run_time() {
+        let qp = std::hint::black_box(QP as f32);
+        let qr = std::hint::black_box(QR as f32);
+        for a in -QP..=QP {
+            assert_eq!(GRID_COORD[(a + QP) as usize].to_bits(), (a as f32 / qp).to_bits(), "{a}");
+        }
+        const { assert!(Q_MAX + 1 < 32) };
+        for q in 0..=Q_MAX + 1 {
+            assert_eq!(radius_coef(q).to_bits(), (q as f32 / qr).to_bits(), "{q}");
+        }
+        let t = tables();
+        for (s, &(g, q)) in t.state.iter().enumerate() {
+            let g = [g[0] as i32, g[1] as i32, g[2] as i32];
+            assert_eq!(t.offset[s].map(f32::to_bits), g.map(|a| GRID_COORD[(a + QP) as usize].to_bits()));
+            assert_eq!(t.radius[s].to_bits(), radius_coef(q as i32).to_bits());
+        }
     }
 
     /// The thesis's 8 721: same stick-out rule over all 13³ points with `q ≤ 13`.

@@ -7,7 +7,9 @@
 //! truncating casts, which are exact here: for `t = trunc(x)` with `|x| < 2^31`, `x - t` is
 //! exact (Sterbenz), so comparing it with ±0.5 is exact too.
 
-/// `v.round().clamp(0.0, 255.0) as u8` (NaN → 0).
+/// `v.round().clamp(0.0, 255.0) as u8` (NaN → 0). Test-only now: the reference for the
+/// octahedral encoder's `round_projected`, which needs no range tests.
+#[cfg(test)]
 #[inline]
 pub(crate) fn round_byte_f32(v: f32) -> u8 {
     if v.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
