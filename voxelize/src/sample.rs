@@ -1213,12 +1213,19 @@ const PART_RECS: f64 = 8192.0;
 /// Where an emitter puts its records.
 trait RecSink {
     fn push(&mut self, r: Rec);
+    /// The buffer where every key of `lo..=hi` goes, when there is one: a run of records
+    /// is then pushed there without finding each one's place.
+    fn run(&mut self, lo: u64, hi: u64) -> Option<&mut Vec<Rec>>;
 }
 
 impl RecSink for Vec<Rec> {
     #[inline]
     fn push(&mut self, r: Rec) {
         Vec::push(self, r);
+    }
+    #[inline]
+    fn run(&mut self, _lo: u64, _hi: u64) -> Option<&mut Vec<Rec>> {
+        Some(self)
     }
 }
 
@@ -1230,6 +1237,13 @@ impl RecSink for SlabParts {
         if let Some(p) = self.parts.get_mut(i) {
             p.push(r);
         }
+    }
+    /// The part of `lo..=hi` when both ends (and so every key between, parts being key
+    /// ranges in order) fall in it.
+    #[inline]
+    fn run(&mut self, lo: u64, hi: u64) -> Option<&mut Vec<Rec>> {
+        let i = self.part_of(lo);
+        if i == self.part_of(hi) { self.parts.get_mut(i) } else { None }
     }
 }
 
@@ -1261,13 +1275,16 @@ impl SlabParts {
         self.parts.truncate(count);
         self.parts.iter_mut().for_each(Vec::clear);
         self.parts.resize_with(count, Vec::new);
-        (self.base, self.shift, self.last) = (base, shift, count as u64 - 1);
+        // A shift of 64 (one part) becomes 63: `part_of`'s `min` still gives part 0, and
+        // the shift needs no check there.
+        (self.base, self.shift, self.last) = (base, shift.min(63), count as u64 - 1);
     }
 
     /// The part of a voxel key.
     #[inline]
     fn part_of(&self, key: u64) -> usize {
-        key.saturating_sub(self.base).checked_shr(self.shift).unwrap_or(0).min(self.last) as usize
+        // `shift ≤ 63` (see `reset`).
+        (key.saturating_sub(self.base) >> self.shift).min(self.last) as usize
     }
 
     /// Appends records, each to the part of its key (record by record: copying runs of one
@@ -1562,7 +1579,9 @@ struct Prepared<'a> {
     pos: Vec<[f64; 3]>,
     nrm: Option<Vec<[f32; 3]>>,
     computed: Option<Vec<[[f32; 3]; 3]>>,
-    bake: Option<Mat4>,
+    /// `computed` through the bake, in the flipped winding when it mirrors: what [`Self::tri`]
+    /// reads, done once rather than per (triangle, slab).
+    baked: Option<Vec<[[f32; 3]; 3]>>,
     flip: bool,
 }
 
@@ -1598,7 +1617,8 @@ impl<'a> Prepared<'a> {
                 .collect()
         });
         let computed = if nrm.is_none() { Some(corner_normals(prim, crease_deg)) } else { None };
-        Prepared { prim, mat, pos, nrm, computed, bake: u.bake, flip }
+        let baked = computed.as_ref().map(|c| c.iter().map(|&c| bake_corner_normals(c, u.bake.as_ref(), flip)).collect());
+        Prepared { prim, mat, pos, nrm, computed, baked, flip }
     }
 
     /// Triangle `ti` with its attributes.
@@ -1608,20 +1628,9 @@ impl<'a> Prepared<'a> {
         // A mirroring bake flips the winding; swap to keep the front side.
         let idx = if self.flip { [t[0], t[2], t[1]] } else { t };
         let vi = idx.map(|i| i as usize);
-        let n = match (&self.nrm, &self.computed) {
+        let n = match (&self.nrm, &self.baked) {
             (Some(n), _) => vi.map(|i| n[i]),
-            (None, Some(c)) => {
-                let c = c[ti];
-                let cn = if self.flip { [c[0], c[2], c[1]] } else { c };
-                match &self.bake {
-                    Some(m) => cn.map(|n| {
-                        let w = transform_normal(m, n);
-                        let l = norm(w);
-                        if l > 0.0 { w.map(|x| (x / l) as f32) } else { [0.0; 3] }
-                    }),
-                    None => cn,
-                }
-            }
+            (None, Some(c)) => c.get(ti).copied().unwrap_or_default(),
             _ => [[0.0; 3]; 3],
         };
         let uvset = self.mat.tex.as_ref().and_then(|t| prim.uvs.get(t.1.tex_coord as usize));
@@ -1633,6 +1642,20 @@ impl<'a> Prepared<'a> {
             uv: vi.map(|i| uvset.map_or([0.0; 2], |s| s[i])),
             uv2: vi.map(|i| uvset2.map_or([0.0; 2], |s| s[i])),
         }
+    }
+}
+
+/// A triangle's computed corner normals as [`Prepared::tri`] gives them: in the winding of
+/// `flip`, through `bake` and normalised.
+fn bake_corner_normals(c: [[f32; 3]; 3], bake: Option<&Mat4>, flip: bool) -> [[f32; 3]; 3] {
+    let cn = if flip { [c[0], c[2], c[1]] } else { c };
+    match bake {
+        Some(m) => cn.map(|n| {
+            let w = transform_normal(m, n);
+            let l = norm(w);
+            if l > 0.0 { w.map(|x| (x / l) as f32) } else { [0.0; 3] }
+        }),
+        None => cn,
     }
 }
 

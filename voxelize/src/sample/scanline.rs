@@ -444,7 +444,24 @@ struct TriRows<'s, 'k, const D: usize> {
 impl<const D: usize> TriRows<'_, '_, D> {
     /// Emits the slab's samples row by row, shaded by `shade`; returns the number dropped
     /// by alpha.
-    fn emit<S: RecSink>(&self, mut shade: impl ColumnShade, out: &mut S) -> u64 {
+    fn emit<S: RecSink>(&self, shade: impl ColumnShade, out: &mut S) -> u64 {
+        let (a, b) = ((D + 1) % 3, (D + 2) % 3);
+        // Every key lies between those of the corners of the box of rows, columns and depth
+        // cells (a key is monotone in each coordinate): when both go to one buffer, all do.
+        let corner = |row: i64, col: i64, depth: i64| {
+            let mut k = [0i64; 3];
+            (k[a], k[b], k[D]) = (row, col, depth);
+            self.kp.pack(k)
+        };
+        let (rows, cols, depth) = (self.spans.rows, self.spans.cols, self.depth_cells);
+        match out.run(corner(rows.0, cols.0, depth.0), corner(rows.1, cols.1, depth.1)) {
+            Some(run) => self.emit_rows(shade, run),
+            None => self.emit_rows(shade, out),
+        }
+    }
+
+    /// [`Self::emit`] once the triangle is known to cross buffers (or not).
+    fn emit_rows<S: RecSink>(&self, mut shade: impl ColumnShade, out: &mut S) -> u64 {
         let (a, b) = ((D + 1) % 3, (D + 2) % 3);
         let (kp, keep, p0, (ga, gb)) = (self.kp, self.keep, self.p0, (self.ga, self.gb));
         let (klo, khi) = self.depth_cells;
@@ -513,16 +530,49 @@ impl<const D: usize> TriRows<'_, '_, D> {
             zero[a] = ia;
             zero[b] = kp.lo[b];
             zero[D] = kp.lo[D];
-            let mut key_b = kp.pack(zero).wrapping_add(f.offset).wrapping_add((first as u64) << f.shift_b);
-            // `ib + ½` counted in f64: exact below 2^50.
-            let mut cb = first as f64 + 0.5;
+            let key_b = kp.pack(zero).wrapping_add(f.offset).wrapping_add((first as u64) << f.shift_b);
             // `last − first < 2^51`.
-            for _ in 0..last.abs_diff(first) + 1 {
-                // The depth expression of `depth_key` (never NaN here).
-                push(key_b.wrapping_add(f.depth_field(drow + gb * (cb - p0[b]))), shade.at(cb));
-                key_b = key_b.wrapping_add(1 << f.shift_b);
-                cb += 1.0;
+            let n = last.abs_diff(first) + 1;
+            // The depth expression of `depth_key` (never NaN here), at `ib + ½` counted in
+            // f64 (exact below 2^50).
+            let depth = |cb: f64| f.depth_field(drow + gb * (cb - p0[b]));
+            let row = FastRow { key_b, step: 1 << f.shift_b, cb: first as f64 + 0.5, n, each: self.each };
+            // The row's keys lie between its first column at the lowest depth and its last
+            // at the highest (a key is monotone in each field).
+            let key_b_last = key_b.wrapping_add((n - 1) << f.shift_b);
+            let (lo, hi) = (key_b.wrapping_add(f.depth_field(f.lo)), key_b_last.wrapping_add(f.depth_field(f.hi)));
+            dropped += match out.run(lo, hi) {
+                Some(run) => row.emit(&shade, depth, run),
+                None => row.emit(&shade, depth, out),
+            };
+        }
+        dropped
+    }
+}
+
+/// A row of the fast path ([`FastKeys`]): its first column's key without the depth field,
+/// the key step per column, the first column centre and the column count.
+struct FastRow {
+    key_b: u64,
+    step: u64,
+    cb: f64,
+    n: u64,
+    each: f32,
+}
+
+impl FastRow {
+    /// Pushes the row's samples to `out` (`depth` = the depth field at a column centre);
+    /// returns the number dropped by alpha.
+    #[inline(always)]
+    fn emit<S: RecSink>(self, shade: &impl ColumnShade, depth: impl Fn(f64) -> u64, out: &mut S) -> u64 {
+        let (mut key_b, mut cb, mut dropped) = (self.key_b, self.cb, 0);
+        for _ in 0..self.n {
+            match shade.at(cb) {
+                (Some(color), normal) => out.push(Rec { key: key_b.wrapping_add(depth(cb)), area: self.each, normal, color }),
+                (None, _) => dropped += 1,
             }
+            key_b = key_b.wrapping_add(self.step);
+            cb += 1.0;
         }
         dropped
     }
