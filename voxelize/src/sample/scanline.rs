@@ -775,7 +775,7 @@ mod tests {
     /// the exact per-sample path runs (also for corners beyond 2^50).
     #[test]
     fn rows_match_the_per_sample_definition() {
-        use super::super::{decode_textures, TexImage};
+        use super::super::{decode_textures, SlabParts, TexImage};
         use crate::mesh::{Image, LoadedScene, Material, TextureRef, Wrap};
         let mut rng = sct_format::rng::SplitMix64(37);
         let (w, h) = (9u32, 6u32);
@@ -804,6 +804,7 @@ mod tests {
         let huge = KeyPack::new([-1e16, -6.0, -6.0], [1e16, 6.0, 6.0]).expect("keys");
         let bits = |r: &Rec| (r.key, r.area.to_bits(), r.normal.map(f32::to_bits), r.color.map(f32::to_bits));
         let (mut fast, mut exact, mut dropped_any, mut compared) = (0, 0, 0, 0);
+        let (mut one_part, mut many_parts) = (0, 0);
         for i in 0..6000 {
             let mat = &mats[i % mats.len()];
             let (kp, o, scale): (&KeyPack, [f64; 3], f64) = if i % 5 == 4 {
@@ -840,8 +841,21 @@ mod tests {
             assert_eq!(got.iter().map(bits).collect::<Vec<_>>(), want.iter().map(bits).collect::<Vec<_>>(), "{p:?} material {}", i % mats.len());
             dropped_any += u32::from(got_dropped > 0);
             compared += got.len();
+            // Straight into slab parts (whole triangles or rows at a time when they fall in
+            // one part) equals record by record.
+            let (mut direct, mut one_by_one) = (SlabParts::default(), SlabParts::default());
+            for parts in [&mut direct, &mut one_by_one] {
+                parts.reset(kp, (kp.lo[0], kp.hi[0]), 2.0e6);
+            }
+            scanline_triangle(&t, mat, kp, (i64::MIN, i64::MAX), &mut direct);
+            one_by_one.extend(&got);
+            let by_part = |sp: &SlabParts| sp.parts.iter().map(|p| p.iter().map(bits).collect::<Vec<_>>()).collect::<Vec<_>>();
+            assert_eq!(by_part(&direct), by_part(&one_by_one), "{p:?}");
+            let used = direct.parts.iter().filter(|p| !p.is_empty()).count();
+            (one_part, many_parts) = (one_part + u32::from(used == 1), many_parts + u32::from(used > 1));
         }
         assert!(fast > 2000 && exact > 300 && dropped_any > 500 && compared > 50_000, "{fast} {exact} {dropped_any} {compared}");
+        assert!(one_part > 500 && many_parts > 500, "{one_part} {many_parts}");
     }
 
     /// Triangles that project to a line have no spans (they get the centroid sample).
