@@ -604,10 +604,10 @@ struct Poly2 {
 }
 
 impl Poly2 {
-    fn square(x: f64, y: f64) -> Poly2 {
-        let mut v = [[0.0; 2]; MAXV];
-        v[..4].copy_from_slice(&[[x, y], [x + 1.0, y], [x + 1.0, y + 1.0], [x, y + 1.0]]);
-        Poly2 { v, n: 4 }
+    /// Makes this the unit square at (x, y), in place (vertices past `n` are never read).
+    fn set_square(&mut self, x: f64, y: f64) {
+        self.v[..4].copy_from_slice(&[[x, y], [x + 1.0, y], [x + 1.0, y + 1.0], [x, y + 1.0]]);
+        self.n = 4;
     }
     /// An empty polygon (a buffer for the `_into` clips).
     fn empty() -> Poly2 {
@@ -638,10 +638,13 @@ impl Poly2 {
         }
         let mut prev = self.v[self.n - 1];
         let mut fp = prev[axis] - c;
+        // The previous vertex's sides, carried so each vertex is compared once.
+        let (mut prev_above, mut prev_below) = (fp >= 0.0, fp <= 0.0);
         for i in 0..self.n {
             let cur = self.v[i];
             let fc = cur[axis] - c;
-            let (cross_above, cross_below) = ((fc >= 0.0) != (fp >= 0.0), (fc <= 0.0) != (fp <= 0.0));
+            let (cur_above, cur_below) = (fc >= 0.0, fc <= 0.0);
+            let (cross_above, cross_below) = (cur_above != prev_above, cur_below != prev_below);
             if cross_above || cross_below {
                 let t = fp / (fp - fc);
                 let mut x = [prev[0] + t * (cur[0] - prev[0]), prev[1] + t * (cur[1] - prev[1])];
@@ -655,16 +658,17 @@ impl Poly2 {
                     below.n += 1;
                 }
             }
-            if fc >= 0.0 && above.n < MAXV {
+            if cur_above && above.n < MAXV {
                 above.v[above.n] = cur;
                 above.n += 1;
             }
-            if fc <= 0.0 && below.n < MAXV {
+            if cur_below && below.n < MAXV {
                 below.v[below.n] = cur;
                 below.n += 1;
             }
             prev = cur;
             fp = fc;
+            (prev_above, prev_below) = (cur_above, cur_below);
         }
     }
     /// Keeps the side `f(p) >= 0` of a line (`f` affine). `exact` = (axis, value) for
@@ -685,10 +689,12 @@ impl Poly2 {
         }
         let mut prev = self.v[self.n - 1];
         let mut fp = f(&prev);
+        let mut prev_in = fp >= 0.0; // carried: each vertex is compared once
         for i in 0..self.n {
             let cur = self.v[i];
             let fc = f(&cur);
-            if (fc >= 0.0) != (fp >= 0.0) && out.n < MAXV {
+            let cur_in = fc >= 0.0;
+            if cur_in != prev_in && out.n < MAXV {
                 let t = fp / (fp - fc);
                 let mut x = [prev[0] + t * (cur[0] - prev[0]), prev[1] + t * (cur[1] - prev[1])];
                 if let Some((axis, c)) = exact {
@@ -697,15 +703,18 @@ impl Poly2 {
                 out.v[out.n] = x;
                 out.n += 1;
             }
-            if fc >= 0.0 && out.n < MAXV {
+            if cur_in && out.n < MAXV {
                 out.v[out.n] = cur;
                 out.n += 1;
             }
             prev = cur;
             fp = fc;
+            prev_in = cur_in;
         }
     }
     /// (area, centroid) of the polygon (shoelace, relative to the first vertex for precision).
+    /// Inlined: it runs once or twice per boundary or depth-crossing column.
+    #[inline(always)]
     fn area_centroid(&self) -> (f64, [f64; 2]) {
         let o = self.v[0];
         let (mut a2, mut cx, mut cy) = (0.0, 0.0, 0.0);
@@ -1979,7 +1988,7 @@ fn voxel_triangle_axis<const D: usize>(
                 continue;
             }
             if interior {
-                col = Poly2::square(x0, y);
+                col.set_square(x0, y);
             }
             let poly = &col;
             if kmax == kmin + 1 {
@@ -2743,7 +2752,8 @@ mod tests {
 
     #[test]
     fn polygon_range_is_min_and_max_ignoring_nan() {
-        let mut p = Poly2::square(2.0, -3.0);
+        let mut p = Poly2::empty();
+        p.set_square(2.0, -3.0);
         assert_eq!(p.range(|v| v[0]), (2.0, 3.0));
         assert_eq!(p.range(|v| v[1] * 2.0), (-6.0, -4.0));
         assert_eq!(p.range(|v| if v[0] == 3.0 { f64::NAN } else { v[1] }), (-3.0, -2.0));
