@@ -626,11 +626,13 @@ impl Poly2 {
         self.clip_half_into(|p| p[axis] - lo, Some((axis, lo)), tmp);
         tmp.clip_half_into(|p| hi - p[axis], Some((axis, hi)), out);
     }
-    /// Splits at `x[axis] = c` into the parts `x[axis] ≤ c` (`below`) and `≥ c` (`above`) in
+    /// Splits at `x[AXIS] = c` into the parts `x[AXIS] ≤ c` (`below`) and `≥ c` (`above`) in
     /// one pass: the polygons of the two clips, with each cut point computed once and shared,
-    /// so the parts meet exactly.
+    /// so the parts meet exactly. `AXIS` is a constant so that the coordinate reads and the
+    /// exact cut coordinate need no runtime index.
     #[inline]
-    fn split_axis_into(&self, axis: usize, c: f64, below: &mut Poly2, above: &mut Poly2) {
+    fn split_axis_into<const AXIS: usize>(&self, c: f64, below: &mut Poly2, above: &mut Poly2) {
+        let axis = AXIS;
         below.n = 0;
         above.n = 0;
         if self.n == 0 {
@@ -1919,7 +1921,7 @@ fn voxel_triangle_axis<const D: usize>(
             rest[r].n = 0;
         } else {
             let (src, dst) = ping(&mut rest, r);
-            src.split_axis_into(0, x1, &mut srest[0], dst);
+            src.split_axis_into::<0>(x1, &mut srest[0], dst);
             r ^= 1;
         }
         let strip = &srest[0];
@@ -1965,7 +1967,7 @@ fn voxel_triangle_axis<const D: usize>(
                     srest[sr].n = 0;
                 } else {
                     let (src, dst) = ping(&mut srest, sr);
-                    src.split_axis_into(1, y + 1.0, &mut col, dst);
+                    src.split_axis_into::<1>(y + 1.0, &mut col, dst);
                     sr ^= 1;
                 }
                 cut = y + 1.0;
@@ -2658,7 +2660,11 @@ mod tests {
             }
             let (axis, c) = (i % 2, if i % 3 == 0 { 2.0 } else { rng.next_f64() * 4.0 });
             let (mut below, mut above) = (Poly2::empty(), Poly2::empty());
-            p.split_axis_into(axis, c, &mut below, &mut above);
+            if axis == 0 {
+                p.split_axis_into::<0>(c, &mut below, &mut above);
+            } else {
+                p.split_axis_into::<1>(c, &mut below, &mut above);
+            }
             let want_below = p.clip_half(|q| c - q[axis], Some((axis, c)));
             let want_above = p.clip_half(|q| q[axis] - c, Some((axis, c)));
             for (got, want) in [(below, want_below), (above, want_above)] {
