@@ -685,16 +685,22 @@ impl Poly2 {
     /// [`Poly2::clip_half`] into `out` (its old vertices are overwritten).
     #[inline]
     fn clip_half_into(&self, f: impl Fn(&[f64; 2]) -> f64, exact: Option<(usize, f64)>, out: &mut Poly2) {
+        self.clip_half_by_index_into(|_, p| f(p), exact, out);
+    }
+    /// [`Poly2::clip_half_into`] with `f` also given the vertex's index, so it can read values
+    /// already computed per vertex.
+    #[inline]
+    fn clip_half_by_index_into(&self, f: impl Fn(usize, &[f64; 2]) -> f64, exact: Option<(usize, f64)>, out: &mut Poly2) {
         out.n = 0;
         if self.n == 0 {
             return;
         }
         let mut prev = self.v[self.n - 1];
-        let mut fp = f(&prev);
+        let mut fp = f(self.n - 1, &prev);
         let mut prev_in = fp >= 0.0; // carried: each vertex is compared once
         for i in 0..self.n {
             let cur = self.v[i];
-            let fc = f(&cur);
+            let fc = f(i, &cur);
             let cur_in = fc >= 0.0;
             if cur_in != prev_in && out.n < MAXV {
                 let t = fp / (fp - fc);
@@ -743,6 +749,17 @@ impl Poly2 {
             let x = f(p);
             (if x < lo { x } else { lo }, if x > hi { x } else { hi })
         })
+    }
+    /// [`Poly2::range`] that also stores each vertex's value in `vals`.
+    #[inline]
+    fn range_keeping(&self, f: impl Fn(&[f64; 2]) -> f64, vals: &mut [f64; MAXV]) -> (f64, f64) {
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for (p, v) in self.v[..self.n].iter().zip(vals.iter_mut()) {
+            let x = f(p);
+            *v = x;
+            (lo, hi) = (if x < lo { x } else { lo }, if x > hi { x } else { hi });
+        }
+        (lo, hi)
     }
 }
 
@@ -1949,6 +1966,8 @@ fn voxel_triangle_axis<const D: usize>(
         }
         // The rest of the strip lies above `cut` (interior columns are skipped, not split off).
         let (mut sr, mut cut) = (0, blo as f64);
+        // Depths of the current piece's vertices.
+        let mut dv = [0.0; MAXV];
         for ib in blo..=bhi {
             let y = ib as f64;
             let interior = y >= first_in && y <= last_in;
@@ -1975,7 +1994,7 @@ fn voxel_triangle_axis<const D: usize>(
                     continue;
                 }
                 let (ar, cen) = col.area_centroid();
-                let (dmin, dmax) = col.range(depth);
+                let (dmin, dmax) = col.range_keeping(depth, &mut dv);
                 (ar, cen, dmin, dmax)
             };
             let kmin = floor_i64(dmin);
@@ -1998,7 +2017,13 @@ fn voxel_triangle_axis<const D: usize>(
                 // lower part; the upper part is the remainder (area and centroid by
                 // difference), so the two areas still add up to the piece's exactly.
                 let kf = kmax as f64;
-                poly.clip_half_into(|p| kf - depth(p), None, &mut lower);
+                if interior {
+                    for (v, p) in dv.iter_mut().zip(&poly.v[..poly.n]) {
+                        *v = depth(p);
+                    }
+                }
+                // The piece's vertex depths were computed once (by range_keeping or above).
+                poly.clip_half_by_index_into(|i, _| kf - dv[i], None, &mut lower);
                 let (al, cl) = if lower.n >= 3 { lower.area_centroid() } else { (0.0, cen) };
                 let au = area2 - al;
                 let cu = if au > 0.0 { [(area2 * cen[0] - al * cl[0]) / au, (area2 * cen[1] - al * cl[1]) / au] } else { cen };
