@@ -2782,6 +2782,32 @@ mod tests {
     }
 
     #[test]
+    fn clip_by_kept_depths_equals_clip_by_depth() {
+        // The voxel method clips a piece with depths kept by range_keeping: same polygons.
+        let mut rng = sct_format::rng::SplitMix64(11);
+        for _ in 0..5_000 {
+            let mut p = Poly2::empty();
+            p.n = 3 + (rng.next_f64() * 3.0) as usize;
+            for v in &mut p.v[..p.n] {
+                *v = [rng.next_f64() * 3.0, rng.next_f64() * 3.0];
+            }
+            let (ga, gb, kf) = (rng.next_f64() * 2.0 - 1.0, rng.next_f64() * 2.0 - 1.0, rng.next_f64() * 2.0);
+            let depth = |q: &[f64; 2]| 0.25 + ga * q[0] + gb * q[1];
+            let mut dv = [0.0; MAXV];
+            let kept = p.range_keeping(depth, &mut dv);
+            let want = p.range(depth);
+            assert_eq!((kept.0.to_bits(), kept.1.to_bits()), (want.0.to_bits(), want.1.to_bits()));
+            let (mut got, mut want) = (Poly2::empty(), Poly2::empty());
+            p.clip_half_by_index_into(|i, _| kf - dv[i], None, &mut got);
+            p.clip_half_into(|q| kf - depth(q), None, &mut want);
+            assert_eq!(got.n, want.n);
+            for (a, b) in got.v[..got.n].iter().zip(&want.v[..want.n]) {
+                assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits));
+            }
+        }
+    }
+
+    #[test]
     fn polygon_range_is_min_and_max_ignoring_nan() {
         let mut p = Poly2::empty();
         p.set_square(2.0, -3.0);
