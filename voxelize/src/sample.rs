@@ -604,10 +604,10 @@ struct Poly2 {
 }
 
 impl Poly2 {
-    fn square(x: f64, y: f64) -> Poly2 {
-        let mut v = [[0.0; 2]; MAXV];
-        v[..4].copy_from_slice(&[[x, y], [x + 1.0, y], [x + 1.0, y + 1.0], [x, y + 1.0]]);
-        Poly2 { v, n: 4 }
+    /// Makes this the unit square at (x, y), in place (vertices past `n` are never read).
+    fn set_square(&mut self, x: f64, y: f64) {
+        self.v[..4].copy_from_slice(&[[x, y], [x + 1.0, y], [x + 1.0, y + 1.0], [x, y + 1.0]]);
+        self.n = 4;
     }
     /// An empty polygon (a buffer for the `_into` clips).
     fn empty() -> Poly2 {
@@ -626,11 +626,13 @@ impl Poly2 {
         self.clip_half_into(|p| p[axis] - lo, Some((axis, lo)), tmp);
         tmp.clip_half_into(|p| hi - p[axis], Some((axis, hi)), out);
     }
-    /// Splits at `x[axis] = c` into the parts `x[axis] ≤ c` (`below`) and `≥ c` (`above`) in
+    /// Splits at `x[AXIS] = c` into the parts `x[AXIS] ≤ c` (`below`) and `≥ c` (`above`) in
     /// one pass: the polygons of the two clips, with each cut point computed once and shared,
-    /// so the parts meet exactly.
+    /// so the parts meet exactly. `AXIS` is a constant so that the coordinate reads and the
+    /// exact cut coordinate need no runtime index.
     #[inline]
-    fn split_axis_into(&self, axis: usize, c: f64, below: &mut Poly2, above: &mut Poly2) {
+    fn split_axis_into<const AXIS: usize>(&self, c: f64, below: &mut Poly2, above: &mut Poly2) {
+        let axis = AXIS;
         below.n = 0;
         above.n = 0;
         if self.n == 0 {
@@ -638,10 +640,13 @@ impl Poly2 {
         }
         let mut prev = self.v[self.n - 1];
         let mut fp = prev[axis] - c;
+        // The previous vertex's sides, carried so each vertex is compared once.
+        let (mut prev_above, mut prev_below) = (fp >= 0.0, fp <= 0.0);
         for i in 0..self.n {
             let cur = self.v[i];
             let fc = cur[axis] - c;
-            let (cross_above, cross_below) = ((fc >= 0.0) != (fp >= 0.0), (fc <= 0.0) != (fp <= 0.0));
+            let (cur_above, cur_below) = (fc >= 0.0, fc <= 0.0);
+            let (cross_above, cross_below) = (cur_above != prev_above, cur_below != prev_below);
             if cross_above || cross_below {
                 let t = fp / (fp - fc);
                 let mut x = [prev[0] + t * (cur[0] - prev[0]), prev[1] + t * (cur[1] - prev[1])];
@@ -655,16 +660,17 @@ impl Poly2 {
                     below.n += 1;
                 }
             }
-            if fc >= 0.0 && above.n < MAXV {
+            if cur_above && above.n < MAXV {
                 above.v[above.n] = cur;
                 above.n += 1;
             }
-            if fc <= 0.0 && below.n < MAXV {
+            if cur_below && below.n < MAXV {
                 below.v[below.n] = cur;
                 below.n += 1;
             }
             prev = cur;
             fp = fc;
+            (prev_above, prev_below) = (cur_above, cur_below);
         }
     }
     /// Keeps the side `f(p) >= 0` of a line (`f` affine). `exact` = (axis, value) for
@@ -679,16 +685,24 @@ impl Poly2 {
     /// [`Poly2::clip_half`] into `out` (its old vertices are overwritten).
     #[inline]
     fn clip_half_into(&self, f: impl Fn(&[f64; 2]) -> f64, exact: Option<(usize, f64)>, out: &mut Poly2) {
+        self.clip_half_by_index_into(|_, p| f(p), exact, out);
+    }
+    /// [`Poly2::clip_half_into`] with `f` also given the vertex's index, so it can read values
+    /// already computed per vertex.
+    #[inline]
+    fn clip_half_by_index_into(&self, f: impl Fn(usize, &[f64; 2]) -> f64, exact: Option<(usize, f64)>, out: &mut Poly2) {
         out.n = 0;
         if self.n == 0 {
             return;
         }
         let mut prev = self.v[self.n - 1];
-        let mut fp = f(&prev);
+        let mut fp = f(self.n - 1, &prev);
+        let mut prev_in = fp >= 0.0; // carried: each vertex is compared once
         for i in 0..self.n {
             let cur = self.v[i];
-            let fc = f(&cur);
-            if (fc >= 0.0) != (fp >= 0.0) && out.n < MAXV {
+            let fc = f(i, &cur);
+            let cur_in = fc >= 0.0;
+            if cur_in != prev_in && out.n < MAXV {
                 let t = fp / (fp - fc);
                 let mut x = [prev[0] + t * (cur[0] - prev[0]), prev[1] + t * (cur[1] - prev[1])];
                 if let Some((axis, c)) = exact {
@@ -697,15 +711,18 @@ impl Poly2 {
                 out.v[out.n] = x;
                 out.n += 1;
             }
-            if fc >= 0.0 && out.n < MAXV {
+            if cur_in && out.n < MAXV {
                 out.v[out.n] = cur;
                 out.n += 1;
             }
             prev = cur;
             fp = fc;
+            prev_in = cur_in;
         }
     }
     /// (area, centroid) of the polygon (shoelace, relative to the first vertex for precision).
+    /// Inlined: it runs once or twice per boundary or depth-crossing column.
+    #[inline(always)]
     fn area_centroid(&self) -> (f64, [f64; 2]) {
         let o = self.v[0];
         let (mut a2, mut cx, mut cy) = (0.0, 0.0, 0.0);
@@ -732,6 +749,17 @@ impl Poly2 {
             let x = f(p);
             (if x < lo { x } else { lo }, if x > hi { x } else { hi })
         })
+    }
+    /// [`Poly2::range`] that also stores each vertex's value in `vals`.
+    #[inline]
+    fn range_keeping(&self, f: impl Fn(&[f64; 2]) -> f64, vals: &mut [f64; MAXV]) -> (f64, f64) {
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for (p, v) in self.v[..self.n].iter().zip(vals.iter_mut()) {
+            let x = f(p);
+            *v = x;
+            (lo, hi) = (if x < lo { x } else { lo }, if x > hi { x } else { hi });
+        }
+        (lo, hi)
     }
 }
 
@@ -1933,7 +1961,7 @@ fn voxel_triangle_axis<const D: usize>(
             rest[r].n = 0;
         } else {
             let (src, dst) = ping(&mut rest, r);
-            src.split_axis_into(0, x1, &mut srest[0], dst);
+            src.split_axis_into::<0>(x1, &mut srest[0], dst);
             r ^= 1;
         }
         let strip = &srest[0];
@@ -1961,6 +1989,8 @@ fn voxel_triangle_axis<const D: usize>(
         }
         // The rest of the strip lies above `cut` (interior columns are skipped, not split off).
         let (mut sr, mut cut) = (0, blo as f64);
+        // Depths of the current piece's vertices.
+        let mut dv = [0.0; MAXV];
         for ib in blo..=bhi {
             let y = ib as f64;
             let interior = y >= first_in && y <= last_in;
@@ -1979,7 +2009,7 @@ fn voxel_triangle_axis<const D: usize>(
                     srest[sr].n = 0;
                 } else {
                     let (src, dst) = ping(&mut srest, sr);
-                    src.split_axis_into(1, y + 1.0, &mut col, dst);
+                    src.split_axis_into::<1>(y + 1.0, &mut col, dst);
                     sr ^= 1;
                 }
                 cut = y + 1.0;
@@ -1987,7 +2017,7 @@ fn voxel_triangle_axis<const D: usize>(
                     continue;
                 }
                 let (ar, cen) = col.area_centroid();
-                let (dmin, dmax) = col.range(depth);
+                let (dmin, dmax) = col.range_keeping(depth, &mut dv);
                 (ar, cen, dmin, dmax)
             };
             let kmin = floor_i64(dmin);
@@ -2002,7 +2032,7 @@ fn voxel_triangle_axis<const D: usize>(
                 continue;
             }
             if interior {
-                col = Poly2::square(x0, y);
+                col.set_square(x0, y);
             }
             let poly = &col;
             if kmax == kmin + 1 {
@@ -2010,7 +2040,13 @@ fn voxel_triangle_axis<const D: usize>(
                 // lower part; the upper part is the remainder (area and centroid by
                 // difference), so the two areas still add up to the piece's exactly.
                 let kf = kmax as f64;
-                poly.clip_half_into(|p| kf - depth(p), None, &mut lower);
+                if interior {
+                    for (v, p) in dv.iter_mut().zip(&poly.v[..poly.n]) {
+                        *v = depth(p);
+                    }
+                }
+                // The piece's vertex depths were computed once (by range_keeping or above).
+                poly.clip_half_by_index_into(|i, _| kf - dv[i], None, &mut lower);
                 let (al, cl) = if lower.n >= 3 { lower.area_centroid() } else { (0.0, cen) };
                 let au = area2 - al;
                 let cu = if au > 0.0 { [(area2 * cen[0] - al * cl[0]) / au, (area2 * cen[1] - al * cl[1]) / au] } else { cen };
@@ -2672,7 +2708,11 @@ mod tests {
             }
             let (axis, c) = (i % 2, if i % 3 == 0 { 2.0 } else { rng.next_f64() * 4.0 });
             let (mut below, mut above) = (Poly2::empty(), Poly2::empty());
-            p.split_axis_into(axis, c, &mut below, &mut above);
+            if axis == 0 {
+                p.split_axis_into::<0>(c, &mut below, &mut above);
+            } else {
+                p.split_axis_into::<1>(c, &mut below, &mut above);
+            }
             let want_below = p.clip_half(|q| c - q[axis], Some((axis, c)));
             let want_above = p.clip_half(|q| q[axis] - c, Some((axis, c)));
             for (got, want) in [(below, want_below), (above, want_above)] {
@@ -2765,8 +2805,35 @@ mod tests {
     }
 
     #[test]
+    fn clip_by_kept_depths_equals_clip_by_depth() {
+        // The voxel method clips a piece with depths kept by range_keeping: same polygons.
+        let mut rng = sct_format::rng::SplitMix64(11);
+        for _ in 0..5_000 {
+            let mut p = Poly2::empty();
+            p.n = 3 + (rng.next_f64() * 3.0) as usize;
+            for v in &mut p.v[..p.n] {
+                *v = [rng.next_f64() * 3.0, rng.next_f64() * 3.0];
+            }
+            let (ga, gb, kf) = (rng.next_f64() * 2.0 - 1.0, rng.next_f64() * 2.0 - 1.0, rng.next_f64() * 2.0);
+            let depth = |q: &[f64; 2]| 0.25 + ga * q[0] + gb * q[1];
+            let mut dv = [0.0; MAXV];
+            let kept = p.range_keeping(depth, &mut dv);
+            let want = p.range(depth);
+            assert_eq!((kept.0.to_bits(), kept.1.to_bits()), (want.0.to_bits(), want.1.to_bits()));
+            let (mut got, mut want) = (Poly2::empty(), Poly2::empty());
+            p.clip_half_by_index_into(|i, _| kf - dv[i], None, &mut got);
+            p.clip_half_into(|q| kf - depth(q), None, &mut want);
+            assert_eq!(got.n, want.n);
+            for (a, b) in got.v[..got.n].iter().zip(&want.v[..want.n]) {
+                assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits));
+            }
+        }
+    }
+
+    #[test]
     fn polygon_range_is_min_and_max_ignoring_nan() {
-        let mut p = Poly2::square(2.0, -3.0);
+        let mut p = Poly2::empty();
+        p.set_square(2.0, -3.0);
         assert_eq!(p.range(|v| v[0]), (2.0, 3.0));
         assert_eq!(p.range(|v| v[1] * 2.0), (-6.0, -4.0));
         assert_eq!(p.range(|v| if v[0] == 3.0 { f64::NAN } else { v[1] }), (-3.0, -2.0));
