@@ -536,33 +536,30 @@ fn in_range(s: &Node) -> bool {
         & (s.cone <= std::f32::consts::PI)
 }
 
+/// Where each of consecutive runs of `sizes` starts: `0, s₀, s₀ + s₁, …`.
+fn exclusive_sums(sizes: impl Iterator<Item = usize>) -> Vec<usize> {
+    sizes
+        .scan(0usize, |at, k| {
+            let start = *at;
+            *at += k;
+            Some(start)
+        })
+        .collect()
+}
+
 /// Fills every internal node of a breadth-first tree (`level_sizes` nodes per level) from
 /// its children, bottom level first. Everything runs on every thread: the chunks' child
 /// offsets come from per-chunk counts made in parallel (a serial count over every flag of a
 /// level, and a copy of them, left one thread idle before each level).
 fn compute_attributes(nodes: &mut [Node], internal: &[bool], level_sizes: &[usize]) {
-    let starts: Vec<usize> = level_sizes
-        .iter()
-        .scan(0usize, |at, &k| {
-            let s = *at;
-            *at += k;
-            Some(s)
-        })
-        .collect();
+    let starts = exclusive_sums(level_sizes.iter().copied());
     for d in (0..level_sizes.len().saturating_sub(1)).rev() {
         let range = starts[d]..starts[d] + level_sizes[d];
         let child_start = starts[d + 1];
         let flags = &internal[range.clone()];
         let per_chunk: Vec<usize> = flags.par_chunks(PAR_NODES).map(|ch| ch.iter().filter(|&&b| b).count()).collect();
         // Offset (in the child level) of each chunk's first child, so chunks run independently.
-        let chunk_firsts: Vec<usize> = per_chunk
-            .iter()
-            .scan(0usize, |acc, &k| {
-                let first = *acc;
-                *acc += 2 * k;
-                Some(first)
-            })
-            .collect();
+        let chunk_firsts = exclusive_sums(per_chunk.iter().map(|&k| 2 * k));
         let (head, children) = nodes.split_at_mut(child_start);
         let children: &[Node] = children;
         head[range]
