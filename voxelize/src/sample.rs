@@ -745,10 +745,7 @@ impl Poly2 {
     /// instruction each where `f64::min`/`max` add NaN handling (they may differ only in the
     /// sign of a zero, which compares and floors alike).
     fn range(&self, f: impl Fn(&[f64; 2]) -> f64) -> (f64, f64) {
-        self.v[..self.n].iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
-            let x = f(p);
-            (if x < lo { x } else { lo }, if x > hi { x } else { hi })
-        })
+        self.range_keeping(f, &mut [0.0; MAXV])
     }
     /// [`Poly2::range`] that also stores each vertex's value in `vals`.
     #[inline]
