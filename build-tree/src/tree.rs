@@ -135,22 +135,25 @@ impl Aabb {
     /// finite (checked on input) and the bounds in lanes 0–2 never NaN, so only the sign of a zero tie
     /// could differ, and no split decision sees that (`mid`, `extent` and the comparisons
     /// made with them are the same for ±0). For the same reason the box of a set does not
-    /// depend on the order its members are added in.
+    /// depend on the order its members are added in. The box is the first operand, as in
+    /// `minps box, item`, so the result stays in the box's register (with the item first,
+    /// each side of the split loop copied the item and moved both results back: 3
+    /// instructions an item).
     #[inline]
     #[allow(clippy::needless_range_loop)] // indexed: the four lanes become one packed op
     fn add(&mut self, it: &Item) {
         let v = it.0;
         for k in 0..4 {
-            self.min[k] = if v[k] < self.min[k] { v[k] } else { self.min[k] };
-            self.max[k] = if v[k] > self.max[k] { v[k] } else { self.max[k] };
+            self.min[k] = if self.min[k] < v[k] { self.min[k] } else { v[k] };
+            self.max[k] = if self.max[k] > v[k] { self.max[k] } else { v[k] };
         }
     }
 
     /// The box holding both (the same compare-and-select as [`Aabb::add`]).
     fn union(mut self, o: Aabb) -> Aabb {
         for k in 0..4 {
-            self.min[k] = if o.min[k] < self.min[k] { o.min[k] } else { self.min[k] };
-            self.max[k] = if o.max[k] > self.max[k] { o.max[k] } else { self.max[k] };
+            self.min[k] = if self.min[k] < o.min[k] { self.min[k] } else { o.min[k] };
+            self.max[k] = if self.max[k] > o.max[k] { self.max[k] } else { o.max[k] };
         }
         self
     }
@@ -217,16 +220,15 @@ pub(crate) fn build_tree_with_map_owned(
 /// breadth-first index (both are below 2^31, see the size check).
 const LEAF: u32 = 1 << 31;
 
-/// Fills `out` (nodes whose flags start `flags`): internal nodes with the default, leaves
-/// from `leaves[first..]` in order.
+/// Moves the leaves `leaves[first..]`, in order, to the leaf places of `out` (nodes whose
+/// flags start `flags`). Internal places are left as they are: [`compute_attributes`]
+/// writes every internal node, so a default written here (40 bytes a node, half the tree)
+/// was overwritten anyway.
 fn spread(out: &mut [Node], flags: &[bool], leaves: &[Node], first: usize) {
-    let mut j = first;
-    for (node, &f) in out.iter_mut().zip(flags) {
-        if f {
-            *node = Node::default();
-        } else {
-            *node = leaves[j];
-            j += 1;
+    let mut from = leaves.get(first..).unwrap_or_default().iter();
+    for (node, _) in out.iter_mut().zip(flags).filter(|(_, &f)| !f) {
+        if let Some(leaf) = from.next() {
+            *node = *leaf;
         }
     }
 }
@@ -764,6 +766,33 @@ mod tests {
         let mut bad = samples.clone();
         bad[3 * PAR_NODES + 7].radius = f32::NAN;
         assert!(!check_and_sum_radii(&bad, false).0);
+    }
+
+    /// Every internal node is exactly `parent_of` its children, so none keeps what the
+    /// layout left in its place ([`spread`] no longer clears internal places; welded and
+    /// forced-split trees included).
+    #[test]
+    fn every_internal_node_is_its_childrens_parent() {
+        let mut rng = sct_format::rng::SplitMix64(3);
+        let samples: Vec<Node> = (0..40_000)
+            .map(|i| {
+                // Every 7th sample repeats its predecessor's grid cell, so some leaves weld.
+                let k = if i % 7 == 6 { i - 1 } else { i } as f32;
+                let center = [(k * 0.618).fract(), (k * 0.414).fract(), rng.next_f32() * 1e-3];
+                let color = [(i % 251) as u8, (i % 13) as u8, 7, 255];
+                Node { center, radius: 1e-3, normal: [0.0, 0.6, 0.8], cone: 0.0, area: 1e-6, color }
+            })
+            .collect();
+        for (weld, depth_slack) in [(Weld::Absolute(2e-3), 4), (Weld::Off, 0), (Weld::RelativeToMeanRadius(0.5), 1)] {
+            let (tree, stats) = build_tree(&samples, &BuildOptions { weld, depth_slack }).unwrap();
+            let nodes = tree.nodes();
+            for i in 0..nodes.len() {
+                if let Some([a, b]) = tree.children(i) {
+                    assert_eq!(format!("{:?}", nodes[i]), format!("{:?}", parent_of(&nodes[a], &nodes[b])), "node {i}");
+                }
+            }
+            assert!(stats.leaves > 1);
+        }
     }
 
     /// The vectorisable check accepts exactly what [`Node::is_finite`] accepts.
