@@ -707,18 +707,19 @@ fn split_on<const AXIS: usize>(items: &mut [Item], mid: f32) -> (usize, Aabb, Aa
     // One load of the item serves the test, its box and the swap.
     while let Some(&it) = rest.first() {
         let r = std::mem::take(&mut rest);
+        // `r` holds `it`, so both indexings below are in bounds and compile to no check.
         if it.0[AXIS] < mid {
             lb.add(&it);
             left += 1;
-            rest = r.get_mut(1..).unwrap_or_default();
-        } else if let Some((last, init)) = r.split_last_mut() {
-            // `items[i] = items[j - 1]; items[j - 1] = it` (one item left: it stays).
-            if let Some(first) = init.first_mut() {
-                *first = *last;
-                *last = it;
-            }
+            rest = &mut r[1..];
+        } else {
+            // `items[i] = items[j - 1]; items[j - 1] = it` (one item left: it stays, as
+            // both stores write it back).
+            let last = r.len() - 1;
+            r[0] = r[last];
+            r[last] = it;
             rb.add(&it);
-            rest = init;
+            rest = &mut r[..last];
         }
     }
     (left, lb, rb)
