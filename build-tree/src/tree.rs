@@ -387,17 +387,22 @@ fn build_tree_impl(
     }
     chunks.par_iter().zip(flag_parts).zip(leaf_parts).zip(src_parts).for_each_init(
         Vec::new,
-        |stack, (((c, mut fp), mut lp), sp)| {
-            let mut at = vec![0usize; 2 * levels];
+        |stack, (((c, fp), lp), sp)| {
+            // Each level's next place is its cursor's next item (one bounds check a node,
+            // where indexing by a per-level count took three).
+            let mut flags: Vec<_> = fp.into_iter().map(|s| s.iter_mut()).collect();
+            let mut leaf_at: Vec<_> = lp.into_iter().map(|s| s.iter_mut()).collect();
             walk(&slots, c, stack, |d, lo, hi, internal| {
                 let d = d as usize;
-                fp[d][at[d]] = internal;
-                at[d] += 1;
+                if let Some(f) = flags[d].next() {
+                    *f = internal;
+                }
                 if !internal {
-                    let k = (lo - c.lo) as usize;
-                    lp[d][at[levels + d]] = if hi - lo == 1 { sp[k] } else { LEAF | lo };
-                    at[levels + d] += 1;
-                    sp[k] |= LEAF;
+                    let first = &mut sp[(lo - c.lo) as usize];
+                    if let Some(l) = leaf_at[d].next() {
+                        *l = if hi - lo == 1 { *first } else { LEAF | lo };
+                    }
+                    *first |= LEAF;
                 }
             });
         },
