@@ -635,13 +635,7 @@ fn partition(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: 
         slots[0] = hi;
         return (0, depth);
     }
-    let axis = if ext[0] >= ext[1] && ext[0] >= ext[2] {
-        0
-    } else if ext[1] >= ext[2] {
-        1
-    } else {
-        2
-    };
+    let axis = widest_axis(ext);
     // Largest child the depth budget allows: a subtree at depth d + 1 may hold 2^(D - d - 1).
     let cap = 1usize.checked_shl(ctx.max_depth.saturating_sub(depth + 1)).unwrap_or(usize::MAX);
     let (mut l, mut lb, mut rb) = if widest > 0.0 {
@@ -679,15 +673,57 @@ fn partition(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: 
     (forced + fa + fb, da.max(db))
 }
 
+/// The axis of the largest extent (the first of equal ones).
+fn widest_axis(ext: [f32; 3]) -> usize {
+    if ext[0] >= ext[1] && ext[0] >= ext[2] {
+        0
+    } else if ext[1] >= ext[2] {
+        1
+    } else {
+        2
+    }
+}
+
 /// [`partition`] of a child: a single item (half of all calls) becomes its leaf without
-/// the call.
+/// the call, and two items (about half of the remaining calls) take [`pair`].
 #[inline(always)]
 fn child(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: Aabb, depth: u32) -> (u64, u32) {
-    if items.len() == 1 {
-        slots[0] = (lo + 1) as u32;
+    match items.len() {
+        1 => {
+            slots[0] = (lo + 1) as u32;
+            (0, depth)
+        }
+        2 => pair(ctx, items, slots, lo, bbox, depth),
+        _ => partition(ctx, items, slots, lo, bbox, depth),
+    }
+}
+
+/// [`partition`] of two items: the same decisions, leaf or split, and the same order of the
+/// two, without the split loop's setup and without the children's boxes, which single items
+/// never read. The two-pointer loop puts `b` first exactly when `a` is not left of the
+/// plane; a split with both on one side (or no extent) is forced to the median, which for
+/// two items sorts them by the forced split's key.
+fn pair(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: Aabb, depth: u32) -> (u64, u32) {
+    let ([a, b], [root, left, right]) = (items, slots) else {
+        return (0, depth); // never: two items own three slots
+    };
+    let hi = (lo + 2) as u32;
+    let ext = bbox.extent();
+    let widest = ext[0].max(ext[1]).max(ext[2]);
+    if ctx.weld && widest <= ctx.tol {
+        *root = hi;
         return (0, depth);
     }
-    partition(ctx, items, slots, lo, bbox, depth)
+    let axis = widest_axis(ext);
+    let mid = 0.5 * (bbox.min[axis] + bbox.max[axis]);
+    let (a_left, b_left) = (widest > 0.0 && a.0[axis] < mid, widest > 0.0 && b.0[axis] < mid);
+    let forced = a_left == b_left;
+    let b_first = if forced { a.0[axis].total_cmp(&b.0[axis]).then(a.idx().cmp(&b.idx())).is_gt() } else { !a_left };
+    if b_first {
+        std::mem::swap(a, b);
+    }
+    (*root, *left, *right) = (hi - 1, hi - 1, hi);
+    (forced as u64, depth + 1)
 }
 
 /// In-place two-pointer partition: centres below `mid` on `axis` first. Returns the left
@@ -772,6 +808,42 @@ mod tests {
         let mut bad = samples.clone();
         bad[3 * PAR_NODES + 7].radius = f32::NAN;
         assert!(!check_and_sum_radii(&bad, false).0);
+    }
+
+    /// [`pair`] decides as [`partition`] does on two items: leaf or split, their order, the
+    /// slots, the forced count and the depth; over ties, coincident and welded pairs, ±0,
+    /// indices whose bits are NaN patterns, and every depth budget.
+    #[test]
+    fn pair_matches_partition() {
+        let mut rng = sct_format::rng::SplitMix64(0x9A12);
+        let grid = [0.0f32, -0.0, 0.5, 1.0, 1.0 + f32::EPSILON, 1e-7];
+        for case in 0..200_000 {
+            let coord = |rng: &mut sct_format::rng::SplitMix64| match case % 3 {
+                0 => grid[(rng.next_u64() % grid.len() as u64) as usize],
+                _ => rng.next_f32() * 2.0 - 1.0,
+            };
+            let ca = [coord(&mut rng), coord(&mut rng), coord(&mut rng)];
+            let cb = if case % 5 == 0 { ca } else { [coord(&mut rng), coord(&mut rng), coord(&mut rng)] };
+            let ia = (rng.next_u64() % (1 << 31)) as u32;
+            let ib = if case % 2 == 0 { ia ^ 1 } else { (ia + 1 + (rng.next_u64() % 1000) as u32) % (1 << 31) };
+            let items = [Item::new(ca, ia), Item::new(cb, ib)];
+            let (tol, weld) = match case % 4 {
+                0 => (-1.0, false),
+                1 => (0.0, true),
+                _ => (rng.next_f32() * 0.5, true),
+            };
+            let ctx = Ctx { tol, weld, max_depth: (rng.next_u64() % 4) as u32 };
+            let depth = (rng.next_u64() % 5) as u32;
+            let lo = (rng.next_u64() % 1000) as usize;
+            let (mut want, mut got) = (items, items);
+            let (mut want_slots, mut got_slots) = ([0u32; 3], [0u32; 3]);
+            let w = partition(&ctx, &mut want, &mut want_slots, lo, Aabb::of(&items), depth);
+            let g = pair(&ctx, &mut got, &mut got_slots, lo, Aabb::of(&items), depth);
+            assert_eq!(g, w, "case {case}");
+            assert_eq!(got.map(|it| it.idx()), want.map(|it| it.idx()), "case {case}");
+            // A leaf writes only its root slot.
+            assert_eq!(got_slots, want_slots, "case {case}");
+        }
     }
 
     /// Every internal node is exactly `parent_of` its children, so none keeps what the
