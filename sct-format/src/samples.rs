@@ -667,7 +667,7 @@ const PLANE_TILE: usize = 1024;
 /// planes hold runs zstd finds cheaply).
 fn put_planes(samples: &[Node], out: &mut Vec<u8>) {
     let n = samples.len();
-    out.clear();
+    // Every byte is written below, so a reused buffer of the right length is not cleared.
     out.resize(n * SAMPLE_BYTES, 0);
     let mut prev = [0u32; 3];
     for (t, tile) in samples.chunks(PLANE_TILE).enumerate() {
@@ -1509,6 +1509,28 @@ mod tests {
         let mut got = Vec::new();
         put_planes(&[a, b], &mut got);
         assert_eq!(got, want);
+    }
+
+    /// A reused plane buffer (longer, equal or shorter, holding other bytes) ends up exactly
+    /// as a fresh one: `put_planes` does not clear it, so every byte must be written.
+    #[test]
+    fn put_planes_overwrites_a_reused_buffer() {
+        let samples = many(3 * PLANE_TILE + 5);
+        let mut fresh = Vec::new();
+        put_planes(&samples, &mut fresh);
+        for stale_len in [0, 1, fresh.len() - 1, fresh.len(), fresh.len() + 1, 3 * fresh.len()] {
+            let mut reused = vec![0xa5u8; stale_len];
+            put_planes(&samples, &mut reused);
+            assert_eq!(reused, fresh, "stale buffer of {stale_len} bytes");
+        }
+        // The same buffer chunk after chunk, as the writer's scratch is used.
+        let mut scratch = Vec::new();
+        for part in samples.chunks(PLANE_TILE + 7).rev() {
+            put_planes(part, &mut scratch);
+            let mut want = Vec::new();
+            put_planes(part, &mut want);
+            assert_eq!(scratch, want);
+        }
     }
 
     /// Any bit patterns (NaN payloads, infinities, −0, subnormals) come back bit for bit,
