@@ -14,7 +14,7 @@
 //! samples, and the section table ends the file.
 
 use std::borrow::Cow;
-use std::io::{Seek, SeekFrom, Write};
+use std::io::{IoSlice, Seek, SeekFrom, Write};
 use std::path::Path;
 
 use rayon::prelude::*;
@@ -611,9 +611,9 @@ impl<W: Write + Seek> SamplesWriter<W> {
     fn write_chunks(&mut self, samples: &[Node]) -> Result<()> {
         for batch in samples.chunks(BATCH_CHUNKS * CHUNK_SAMPLES) {
             let chunks = batch.par_chunks(CHUNK_SAMPLES).map(compress_chunk).collect::<Result<Vec<_>>>()?;
-            for c in chunks {
-                self.w.write_all(&c.header)?;
-                self.w.write_all(&c.frame)?;
+            let mut pieces: Vec<IoSlice<'_>> = chunks.iter().flat_map(|c| [IoSlice::new(&c.header), IoSlice::new(&c.frame)]).collect();
+            write_all_vectored(&mut self.w, &mut pieces)?;
+            for c in &chunks {
                 self.crc.combine(&c.crc);
                 self.section_len += (CHUNK_HEADER_BYTES + c.frame.len()) as u64;
             }
@@ -621,6 +621,22 @@ impl<W: Write + Seek> SamplesWriter<W> {
         }
         Ok(())
     }
+}
+
+/// `Write::write_all_vectored` (unstable in Rust 1.86). A batch's chunks go to `w` in one
+/// call, so a `BufWriter` (as in [`crate::atomic::write_atomic`]) passes them to the file
+/// instead of copying every frame into its buffer first.
+fn write_all_vectored(w: &mut impl Write, mut pieces: &mut [IoSlice<'_>]) -> std::io::Result<()> {
+    IoSlice::advance_slices(&mut pieces, 0);
+    while !pieces.is_empty() {
+        match w.write_vectored(pieces) {
+            Ok(0) => return Err(std::io::ErrorKind::WriteZero.into()),
+            Ok(n) => IoSlice::advance_slices(&mut pieces, n),
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
 }
 
 /// One compressed chunk: header, frame and the CRC-32 of both (combined into the section's
@@ -667,7 +683,7 @@ const PLANE_TILE: usize = 1024;
 /// planes hold runs zstd finds cheaply).
 fn put_planes(samples: &[Node], out: &mut Vec<u8>) {
     let n = samples.len();
-    out.clear();
+    // Every byte is written below, so a reused buffer of the right length is not cleared.
     out.resize(n * SAMPLE_BYTES, 0);
     let mut prev = [0u32; 3];
     for (t, tile) in samples.chunks(PLANE_TILE).enumerate() {
@@ -1295,6 +1311,48 @@ mod tests {
     }
 
     /// A file written after other bytes of a stream is the same file, offsets included.
+    /// A stream that takes a few bytes a call and is sometimes interrupted (as `write` may
+    /// be), with the default one-piece `write_vectored`.
+    struct Trickle {
+        out: std::io::Cursor<Vec<u8>>,
+        calls: usize,
+    }
+
+    impl Write for Trickle {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            self.calls += 1;
+            if self.calls % 3 == 0 {
+                return Err(std::io::ErrorKind::Interrupted.into());
+            }
+            self.out.write(&buf[..buf.len().min(1 + self.calls % 4093)])
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Seek for Trickle {
+        fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
+            self.out.seek(pos)
+        }
+    }
+
+    /// The chunks of a batch, written in one vectored call, arrive whole and in order through
+    /// short and interrupted writes.
+    #[test]
+    fn streaming_writer_survives_short_writes() {
+        let f = SamplesFile::single_mesh(Generator::default(), "m", many(2 * CHUNK_SAMPLES + 99));
+        let mut want = Vec::new();
+        f.write_to(&mut want).unwrap();
+        let mut t = Trickle { out: std::io::Cursor::new(Vec::new()), calls: 0 };
+        f.write_seekable(&mut t).unwrap();
+        assert!(t.out.into_inner() == want);
+        let mut pieces = [IoSlice::new(b"ab"), IoSlice::new(b""), IoSlice::new(b"cde")];
+        let mut out = Vec::new();
+        write_all_vectored(&mut out, &mut pieces).unwrap();
+        assert_eq!(out, b"abcde");
+    }
+
     #[test]
     fn streaming_writer_starts_where_the_stream_is() {
         let f = file_affine();
@@ -1509,6 +1567,28 @@ mod tests {
         let mut got = Vec::new();
         put_planes(&[a, b], &mut got);
         assert_eq!(got, want);
+    }
+
+    /// A reused plane buffer (longer, equal or shorter, holding other bytes) ends up exactly
+    /// as a fresh one: `put_planes` does not clear it, so every byte must be written.
+    #[test]
+    fn put_planes_overwrites_a_reused_buffer() {
+        let samples = many(3 * PLANE_TILE + 5);
+        let mut fresh = Vec::new();
+        put_planes(&samples, &mut fresh);
+        for stale_len in [0, 1, fresh.len() - 1, fresh.len(), fresh.len() + 1, 3 * fresh.len()] {
+            let mut reused = vec![0xa5u8; stale_len];
+            put_planes(&samples, &mut reused);
+            assert_eq!(reused, fresh, "stale buffer of {stale_len} bytes");
+        }
+        // The same buffer chunk after chunk, as the writer's scratch is used.
+        let mut scratch = Vec::new();
+        for part in samples.chunks(PLANE_TILE + 7).rev() {
+            put_planes(part, &mut scratch);
+            let mut want = Vec::new();
+            put_planes(part, &mut want);
+            assert_eq!(scratch, want);
+        }
     }
 
     /// Any bit patterns (NaN payloads, infinities, −0, subnormals) come back bit for bit,
