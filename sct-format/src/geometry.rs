@@ -206,11 +206,16 @@ fn covering_cone(n: [f32; 3], ua: Option<[f64; 3]>, ta: f32, ub: Option<[f64; 3]
 
 /// [`covering_cone`] for two axes, from enclosures of the two angles: `None` unless both
 /// ends give the same f32. Sound because [`cone_from_need`] of the max of `angle + cone`
-/// is nondecreasing in each f64 angle (every step rounds monotonically).
+/// is nondecreasing in each f64 angle (every step rounds monotonically). The cones are not
+/// NaN (a NaN cone leaves [`parent_cone_bounded`] undecided before it gets here), so a plain
+/// comparison picks what `f64::max` would, without its NaN handling.
 fn covering_cone_bounded(n: [f32; 3], ua: [f64; 3], ta: f32, ub: [f64; 3], tb: f32) -> Option<f32> {
     let n = normalize(to64(n))?;
     let (ia, ib) = (angle_bounds(n, ua)?, angle_bounds(n, ub)?);
-    let at = |xa: f64, xb: f64| cone_from_need((xa + ta as f64).max(xb + tb as f64));
+    let at = |xa: f64, xb: f64| {
+        let (need_a, need_b) = (xa + ta as f64, xb + tb as f64);
+        cone_from_need(if need_a >= need_b { need_a } else { need_b })
+    };
     let (lo, hi) = (at(ia.lo, ib.lo), at(ia.hi, ib.hi));
     (lo.to_bits() == hi.to_bits()).then_some(lo)
 }
@@ -296,13 +301,14 @@ fn parent_cone_bounded(a: &Node, va: [f64; 3], b: &Node, vb: [f64; 3]) -> Option
     let ab = dot(va, vb);
     let d = bounds::atan2(norm(cross(va, vb)), ab)?;
     // merge_unit_cones: containment, whole sphere, else rotate A's axis towards B's.
-    let (normal, t) = if d.decide(|d| d + tb <= ta)? {
+    // `d + x <= y` and `tc >= π` are monotone in `d` (IEEE rounding is); a NaN cone is undecided.
+    let (normal, t) = if d.map(|d| d + tb).le(ta)? {
         (to32(va), Interval::exact(ta))
-    } else if d.decide(|d| d + ta <= tb)? {
+    } else if d.map(|d| d + ta).le(tb)? {
         (to32(vb), Interval::exact(tb))
     } else {
         let tc = d.map(|d| 0.5 * (d + ta + tb));
-        if tc.decide(|tc| tc >= PI)? {
+        if tc.ge(PI)? {
             (to32(va), Interval::exact(PI))
         } else {
             let u = normalize(sub(vb, [va[0] * ab, va[1] * ab, va[2] * ab])).unwrap_or_else(|| any_perpendicular(va));
@@ -315,7 +321,7 @@ fn parent_cone_bounded(a: &Node, va: [f64; 3], b: &Node, vb: [f64; 3]) -> Option
         if outer >= PI {
             Some(true)
         } else {
-            d.decide(|d| d + inner <= outer)
+            d.map(|d| d + inner).le(outer)
         }
     };
     // `normal == x.normal && t == x.cone && contains(..)`, short-circuiting like the exact path.

@@ -29,10 +29,28 @@ impl Interval {
         Interval { lo: f(self.lo), hi: f(self.hi) }
     }
 
-    /// The value of a monotone `pred` on the whole interval, when its two ends agree.
-    pub fn decide(self, pred: impl Fn(f64) -> bool) -> Option<bool> {
-        let lo = pred(self.lo);
-        (lo == pred(self.hi)).then_some(lo)
+    /// Whether every value of the interval is `<= b`, when all or none are (`None` when the
+    /// interval straddles `b`, or for a NaN). The usual answer, none, costs one comparison.
+    pub fn le(self, b: f64) -> Option<bool> {
+        if self.lo > b {
+            Some(false)
+        } else if self.hi <= b {
+            Some(true)
+        } else {
+            None
+        }
+    }
+
+    /// Whether every value of the interval is `>= b`, when all or none are (`None` when the
+    /// interval straddles `b`, or for a NaN). The usual answer, none, costs one comparison.
+    pub fn ge(self, b: f64) -> Option<bool> {
+        if self.hi < b {
+            Some(false)
+        } else if self.lo >= b {
+            Some(true)
+        } else {
+            None
+        }
     }
 
     /// Whether every value of the interval equals `v` (equality is not monotone, so it
@@ -104,15 +122,12 @@ fn atan_unit(q: f64) -> f64 {
 /// cases handled here (zero, huge or tiny arguments, NaN): the caller then calls libm.
 #[inline(always)]
 pub(super) fn atan2(y: f64, x: f64) -> Option<Interval> {
-    if y == 0.0 && x > 0.0 {
-        // atan2(±0, x > 0) = ±0 exactly (C99 F.9.1.4).
-        return Some(Interval::exact(y));
-    }
     let ax = x.abs();
     // With y > 1e-150 and |x| < 1e150 the ratio below is a normal number (or an ignorable
     // tiny one next to π/2); x = ±0 and y = ∞ give π/2 like libm. NaN fails both tests.
     if !(y > 1e-150 && ax < 1e150) {
-        return None;
+        // atan2(±0, x > 0) = ±0 exactly (C99 F.9.1.4).
+        return (y == 0.0 && x > 0.0).then_some(Interval::exact(y));
     }
     let v = if y <= ax {
         // Result in [0, π/4] or [3π/4, π]; q ≥ 1e-300 keeps full relative precision.
