@@ -67,9 +67,11 @@ impl Interval {
 }
 
 /// `c[0] + c[1] z + … + c[n-1] z^(n-1)` by Horner's rule (unrolled: `n` is a constant).
+/// It starts from `c[n-1]`, not from `0 z + c[n-1]`: the same value for finite `z`, two
+/// instructions fewer (the compiler may not drop `0 z`, which is NaN for an infinite `z`).
 #[inline(always)]
 fn horner(c: &[f64], z: f64) -> f64 {
-    c.iter().rev().fold(0.0, |p, &ck| p * z + ck)
+    c.iter().rev().copied().reduce(|p, ck| p * z + ck).unwrap_or(0.0)
 }
 
 /// atan(x) = x (1 − x²/3 + x⁴/5 − …), 16 terms.
