@@ -159,6 +159,13 @@ pub fn merge_color(ca: [u8; 4], wa: f32, cb: [u8; 4], wb: f32) -> [u8; 4] {
     if ca == cb {
         return ca;
     }
+    blend_colors(ca, wa, cb, wb)
+}
+
+/// [`merge_color`] of two different colours. Out of line so that the usual equal colours
+/// return as they are (inlined, the channels were split and packed again on that path too).
+#[inline(never)]
+fn blend_colors(ca: [u8; 4], wa: f32, cb: [u8; 4], wb: f32) -> [u8; 4] {
     let (wa, wb) = (wa.max(0.0) as f64, wb.max(0.0) as f64);
     let (wa, wb) = if wa + wb > 0.0 && (wa + wb).is_finite() { (wa, wb) } else { (1.0, 1.0) };
     let inv = 1.0 / (wa + wb);
@@ -296,8 +303,13 @@ fn parent_cone(a: &Node, ua: Option<[f64; 3]>, b: &Node, ub: Option<[f64; 3]>) -
 /// wide angles) leaves the exact path to decide. The steps are monotone in the enclosed
 /// value, so agreement at the ends means agreement for the exact libm value between them.
 fn parent_cone_bounded(a: &Node, va: [f64; 3], b: &Node, vb: [f64; 3]) -> Option<([f32; 3], f32)> {
-    let ta = (a.cone as f64).clamp(0.0, PI);
-    let tb = (b.cone as f64).clamp(0.0, PI);
+    // `clamp(0, π)` for cones that are not negative or NaN (real ones never are; the others
+    // are left to the exact path): f32 π lies above f64 π, so whole-sphere cones still clamp.
+    let (ta, tb) = (a.cone as f64, b.cone as f64);
+    if !(ta >= 0.0 && tb >= 0.0) {
+        return None;
+    }
+    let (ta, tb) = (if ta < PI { ta } else { PI }, if tb < PI { tb } else { PI });
     let ab = dot(va, vb);
     let d = bounds::atan2(norm(cross(va, vb)), ab)?;
     // merge_unit_cones: containment, whole sphere, else rotate A's axis towards B's.
