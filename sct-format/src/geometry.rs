@@ -262,11 +262,11 @@ pub fn parent_of(a: &Node, b: &Node) -> Node {
 
     // Each child's axis is normalised once and shared by the merge, the containment checks
     // and the covering angle (the same f64 operations as evaluating them separately).
-    let (ua, ub) = (normalize(to64(a.normal)), normalize(to64(b.normal)));
-    let (normal, cone) = match (ua, ub) {
-        (Some(va), Some(vb)) => parent_cone_bounded(a, va, b, vb).unwrap_or_else(|| parent_cone(a, ua, b, ub)),
-        _ => parent_cone(a, ua, b, ub),
+    let bounded = match (normalize(to64(a.normal)), normalize(to64(b.normal))) {
+        (Some(va), Some(vb)) => parent_cone_bounded(a, va, b, vb),
+        _ => None,
     };
+    let (normal, cone) = bounded.unwrap_or_else(|| exact_parent_cone(a, b));
     Node {
         center,
         radius,
@@ -275,6 +275,14 @@ pub fn parent_of(a: &Node, b: &Node) -> Node {
         area: merge_area(a.area, b.area),
         color: merge_color(a.color, a.area, b.color, b.area),
     }
+}
+
+/// [`parent_cone`] of the nodes: the rare fallback of [`parent_cone_bounded`], out of line
+/// and normalising the axes again rather than have them kept across the fast path.
+#[cold]
+#[inline(never)]
+fn exact_parent_cone(a: &Node, b: &Node) -> ([f32; 3], f32) {
+    parent_cone(a, normalize(to64(a.normal)), b, normalize(to64(b.normal)))
 }
 
 /// The parent's stored axis and cone angle, with libm's exact `atan2`, `sin` and `cos`.
