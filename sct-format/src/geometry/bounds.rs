@@ -304,6 +304,17 @@ mod tests {
     }
 
     #[test]
+    fn le_and_ge_decide_only_whole_intervals() {
+        let i = Interval { lo: 1.0, hi: 2.0 };
+        assert_eq!([0.5, 1.0, 1.5, 2.0, 3.0].map(|b| i.le(b)), [Some(false), None, None, Some(true), Some(true)]);
+        assert_eq!([0.5, 1.0, 1.5, 2.0, 3.0].map(|b| i.ge(b)), [Some(true), Some(true), None, None, Some(false)]);
+        // A NaN bound or end is left undecided (the exact path then runs).
+        assert_eq!((i.le(f64::NAN), i.ge(f64::NAN)), (None, None));
+        assert_eq!(Interval::exact(f64::NAN).le(1.0), None);
+        assert_eq!((Interval::exact(1.0).le(1.0), Interval::exact(1.0).ge(1.0)), (Some(true), Some(true)));
+    }
+
+    #[test]
     fn series_coefficients() {
         assert_eq!((ATAN[0], ATAN[1], ATAN[15]), (1.0, -1.0 / 3.0, -1.0 / 31.0));
         assert_eq!((SIN[0], SIN[1], SIN[2]), (1.0, -1.0 / 6.0, 1.0 / 120.0));
