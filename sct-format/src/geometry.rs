@@ -260,8 +260,8 @@ pub fn parent_of(a: &Node, b: &Node) -> Node {
         covering_radius(center, a, b)
     };
 
-    // Each child's axis is normalised once and shared by the merge, the containment checks
-    // and the covering angle (the same f64 operations as evaluating them separately).
+    // Each child's axis is normalised once per path and shared by the merge, the containment
+    // checks and the covering angle (the same f64 operations as evaluating them separately).
     let bounded = match (normalize(to64(a.normal)), normalize(to64(b.normal))) {
         (Some(va), Some(vb)) => parent_cone_bounded(a, va, b, vb),
         _ => None,
