@@ -159,6 +159,13 @@ pub fn merge_color(ca: [u8; 4], wa: f32, cb: [u8; 4], wb: f32) -> [u8; 4] {
     if ca == cb {
         return ca;
     }
+    blend_colors(ca, wa, cb, wb)
+}
+
+/// [`merge_color`] of two different colours. Out of line so that the usual equal colours
+/// return as they are (inlined, the channels were split and packed again on that path too).
+#[inline(never)]
+fn blend_colors(ca: [u8; 4], wa: f32, cb: [u8; 4], wb: f32) -> [u8; 4] {
     let (wa, wb) = (wa.max(0.0) as f64, wb.max(0.0) as f64);
     let (wa, wb) = if wa + wb > 0.0 && (wa + wb).is_finite() { (wa, wb) } else { (1.0, 1.0) };
     let inv = 1.0 / (wa + wb);
@@ -206,11 +213,16 @@ fn covering_cone(n: [f32; 3], ua: Option<[f64; 3]>, ta: f32, ub: Option<[f64; 3]
 
 /// [`covering_cone`] for two axes, from enclosures of the two angles: `None` unless both
 /// ends give the same f32. Sound because [`cone_from_need`] of the max of `angle + cone`
-/// is nondecreasing in each f64 angle (every step rounds monotonically).
+/// is nondecreasing in each f64 angle (every step rounds monotonically). The cones are not
+/// NaN (a NaN cone leaves [`parent_cone_bounded`] undecided before it gets here), so a plain
+/// comparison picks what `f64::max` would, without its NaN handling.
 fn covering_cone_bounded(n: [f32; 3], ua: [f64; 3], ta: f32, ub: [f64; 3], tb: f32) -> Option<f32> {
     let n = normalize(to64(n))?;
     let (ia, ib) = (angle_bounds(n, ua)?, angle_bounds(n, ub)?);
-    let at = |xa: f64, xb: f64| cone_from_need((xa + ta as f64).max(xb + tb as f64));
+    let at = |xa: f64, xb: f64| {
+        let (need_a, need_b) = (xa + ta as f64, xb + tb as f64);
+        cone_from_need(if need_a >= need_b { need_a } else { need_b })
+    };
     let (lo, hi) = (at(ia.lo, ib.lo), at(ia.hi, ib.hi));
     (lo.to_bits() == hi.to_bits()).then_some(lo)
 }
@@ -248,13 +260,13 @@ pub fn parent_of(a: &Node, b: &Node) -> Node {
         covering_radius(center, a, b)
     };
 
-    // Each child's axis is normalised once and shared by the merge, the containment checks
-    // and the covering angle (the same f64 operations as evaluating them separately).
-    let (ua, ub) = (normalize(to64(a.normal)), normalize(to64(b.normal)));
-    let (normal, cone) = match (ua, ub) {
-        (Some(va), Some(vb)) => parent_cone_bounded(a, va, b, vb).unwrap_or_else(|| parent_cone(a, ua, b, ub)),
-        _ => parent_cone(a, ua, b, ub),
+    // Each child's axis is normalised once per path and shared by the merge, the containment
+    // checks and the covering angle (the same f64 operations as evaluating them separately).
+    let bounded = match (normalize(to64(a.normal)), normalize(to64(b.normal))) {
+        (Some(va), Some(vb)) => parent_cone_bounded(a, va, b, vb),
+        _ => None,
     };
+    let (normal, cone) = bounded.unwrap_or_else(|| exact_parent_cone(a, b));
     Node {
         center,
         radius,
@@ -263,6 +275,14 @@ pub fn parent_of(a: &Node, b: &Node) -> Node {
         area: merge_area(a.area, b.area),
         color: merge_color(a.color, a.area, b.color, b.area),
     }
+}
+
+/// [`parent_cone`] of the nodes: the rare fallback of [`parent_cone_bounded`], out of line
+/// and normalising the axes again rather than have them kept across the fast path.
+#[cold]
+#[inline(never)]
+fn exact_parent_cone(a: &Node, b: &Node) -> ([f32; 3], f32) {
+    parent_cone(a, normalize(to64(a.normal)), b, normalize(to64(b.normal)))
 }
 
 /// The parent's stored axis and cone angle, with libm's exact `atan2`, `sin` and `cos`.
@@ -291,18 +311,24 @@ fn parent_cone(a: &Node, ua: Option<[f64; 3]>, b: &Node, ub: Option<[f64; 3]>) -
 /// wide angles) leaves the exact path to decide. The steps are monotone in the enclosed
 /// value, so agreement at the ends means agreement for the exact libm value between them.
 fn parent_cone_bounded(a: &Node, va: [f64; 3], b: &Node, vb: [f64; 3]) -> Option<([f32; 3], f32)> {
-    let ta = (a.cone as f64).clamp(0.0, PI);
-    let tb = (b.cone as f64).clamp(0.0, PI);
+    // `clamp(0, π)` for cones that are not negative or NaN (real ones never are; the others
+    // are left to the exact path): f32 π lies above f64 π, so whole-sphere cones still clamp.
+    let (ta, tb) = (a.cone as f64, b.cone as f64);
+    if !(ta >= 0.0 && tb >= 0.0) {
+        return None;
+    }
+    let (ta, tb) = (if ta < PI { ta } else { PI }, if tb < PI { tb } else { PI });
     let ab = dot(va, vb);
     let d = bounds::atan2(norm(cross(va, vb)), ab)?;
     // merge_unit_cones: containment, whole sphere, else rotate A's axis towards B's.
-    let (normal, t) = if d.decide(|d| d + tb <= ta)? {
+    // `d + x <= y` and `tc >= π` are monotone in `d` (IEEE rounding is); a NaN cone is undecided.
+    let (normal, t) = if d.map(|d| d + tb).le(ta)? {
         (to32(va), Interval::exact(ta))
-    } else if d.decide(|d| d + ta <= tb)? {
+    } else if d.map(|d| d + ta).le(tb)? {
         (to32(vb), Interval::exact(tb))
     } else {
         let tc = d.map(|d| 0.5 * (d + ta + tb));
-        if tc.decide(|tc| tc >= PI)? {
+        if tc.ge(PI)? {
             (to32(va), Interval::exact(PI))
         } else {
             let u = normalize(sub(vb, [va[0] * ab, va[1] * ab, va[2] * ab])).unwrap_or_else(|| any_perpendicular(va));
@@ -315,7 +341,7 @@ fn parent_cone_bounded(a: &Node, va: [f64; 3], b: &Node, vb: [f64; 3]) -> Option
         if outer >= PI {
             Some(true)
         } else {
-            d.decide(|d| d + inner <= outer)
+            d.map(|d| d + inner).le(outer)
         }
     };
     // `normal == x.normal && t == x.cone && contains(..)`, short-circuiting like the exact path.
