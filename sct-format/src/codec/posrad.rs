@@ -59,8 +59,13 @@ pub fn stick_out_bound() -> f64 {
 
 /// Number of grid points per axis.
 const SIDE: usize = (2 * QP + 1) as usize;
-/// Marks a grid point without legal states.
-const NONE: u16 = u16::MAX;
+/// Cells per axis of the padded grid (coordinates `-QP - 1..=QP + 1`): every neighbour of a
+/// grid point has a cell, so the tie search needs no range tests.
+const PAD_SIDE: usize = SIDE + 2;
+/// Cells of the padded grid, rounded up to a power of two so that a masked index needs no
+/// bounds check.
+const CELLS: usize = 4096;
+const _: () = assert!(PAD_SIDE * PAD_SIDE * PAD_SIDE <= CELLS);
 
 /// Lookup tables built once.
 pub struct Tables {
@@ -71,16 +76,32 @@ pub struct Tables {
     pub radius: Vec<f32>,
     /// Grid point and radius code per state.
     pub state: Vec<([i8; 3], u8)>,
-    /// Per grid point (index `((i+6)·13 + j+6)·13 + k+6`): first state index or `NONE`.
-    base: Vec<u16>,
-    /// Per grid point: largest legal `q` (0 when none).
-    qmax: Vec<u8>,
+    /// Per cell of the padded grid (index [`cell_index`]): its legal states.
+    cells: Box<[Cell; CELLS]>,
     /// Grid points inside the sphere, for the exhaustive search.
     pub inside: Vec<[i8; 3]>,
 }
 
-fn grid_index(g: [i32; 3]) -> usize {
-    (((g[0] + QP) as usize * SIDE) + (g[1] + QP) as usize) * SIDE + (g[2] + QP) as usize
+/// The legal states of one grid point: `first state index << 8 | largest legal q`, where a
+/// largest `q` of 0 means none (points outside the sphere and the padding).
+#[derive(Clone, Copy, Default)]
+struct Cell(u32);
+
+impl Cell {
+    fn qmax(self) -> i32 {
+        (self.0 & 0xff) as i32
+    }
+
+    /// The state of radius code `q` (`1..=qmax`).
+    fn state(self, q: i32) -> u16 {
+        ((self.0 >> 8) as i32 + q - 1) as u16
+    }
+}
+
+/// Index of grid point `g` (each coordinate in `-QP - 1..=QP + 1`) in [`Tables::cells`].
+fn cell_index(g: [i32; 3]) -> usize {
+    let c = |a: usize| (g[a] + QP + 1) as usize;
+    (c(0) * PAD_SIDE + c(1)) * PAD_SIDE + c(2)
 }
 
 /// Whether `(g, q)` is legal (see the module docs). f64 with a 1e-9 tolerance that admits the
@@ -99,24 +120,22 @@ pub fn tables() -> &'static Tables {
             offset: Vec::with_capacity(STATE_COUNT),
             radius: Vec::with_capacity(STATE_COUNT),
             state: Vec::with_capacity(STATE_COUNT),
-            base: vec![NONE; SIDE * SIDE * SIDE],
-            qmax: vec![0; SIDE * SIDE * SIDE],
+            cells: Box::new([Cell::default(); CELLS]),
             inside: Vec::new(),
         };
         for i in -QP..=QP {
             for j in -QP..=QP {
                 for k in -QP..=QP {
                     let g = [i, j, k];
-                    let gi = grid_index(g);
+                    let first = t.state.len() as u32;
                     for q in 1..=Q_MAX + 1 {
                         if !is_legal(g, q) {
                             break;
                         }
                         if q == 1 {
-                            t.base[gi] = t.state.len() as u16;
                             t.inside.push([i as i8, j as i8, k as i8]);
                         }
-                        t.qmax[gi] = q as u8;
+                        t.cells[cell_index(g)] = Cell(first << 8 | q as u32);
                         let f = |a: i32| a as f32 / QP as f32;
                         t.offset.push([f(i), f(j), f(k)]);
                         t.radius.push(q as f32 / QR as f32);
@@ -130,16 +149,20 @@ pub fn tables() -> &'static Tables {
 }
 
 impl Tables {
-    /// State index of `(g, q)`, if legal.
+    /// State index of `(g, q)`, if legal (the reference search's lookup).
+    #[cfg(test)]
     pub fn index(&self, g: [i32; 3], q: i32) -> Option<u16> {
         if g.iter().any(|&a| !(-QP..=QP).contains(&a)) || q < 1 {
             return None;
         }
-        let gi = grid_index(g);
-        if q > self.qmax[gi] as i32 {
-            return None;
-        }
-        Some(self.base[gi] + (q - 1) as u16)
+        let c = self.cell(cell_index(g));
+        (q <= c.qmax()).then(|| c.state(q))
+    }
+
+    /// The cell at index `i` (masked: any `i` is safe; the padded grid's are below [`CELLS`]).
+    #[inline(always)]
+    fn cell(&self, i: usize) -> Cell {
+        self.cells[i & (CELLS - 1)]
     }
 }
 
@@ -205,28 +228,30 @@ fn radius_coef(q: i32) -> f32 {
 }
 
 /// Smallest radius code `q` at grid point `g` (each coordinate in `-QP..=QP`) whose decoded
-/// sphere contains the child, and its state index; `None` when that `q` is not legal at `g`.
-#[inline]
+/// sphere contains the child, its state index and the centre error; `None` when that `q` is not
+/// legal at `g`.
 fn fit(t: &Tables, g: [i32; 3], pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Option<(u16, i32, f64)> {
-    let gi = grid_index(g);
-    let (base, qmax) = (*t.base.get(gi)?, *t.qmax.get(gi)? as i32);
-    if base == NONE {
-        return None;
-    }
     let dist = dist64(grid_center(g, pc, pr), cc);
-    let need = dist + cr as f64;
+    let (s, q) = smallest_containing_code(t.cell(cell_index(g)), pr, dist + cr as f64)?;
+    Some((s, q, dist))
+}
+
+/// The smallest radius code of `cell` whose decoded radius (f32, as the decoder computes it)
+/// is at least `need`, and its state; `None` when no legal code is large enough.
+#[inline(always)]
+fn smallest_containing_code(cell: Cell, pr: f32, need: f64) -> Option<(u16, i32)> {
     // First guess from the exact ratio; then walk up until the f32 radius really covers it.
     let mut q = first_radius_code(need / pr as f64 * QR as f64)?;
-    while q <= qmax {
+    while q <= cell.qmax() {
         if (pr * radius_coef(q)) as f64 >= need {
-            return Some((base + (q - 1) as u16, q, dist));
+            return Some((cell.state(q), q));
         }
         q += 1;
     }
     None
 }
 
-/// Where [`fit`] starts walking for the exact ratio `y` (radius codes needed): one below
+/// Where [`smallest_containing_code`] starts walking for the exact ratio `y` (radius codes needed): one below
 /// `⌈y⌉`, in case the f32 product rounds above the exact ratio, and at least 1; `None` when
 /// `⌈y⌉ > Q_MAX + 1` or `y` is not finite. The same codes as [`fit_reference`]'s `ceil_f64` and
 /// float tests, from one truncation: `⌈y⌉ = t + (t < y)` with `t = trunc(y)` (y ≤ 18 here).
@@ -307,55 +332,12 @@ fn search(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: bool) -> Opti
     let vg = [v(0), v(1), v(2)];
     // Fast path: the nearest grid point overall minimises the error, hence the radius.
     if let [Some(g0), Some(g1), Some(g2)] = vg.map(round_on_grid) {
-        let g = [g0, g1, g2];
-        if let Some((s, q, _)) = fit(t, g, pc, pr, cc, cr) {
+        let near = Nearest::new([g0, g1, g2], vg, pc, pr, cc);
+        let cell = t.cell(near.cell);
+        if let Some((s, q)) = smallest_containing_code(cell, pr, near.dist + cr as f64) {
             let mut ties = Ties::one(s);
-            if !want_ties {
-                return Some(ties);
-            }
-            let r = pr * radius_coef(q);
-            // Room left for the centre error, in grid steps, with a generous margin for the f32
-            // rounding of decoded centres: the exact test below decides.
-            let room = (r as f64 - cr as f64) / pr as f64 * QP as f64 * 1.01 + 0.01;
-            let room2 = room * room;
-            // Squared offset from v per axis for the neighbour offsets -1, 0, 1 (the same f64
-            // values the sum below always used); an axis offset is worth trying only if it
-            // fits with the others at their nearest (offset 0, since g is the nearest point).
-            // `g - vg` is exact (|vg - g| ≤ 1/2, both below 7), so `(g - vg) ± 1` is the one
-            // rounding of the same value as `(g ± 1) - vg`.
-            let sq = |a: usize| {
-                let e = g[a] as f64 - vg[a];
-                [e - 1.0, e, e + 1.0].map(|e| e * e)
-            };
-            let (s0, s1, s2) = (sq(0), sq(1), sq(2));
-            // No neighbour can fit when moving any one axis to its nearer neighbour already
-            // leaves no room (rounded sums are monotone and every neighbour moves some axis):
-            // the common case, decided without the loops below.
-            let near = |e: [f64; 3]| e[0].min(e[2]);
-            if near(s0) + s1[1] + s2[1] > room2 && s0[1] + near(s1) + s2[1] > room2 && s0[1] + s1[1] + near(s2) > room2 {
-                return Some(ties);
-            }
-            for (di, &e0) in s0.iter().enumerate() {
-                if e0 + s1[1] + s2[1] > room2 {
-                    continue;
-                }
-                for (dj, &e1) in s1.iter().enumerate() {
-                    if e0 + e1 + s2[1] > room2 {
-                        continue;
-                    }
-                    for (dk, &e2) in s2.iter().enumerate() {
-                        if (di, dj, dk) == (1, 1, 1) || e0 + e1 + e2 > room2 {
-                            continue;
-                        }
-                        let g2 = [g[0] + di as i32 - 1, g[1] + dj as i32 - 1, g[2] + dk as i32 - 1];
-                        let Some(s2) = t.index(g2, q) else { continue };
-                        // Same radius code, so the decoded radius is `r`.
-                        if dist64(grid_center(g2, pc, pr), cc) + cr as f64 <= r as f64 && (ties.len as usize) < MAX_TIES {
-                            ties.states[ties.len as usize] = s2;
-                            ties.len += 1;
-                        }
-                    }
-                }
+            if want_ties {
+                add_neighbour_ties(t, &near, q, pc, pr, cc, cr, &mut ties);
             }
             return Some(ties);
         }
@@ -371,6 +353,173 @@ fn search(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, want_ties: bool) -> Opti
         }
     }
     best.map(|b| Ties::one(b.0))
+}
+
+/// The grid point nearest to the child's centre and what the tie search reuses of it.
+struct Nearest {
+    /// The grid point (each coordinate in `-QP..=QP`).
+    g: [i32; 3],
+    /// Its cell index.
+    cell: usize,
+    /// `g - vg` per axis (exact: `|vg - g| ≤ 1/2`, both below 7).
+    err: [f64; 3],
+    /// Per axis, the f64 square of the decoded centre's offset from the child's centre: the
+    /// terms of [`dist64`] of [`grid_center`].
+    sq: [f64; 3],
+    /// The centre error `dist64(grid_center(g), cc)`.
+    dist: f64,
+}
+
+impl Nearest {
+    #[inline(always)]
+    fn new(g: [i32; 3], vg: [f64; 3], pc: [f32; 3], pr: f32, cc: [f32; 3]) -> Nearest {
+        let sq = |a: usize| axis_sq(pc[a], pr, g[a], cc[a]);
+        let sq = [sq(0), sq(1), sq(2)];
+        let err = |a: usize| g[a] as f64 - vg[a];
+        Nearest {
+            g,
+            cell: cell_index(g),
+            err: [err(0), err(1), err(2)],
+            sq,
+            dist: (sq[0] + sq[1] + sq[2]).sqrt(),
+        }
+    }
+}
+
+/// The square (f64) of the offset, on one axis, of grid coordinate `a` (`-QP - 1..=QP + 1`)'s
+/// decoded centre from the child's centre `c`: one term of [`dist64`] of [`grid_center`].
+#[inline(always)]
+fn axis_sq(p: f32, pr: f32, a: i32, c: f32) -> f64 {
+    let d = (p + pr * GRID_COORD[(a + QP) as usize & 15]) as f64 - c as f64;
+    d * d
+}
+
+/// Offset codes 0, 1, 2 (offsets -1, 0, +1) per axis: neighbour `(x, y, z)` is bit
+/// `9x + 3y + z` of a candidate mask, so the search's order (x, then y, then z) is bit order.
+const CENTRE_BIT: u32 = 1 << 13;
+
+/// Where the tie search finds a candidate's terms: the indices of its x, y and z offsets in
+/// [`AxisTerms`] and its cell relative to the cell of offset (-1, -1, -1).
+#[derive(Clone, Copy)]
+struct Neighbour {
+    x: u8,
+    y: u8,
+    z: u8,
+    cell: u16,
+}
+
+/// [`Neighbour`] per candidate bit (27 used, padded to 32 so that a masked bit index needs no
+/// bounds check).
+static NEIGHBOURS: [Neighbour; 32] = {
+    let mut t = [Neighbour { x: 0, y: 0, z: 0, cell: 0 }; 32];
+    let mut b = 0;
+    while b < 27 {
+        let (x, y, z) = (b / 9, b / 3 % 3, b % 3);
+        let cell = (x * PAD_SIDE + y) * PAD_SIDE + z;
+        t[b] = Neighbour { x: x as u8, y: (4 + y) as u8, z: (8 + z) as u8, cell: cell as u16 };
+        b += 1;
+    }
+    t
+};
+
+/// Per axis and 3-bit mask of offset codes: the candidate bits whose offset on that axis is in
+/// the mask.
+static AXIS_CANDIDATES: [[u32; 8]; 3] = {
+    let mut t = [[0; 8]; 3];
+    let mut b = 0;
+    while b < 27 {
+        let code = [b / 9, b / 3 % 3, b % 3];
+        let mut a = 0;
+        while a < 3 {
+            let mut m = 0;
+            while m < 8 {
+                if m >> code[a] & 1 != 0 {
+                    t[a][m] |= 1 << b;
+                }
+                m += 1;
+            }
+            a += 1;
+        }
+        b += 1;
+    }
+    t
+};
+
+/// One f64 term per axis and offset code, at index `4·axis + code` (padded to 16 so that a
+/// masked index needs no bounds check).
+type AxisTerms = [f64; 16];
+
+/// The sum of `terms` at candidate `n`'s offsets, x + y first (as the reference sums).
+#[inline(always)]
+fn sum_at(terms: &AxisTerms, n: Neighbour) -> f64 {
+    let t = |i: u8| terms[i as usize & 15];
+    t(n.x) + t(n.y) + t(n.z)
+}
+
+/// The 3-bit mask of offset codes `d` for which `fits(d)`.
+#[inline(always)]
+fn code_mask(fits: impl Fn(usize) -> bool) -> usize {
+    fits(0) as usize | (fits(1) as usize) << 1 | (fits(2) as usize) << 2
+}
+
+/// Appends to `ties` the states of radius code `q` (the nearest point's) at the grid
+/// neighbours of `near` that contain the child (see [`encode_sphere_ties`]), in the order
+/// x, y, z offset, each -1, 0, 1.
+///
+/// A neighbour is tested exactly only when its squared offset from the child's centre, in grid
+/// steps, is within a generous room for the centre error (as the search always did; the exact
+/// test decides). That sum is rounded, so it is monotone in each term: a neighbour passes only
+/// if each of its axis offsets passes with the other axes at their nearest (offset 0, the
+/// smallest term since `|g - vg| ≤ 1/2`). Those per-axis masks leave only the few candidates
+/// worth summing, and none in the common case.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn add_neighbour_ties(t: &Tables, near: &Nearest, q: i32, pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32, ties: &mut Ties) {
+    let r = pr * radius_coef(q);
+    // Room left for the centre error, in grid steps, with a generous margin for the f32
+    // rounding of decoded centres.
+    let room = (r as f64 - cr as f64) / pr as f64 * QP as f64 * 1.01 + 0.01;
+    let room2 = room * room;
+    // Squared offset from vg per axis and offset: `(g - vg) ± 1` is the one rounding of
+    // `(g ± 1) - vg`.
+    let mut e: AxisTerms = [0.0; 16];
+    for a in 0..3 {
+        let x = near.err[a];
+        e[4 * a..4 * a + 3].copy_from_slice(&[x - 1.0, x, x + 1.0].map(|x| x * x));
+    }
+    // Not `x > room2`, as the reference skips only on `>` (a NaN room tests every neighbour);
+    // `partial_cmp` costs 7 instructions per child more here.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
+    let fits = |x: f64| !(x > room2);
+    let mx = code_mask(|d| fits(e[d] + e[5] + e[9]));
+    let my = code_mask(|d| fits(e[1] + e[4 + d] + e[9]));
+    let mz = code_mask(|d| fits(e[1] + e[5] + e[8 + d]));
+    let mut bits = AXIS_CANDIDATES[0][mx] & AXIS_CANDIDATES[1][my] & AXIS_CANDIDATES[2][mz] & !CENTRE_BIT;
+    if bits == 0 {
+        return;
+    }
+    // Decoded centres' squared offsets per axis and offset.
+    let mut sq: AxisTerms = [0.0; 16];
+    for a in 0..3 {
+        let g = near.g[a];
+        sq[4 * a..4 * a + 3].copy_from_slice(&[axis_sq(pc[a], pr, g - 1, cc[a]), near.sq[a], axis_sq(pc[a], pr, g + 1, cc[a])]);
+    }
+    let (cr, r) = (cr as f64, r as f64);
+    // Cell of the neighbour at offsets (-1, -1, -1); the nearest point is inside the padding.
+    let corner = near.cell - (PAD_SIDE * PAD_SIDE + PAD_SIDE + 1);
+    while bits != 0 {
+        let n = NEIGHBOURS[bits.trailing_zeros() as usize & 31];
+        bits &= bits - 1;
+        if sum_at(&e, n) > room2 {
+            continue;
+        }
+        let cell = t.cell(corner + n.cell as usize);
+        // Same radius code, so the decoded radius is `r`.
+        if q <= cell.qmax() && sum_at(&sq, n).sqrt() + cr <= r && (ties.len as usize) < MAX_TIES {
+            ties.states[ties.len as usize] = cell.state(q);
+            ties.len += 1;
+        }
+    }
 }
 
 /// [`fit`] as first written (table lookups per step), kept for [`search_reference`].
@@ -600,6 +749,106 @@ mod tests {
             with_ties += got.is_some_and(|t| t.len > 1) as u32;
         }
         assert!(with_ties > 10_000, "{with_ties}");
+    }
+
+    /// The search finds exactly the states of the reference one for children placed where
+    /// its shortcuts could go wrong: on decoded grid centres, half-way between grid points
+    /// (rounding ties, cube centres with up to eight equally near corners), with radii on a
+    /// decoded radius's boundary (±1 ulp), on and beyond the parent's boundary, for parents
+    /// far from the origin relative to their radius, tiny (subnormal) and huge radii, and
+    /// with non-finite values; with and without ties.
+    #[test]
+    fn search_matches_reference_on_special_children() {
+        let t = tables();
+        let mut rng = crate::rng::SplitMix64(0x0123_4567_89AB_CDEF);
+        let mut next = move || rng.next_u64();
+        let specials = [0.0f32, -0.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, f32::MIN_POSITIVE, 1e-45, f32::MAX];
+        let (mut with_ties, mut full, mut exhaustive) = (0, 0, 0);
+        for n in 0..400_000u32 {
+            let u = |x: u64| (x >> 11) as f64 / (1u64 << 53) as f64;
+            let pr = match n % 7 {
+                0 => 1e-40f32,
+                1 => 3e30,
+                2 => (1e-3 + u(next())) as f32,
+                _ => (0.01 + u(next()) * 10.0) as f32,
+            };
+            let scale = [0.0, 1.0, 1e3, 1e7][(n / 7 % 4) as usize];
+            let pc = [0, 1, 2].map(|_| ((u(next()) - 0.5) * scale) as f32);
+            let g = [0, 1, 2].map(|_| (next() % 13) as i32 - QP);
+            let kind = n / 28 % 6;
+            let cc = match kind {
+                // On the decoded centre of a grid point.
+                0 => grid_center(g, pc, pr),
+                // Half-way between grid points on a random set of axes.
+                1 | 2 => {
+                    let half = next();
+                    [0, 1, 2].map(|a| {
+                        let h = if half >> a & 1 != 0 { 0.5 } else { 0.0 };
+                        (pc[a] as f64 + pr as f64 * (g[a] as f64 + h) / QP as f64) as f32
+                    })
+                }
+                // Around the parent's boundary and beyond.
+                3 => [0, 1, 2].map(|a| (pc[a] as f64 + pr as f64 * (u(next()) - 0.5) * 3.0) as f32),
+                // Anywhere inside.
+                _ => [0, 1, 2].map(|a| (pc[a] as f64 + pr as f64 * (u(next()) - 0.5) * 1.6) as f32),
+            };
+            let mut cr = match n / 168 % 4 {
+                0 => 0.0,
+                1 => pr,
+                _ => (pr as f64 * u(next()) * 0.8) as f32,
+            };
+            // Put the radius on the boundary of the reference's decoded radius, ±1 ulp.
+            if n % 3 == 0 {
+                if let Some(r) = search_reference(pc, pr, cc, cr, false) {
+                    let s = r.states[0] as usize;
+                    let (dc, dr) = decode_state(t, s, pc, pr).unwrap();
+                    let edge = (dr as f64 - dist64(dc, cc)) as f32;
+                    cr = [edge.next_down(), edge, edge.next_up()][(next() % 3) as usize].max(0.0);
+                }
+            }
+            let (mut pc, mut pr, mut cc) = (pc, pr, cc);
+            if n % 997 == 0 {
+                let x = specials[(next() % 8) as usize];
+                match next() % 4 {
+                    0 => pc[(next() % 3) as usize] = x,
+                    1 => pr = x,
+                    2 => cc[(next() % 3) as usize] = x,
+                    _ => cr = x,
+                }
+            }
+            for want_ties in [false, true] {
+                let got = search(pc, pr, cc, cr, want_ties);
+                assert_eq!(got, search_reference(pc, pr, cc, cr, want_ties), "{pc:?} {pr} {cc:?} {cr} {want_ties}");
+                if want_ties {
+                    with_ties += got.is_some_and(|t| t.len > 1) as u32;
+                    full += got.is_some_and(|t| t.len as usize == MAX_TIES) as u32;
+                }
+            }
+            let fast = [0, 1, 2].map(|a| (cc[a] as f64 - pc[a] as f64) / pr as f64 * QP as f64).map(round_on_grid);
+            exhaustive += fast.iter().any(Option::is_none) as u32;
+        }
+        assert!(with_ties > 20_000 && full > 100 && exhaustive > 10_000, "{with_ties} {full} {exhaustive}");
+    }
+
+    /// `Tables::index` (through the padded cells) finds exactly the legal states, anywhere.
+    #[test]
+    fn index_matches_is_legal() {
+        let t = tables();
+        for i in -9..=9 {
+            for j in -9..=9 {
+                for k in -9..=9 {
+                    let g = [i, j, k];
+                    let on_grid = g.iter().all(|&a: &i32| a.abs() <= QP);
+                    for q in -2..=Q_MAX + 3 {
+                        let s = t.index(g, q);
+                        assert_eq!(s.is_some(), on_grid && is_legal(g, q), "{g:?} {q}");
+                        if let Some(s) = s {
+                            assert_eq!(t.state[s as usize], (g.map(|a| a as i8), q as u8));
+                        }
+                    }
+                }
+            }
+        }
     }
 
     /// `first_radius_code` agrees with the `ceil_f64` form of `fit_reference`, around every
