@@ -14,7 +14,7 @@
 //! samples, and the section table ends the file.
 
 use std::borrow::Cow;
-use std::io::{IoSlice, Seek, SeekFrom, Write};
+use std::io::{Seek, SeekFrom, Write};
 use std::path::Path;
 
 use rayon::prelude::*;
@@ -611,9 +611,9 @@ impl<W: Write + Seek> SamplesWriter<W> {
     fn write_chunks(&mut self, samples: &[Node]) -> Result<()> {
         for batch in samples.chunks(BATCH_CHUNKS * CHUNK_SAMPLES) {
             let chunks = batch.par_chunks(CHUNK_SAMPLES).map(compress_chunk).collect::<Result<Vec<_>>>()?;
-            let mut pieces: Vec<IoSlice<'_>> = chunks.iter().flat_map(|c| [IoSlice::new(&c.header), IoSlice::new(&c.frame)]).collect();
-            write_all_vectored(&mut self.w, &mut pieces)?;
-            for c in &chunks {
+            for c in chunks {
+                self.w.write_all(&c.header)?;
+                self.w.write_all(&c.frame)?;
                 self.crc.combine(&c.crc);
                 self.section_len += (CHUNK_HEADER_BYTES + c.frame.len()) as u64;
             }
@@ -621,22 +621,6 @@ impl<W: Write + Seek> SamplesWriter<W> {
         }
         Ok(())
     }
-}
-
-/// `Write::write_all_vectored` (unstable in Rust 1.86). A batch's chunks go to `w` in one
-/// call, so a `BufWriter` (as in [`crate::atomic::write_atomic`]) passes them to the file
-/// instead of copying every frame into its buffer first.
-fn write_all_vectored(w: &mut impl Write, mut pieces: &mut [IoSlice<'_>]) -> std::io::Result<()> {
-    IoSlice::advance_slices(&mut pieces, 0);
-    while !pieces.is_empty() {
-        match w.write_vectored(pieces) {
-            Ok(0) => return Err(std::io::ErrorKind::WriteZero.into()),
-            Ok(n) => IoSlice::advance_slices(&mut pieces, n),
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
-        }
-    }
-    Ok(())
 }
 
 /// One compressed chunk: header, frame and the CRC-32 of both (combined into the section's
@@ -1311,48 +1295,6 @@ mod tests {
     }
 
     /// A file written after other bytes of a stream is the same file, offsets included.
-    /// A stream that takes a few bytes a call and is sometimes interrupted (as `write` may
-    /// be), with the default one-piece `write_vectored`.
-    struct Trickle {
-        out: std::io::Cursor<Vec<u8>>,
-        calls: usize,
-    }
-
-    impl Write for Trickle {
-        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-            self.calls += 1;
-            if self.calls % 3 == 0 {
-                return Err(std::io::ErrorKind::Interrupted.into());
-            }
-            self.out.write(&buf[..buf.len().min(1 + self.calls % 4093)])
-        }
-        fn flush(&mut self) -> std::io::Result<()> {
-            Ok(())
-        }
-    }
-
-    impl Seek for Trickle {
-        fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
-            self.out.seek(pos)
-        }
-    }
-
-    /// The chunks of a batch, written in one vectored call, arrive whole and in order through
-    /// short and interrupted writes.
-    #[test]
-    fn streaming_writer_survives_short_writes() {
-        let f = SamplesFile::single_mesh(Generator::default(), "m", many(2 * CHUNK_SAMPLES + 99));
-        let mut want = Vec::new();
-        f.write_to(&mut want).unwrap();
-        let mut t = Trickle { out: std::io::Cursor::new(Vec::new()), calls: 0 };
-        f.write_seekable(&mut t).unwrap();
-        assert!(t.out.into_inner() == want);
-        let mut pieces = [IoSlice::new(b"ab"), IoSlice::new(b""), IoSlice::new(b"cde")];
-        let mut out = Vec::new();
-        write_all_vectored(&mut out, &mut pieces).unwrap();
-        assert_eq!(out, b"abcde");
-    }
-
     #[test]
     fn streaming_writer_starts_where_the_stream_is() {
         let f = file_affine();
