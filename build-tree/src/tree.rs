@@ -629,17 +629,13 @@ fn partition(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: 
         slots[0] = hi;
         return (0, depth);
     }
-    let ext = bbox.extent();
-    let widest = ext[0].max(ext[1]).max(ext[2]);
-    if ctx.weld && widest <= ctx.tol {
+    let Some(SplitPlane { axis, widest, mid }) = split_plane(ctx, &bbox) else {
         slots[0] = hi;
         return (0, depth);
-    }
-    let axis = widest_axis(ext);
+    };
     // Largest child the depth budget allows: a subtree at depth d + 1 may hold 2^(D - d - 1).
     let cap = 1usize.checked_shl(ctx.max_depth.saturating_sub(depth + 1)).unwrap_or(usize::MAX);
     let (mut l, mut lb, mut rb) = if widest > 0.0 {
-        let mid = 0.5 * (bbox.min[axis] + bbox.max[axis]);
         split_at_plane(items, axis, mid)
     } else {
         (0, Aabb::EMPTY, Aabb::EMPTY)
@@ -652,9 +648,7 @@ fn partition(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: 
         let lo_ok = m.saturating_sub(cap).max(1);
         let hi_ok = cap.min(m - 1);
         l = target.clamp(lo_ok, hi_ok);
-        items.select_nth_unstable_by(l, |a, b| {
-            a.0[axis].total_cmp(&b.0[axis]).then(a.idx().cmp(&b.idx()))
-        });
+        items.select_nth_unstable_by(l, |a, b| forced_order(axis, a, b));
         lb = Aabb::of(&items[..l]);
         rb = Aabb::of(&items[l..]);
         forced = 1;
@@ -673,15 +667,37 @@ fn partition(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: 
     (forced + fa + fb, da.max(db))
 }
 
-/// The axis of the largest extent (the first of equal ones).
-fn widest_axis(ext: [f32; 3]) -> usize {
-    if ext[0] >= ext[1] && ext[0] >= ext[2] {
+/// Where a set with box `bbox` splits (§5.3.2): its widest axis (the first of equal
+/// extents), that extent and the box's centre on it.
+struct SplitPlane {
+    axis: usize,
+    widest: f32,
+    mid: f32,
+}
+
+/// The [`SplitPlane`] of `bbox`, or `None` when its members weld into one leaf (shared by
+/// [`partition`] and [`pair`], so both decide alike).
+#[inline(always)]
+fn split_plane(ctx: &Ctx, bbox: &Aabb) -> Option<SplitPlane> {
+    let ext = bbox.extent();
+    let widest = ext[0].max(ext[1]).max(ext[2]);
+    if ctx.weld && widest <= ctx.tol {
+        return None;
+    }
+    let axis = if ext[0] >= ext[1] && ext[0] >= ext[2] {
         0
     } else if ext[1] >= ext[2] {
         1
     } else {
         2
-    }
+    };
+    Some(SplitPlane { axis, widest, mid: 0.5 * (bbox.min[axis] + bbox.max[axis]) })
+}
+
+/// The order of a forced split's ranks: position on `axis`, then input index.
+#[inline(always)]
+fn forced_order(axis: usize, a: &Item, b: &Item) -> std::cmp::Ordering {
+    a.0[axis].total_cmp(&b.0[axis]).then(a.idx().cmp(&b.idx()))
 }
 
 /// [`partition`] of a child: a single item (half of all calls) becomes its leaf without
@@ -708,17 +724,13 @@ fn pair(ctx: &Ctx, items: &mut [Item], slots: &mut [u32], lo: usize, bbox: Aabb,
         return (0, depth); // never: two items own three slots
     };
     let hi = (lo + 2) as u32;
-    let ext = bbox.extent();
-    let widest = ext[0].max(ext[1]).max(ext[2]);
-    if ctx.weld && widest <= ctx.tol {
+    let Some(SplitPlane { axis, widest, mid }) = split_plane(ctx, &bbox) else {
         *root = hi;
         return (0, depth);
-    }
-    let axis = widest_axis(ext);
-    let mid = 0.5 * (bbox.min[axis] + bbox.max[axis]);
+    };
     let (a_left, b_left) = (widest > 0.0 && a.0[axis] < mid, widest > 0.0 && b.0[axis] < mid);
     let forced = a_left == b_left;
-    let b_first = if forced { a.0[axis].total_cmp(&b.0[axis]).then(a.idx().cmp(&b.idx())).is_gt() } else { !a_left };
+    let b_first = if forced { forced_order(axis, a, b).is_gt() } else { !a_left };
     if b_first {
         std::mem::swap(a, b);
     }
