@@ -244,7 +244,7 @@ pub fn bake_affine_instances(samples: &mut SamplesFile, limits: &Limits) -> Resu
         }
         samples.samples.extend(baked);
         let idx = samples.meshes.len() as u32;
-        samples.meshes.push(MeshEntry { name: format!("{}#affine", src.name), first, count: src.count });
+        samples.meshes.push(MeshEntry { name: format!("{}#affine", src.name), first, count: src.count, two_sided: src.two_sided });
         samples.instances.push(SampleInstance { mesh: idx, transform: sct_format::Similarity::IDENTITY });
     }
     Ok(())

@@ -171,6 +171,9 @@ pub struct Composer<'a> {
     nodes: Vec<GraphNode>,
     /// Bound of every graph node in its own frame (what a parent group's leaf must be).
     bounds: Vec<Node>,
+    /// Whether a graph node holds two-sided surfaces (spec §6.2): a group tree over such a
+    /// child is flagged two-sided too, so its coarse nodes are lit from the eye's side.
+    two_sided: Vec<bool>,
     trees: Vec<SceneTree>,
     mesh_node: HashMap<u32, u32>,
     def_node: HashMap<String, Option<u32>>,
@@ -192,6 +195,7 @@ impl<'a> Composer<'a> {
             defs: &NO_DEFS,
             nodes: Vec::new(),
             bounds: Vec::new(),
+            two_sided: Vec::new(),
             trees: Vec::new(),
             mesh_node: HashMap::new(),
             def_node: HashMap::new(),
@@ -219,6 +223,14 @@ impl<'a> Composer<'a> {
     }
 
     fn push(&mut self, n: GraphNode, bound: Node) -> u32 {
+        let two_sided = match &n {
+            GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => self.trees.get(*tree as usize).is_some_and(SceneTree::is_two_sided),
+            GraphNode::Instance { child, .. } => self.two_sided.get(*child as usize).copied().unwrap_or(false),
+            // An inline's sidedness lives in its own file; its leaves' cones already keep
+            // culling right, and its nodes are lit by that file's flags.
+            _ => false,
+        };
+        self.two_sided.push(two_sided);
         self.nodes.push(n);
         self.bounds.push(bound);
         (self.nodes.len() - 1) as u32
@@ -309,8 +321,16 @@ impl<'a> Composer<'a> {
         if m as usize >= self.samples.meshes.len() {
             return Err(BuildError::Input(format!("instance refers to mesh {m}, the file has {}", self.samples.meshes.len())));
         }
-        let (tree, stats) = build_tree_owned(self.take_mesh_samples(m as usize), &self.opts)
-            .map_err(|e| prefix(e, &format!("mesh {m} ({:?})", self.samples.meshes[m as usize].name)))?;
+        let two_sided = self.samples.meshes[m as usize].two_sided;
+        let mut samples = self.take_mesh_samples(m as usize);
+        if two_sided {
+            // A two-sided surface element faces both ways: its normal cone is every
+            // direction, so normal-cone culling (here and in group trees above) keeps it.
+            samples.iter_mut().for_each(|s| s.cone = std::f32::consts::PI);
+        }
+        let (mut tree, stats) =
+            build_tree_owned(samples, &self.opts).map_err(|e| prefix(e, &format!("mesh {m} ({:?})", self.samples.meshes[m as usize].name)))?;
+        tree.set_two_sided(two_sided);
         let root = tree.nodes()[0];
         self.trees.push(tree);
         self.out.mesh_stats.push(stats);
@@ -375,7 +395,8 @@ impl<'a> Composer<'a> {
         let bounds: Vec<Node> = children.iter().map(|&c| self.bounds[c as usize]).collect();
         // Never weld: every child must keep its own leaf.
         let opts = BuildOptions { weld: Weld::Off, ..self.opts };
-        let (tree, stats, map) = build_tree_with_map_owned(bounds, &opts)?;
+        let (mut tree, stats, map) = build_tree_with_map_owned(bounds, &opts)?;
+        tree.set_two_sided(children.iter().any(|&c| self.two_sided.get(c as usize).copied().unwrap_or(false)));
         let mut order: Vec<(u32, u32)> = map.iter().zip(&children).map(|(&leaf, &c)| (leaf, c)).collect();
         order.sort_unstable();
         let children: Vec<u32> = order.into_iter().map(|(_, c)| c).collect();

@@ -30,9 +30,9 @@ fn samples_file(dir: &Path) -> std::path::PathBuf {
     samples.extend(ball([5.0, 0.0, 0.0], [0, 255, 0, 255], 300));
     samples.extend(ball([0.0, 5.0, 0.0], [0, 0, 255, 255], 200));
     let meshes = vec![
-        MeshEntry { name: "red".into(), first: 0, count: 500 },
-        MeshEntry { name: "green".into(), first: 500, count: 300 },
-        MeshEntry { name: "blue".into(), first: 800, count: 200 },
+        MeshEntry { name: "red".into(), first: 0, count: 500, two_sided: false },
+        MeshEntry { name: "green".into(), first: 500, count: 300, two_sided: false },
+        MeshEntry { name: "blue".into(), first: 800, count: 200, two_sided: false },
     ];
     let t = Similarity { translation: [10.0, 0.0, 0.0], rotation: [0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2, std::f64::consts::FRAC_1_SQRT_2], scale: 2.0 };
     let instances = vec![
@@ -186,4 +186,41 @@ fn cli_exit_codes_and_json() {
     assert_eq!(Command::new(exe).arg(&junk).arg("-o").arg(&out).status().unwrap().code(), Some(1));
     assert_eq!(Command::new(exe).arg(dir.path().join("missing")).arg("-o").arg(&out).status().unwrap().code(), Some(2));
     assert_eq!(Command::new(exe).arg(&s).arg("--bogus").status().unwrap().code(), Some(2));
+}
+
+/// A two-sided mesh gives a two-sided tree whose leaves (and so every node above them,
+/// the group's included) have the cone π; the one-sided meshes keep their cones and the
+/// group over both is two-sided. The file passes deep validation and is labelled 1.1.
+#[test]
+fn two_sided_meshes_build_two_sided_trees() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = samples_file(dir.path());
+    let mut f = SamplesFile::read_file(&s, &Limits::default()).unwrap();
+    f.meshes[1].two_sided = true;
+    f.write_file(&s).unwrap();
+    let out = dir.path().join("two.sct");
+    run(&cfg(&s, &out, None), &mut |_| {}).unwrap();
+    let r = SctReader::open(&out, &Limits::default()).unwrap();
+    assert_eq!(r.header().minor, 1);
+    let g = r.graph();
+    let mut seen = 0;
+    for n in &g.nodes {
+        if let GraphNode::Tree { tree } = n {
+            let t = r.read_tree(*tree as usize).unwrap();
+            let green = t.nodes()[0].color[1] > 200;
+            assert_eq!(t.is_two_sided(), green, "tree {tree}");
+            let min_cone = t.leaves().map(|i| t.nodes()[i].cone).fold(f32::INFINITY, f32::min);
+            if green {
+                assert_eq!(min_cone, std::f32::consts::PI, "two-sided leaves face every way");
+                seen += 1;
+            } else {
+                assert!(min_cone < 0.1, "one-sided leaves keep their normals' cones");
+            }
+        }
+    }
+    assert_eq!(seen, 1);
+    let GraphNode::Group { tree, .. } = g.nodes[g.root as usize] else { panic!("root is a group") };
+    assert!(r.read_tree(tree as usize).unwrap().is_two_sided(), "a group over a two-sided child is two-sided");
+    let rep = sct_format::validate::validate_file(&out, &sct_format::validate::ValidateOptions { deep: true, ..Default::default() }).unwrap();
+    assert!(rep.is_valid(), "{:?}", rep.issues);
 }

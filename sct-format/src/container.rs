@@ -10,8 +10,10 @@ use crate::raw::{Cursor, FileHeader, SectionEntry, FILE_HEADER_LEN, SECTION_ENTR
 
 /// The major version this crate reads and writes.
 pub const MAJOR: u16 = 1;
-/// The minor version this crate writes.
-pub const MINOR: u16 = 0;
+/// The newest minor version this crate writes. A writer labels a file with the smallest
+/// minor version whose features it uses (1.1: two-sided trees, spec §6.2), so files without
+/// them stay byte-for-byte 1.0 files.
+pub const MINOR: u16 = 1;
 
 /// A section to be written (low-level API: [`crate::write`] and [`crate::samples`] build these).
 pub struct SectionOut {
@@ -28,6 +30,11 @@ pub struct SectionOut {
 }
 
 impl SectionOut {
+    /// A section stored as given that readers may skip (spec §2.2: not *required*).
+    pub fn optional(tag: [u8; 4], data: Vec<u8>) -> Self {
+        SectionOut { required: false, ..SectionOut::plain(tag, data) }
+    }
+
     /// A section stored as given.
     pub fn plain(tag: [u8; 4], data: Vec<u8>) -> Self {
         SectionOut { tag, required: true, raw_len: data.len() as u64, stored: data, compressed: false }
@@ -61,14 +68,19 @@ impl SectionOut {
 
 /// Writes header, section table and sections; returns the number of bytes written and
 /// the absolute offset of each section.
-pub fn write_container<W: Write>(magic: [u8; 8], sections: &[SectionOut], mut w: W) -> Result<(u64, Vec<u64>)> {
+pub fn write_container<W: Write>(magic: [u8; 8], sections: &[SectionOut], w: W) -> Result<(u64, Vec<u64>)> {
+    write_container_minor(magic, 0, sections, w)
+}
+
+/// [`write_container`] labelling the file with minor version `minor`.
+pub fn write_container_minor<W: Write>(magic: [u8; 8], minor: u16, sections: &[SectionOut], mut w: W) -> Result<(u64, Vec<u64>)> {
     let mut offset = (FILE_HEADER_LEN + sections.len() * SECTION_ENTRY_LEN) as u64;
     let mut entries = Vec::with_capacity(sections.len());
     for s in sections {
         entries.push(s.entry(offset));
         offset += s.stored.len() as u64;
     }
-    w.write_all(&header_and_table(magic, &entries, offset))?;
+    w.write_all(&header_and_table(magic, minor, &entries, offset))?;
     for s in sections {
         w.write_all(&s.stored)?;
     }
@@ -77,22 +89,22 @@ pub fn write_container<W: Write>(magic: [u8; 8], sections: &[SectionOut], mut w:
 
 /// The file header followed by the section table of `entries`, for a file of `file_length`
 /// bytes (streaming writers reserve these bytes and fill them in last).
-pub(crate) fn header_and_table(magic: [u8; 8], entries: &[SectionEntry], file_length: u64) -> Vec<u8> {
-    let (mut out, table) = header_and_table_at(magic, entries, FILE_HEADER_LEN as u64, file_length);
+pub(crate) fn header_and_table(magic: [u8; 8], minor: u16, entries: &[SectionEntry], file_length: u64) -> Vec<u8> {
+    let (mut out, table) = header_and_table_at(magic, minor, entries, FILE_HEADER_LEN as u64, file_length);
     out.extend_from_slice(&table);
     out
 }
 
 /// The file header and, apart, the section table of `entries`, for a table stored at
 /// `table_offset` (the samples writer puts it after the sections, §8).
-pub(crate) fn header_and_table_at(magic: [u8; 8], entries: &[SectionEntry], table_offset: u64, file_length: u64) -> (Vec<u8>, Vec<u8>) {
+pub(crate) fn header_and_table_at(magic: [u8; 8], minor: u16, entries: &[SectionEntry], table_offset: u64, file_length: u64) -> (Vec<u8>, Vec<u8>) {
     let mut table = Vec::with_capacity(entries.len() * SECTION_ENTRY_LEN);
     entries.iter().for_each(|e| e.write(&mut table));
     let mut header = Vec::with_capacity(FILE_HEADER_LEN + table.len());
     FileHeader {
         magic,
         major: MAJOR,
-        minor: MINOR,
+        minor,
         flags: 0,
         section_count: entries.len() as u32,
         section_table_offset: table_offset,

@@ -187,7 +187,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let f = SamplesFile {
             generator: Generator::default(),
-            meshes: vec![MeshEntry { name: "m".into(), first: 0, count: 3 }],
+            meshes: vec![MeshEntry { name: "m".into(), first: 0, count: 3, two_sided: false }],
             instances: vec![
                 SampleInstance { mesh: 0, transform: Similarity::IDENTITY },
                 SampleInstance { mesh: 0, transform: Similarity { translation: [10.0, 0.0, 0.0], rotation: [0.0, 0.0, 0.0, 1.0], scale: 2.0 } },

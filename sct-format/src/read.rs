@@ -66,6 +66,11 @@ impl TreeIndex {
         }
     }
 
+    /// Whether the tree's surfaces are seen from both sides (spec §6.2, flag bit 1, 1.1).
+    pub fn two_sided(&self) -> bool {
+        self.header.flags & 2 != 0
+    }
+
     /// The block of level `d` holding node `i` of that level.
     pub fn block_of(&self, d: usize, i: u64) -> Option<usize> {
         let r = self.level_blocks(d);
@@ -316,7 +321,9 @@ pub(crate) fn decode_block_in(data: &[u8], tree: &TreeIndex, b: usize, parents: 
 pub(crate) fn read_levels(tree: &TreeIndex, max_levels: usize, decode: impl Fn(usize, &[Node]) -> Result<DecodedBlock> + Sync) -> Result<SceneTree> {
     let levels = tree.levels.len().min(max_levels);
     if levels == 0 {
-        return SceneTree::from_bfs(Vec::new(), Vec::new());
+        let mut t = SceneTree::default();
+        t.set_two_sided(tree.two_sided());
+        return Ok(t);
     }
     let total: u64 = tree.levels[..levels].iter().map(|l| l.node_count).sum();
     let mut nodes = Vec::with_capacity(total as usize);
@@ -328,7 +335,9 @@ pub(crate) fn read_levels(tree: &TreeIndex, max_levels: usize, decode: impl Fn(u
         internal.extend_from_slice(&blk.internal);
         Ok(())
     })?;
-    SceneTree::from_bfs(nodes, internal).map_err(|e| Error::malformed(tree.section.offset, format!("tree structure: {e}")))
+    let mut t = SceneTree::from_bfs(nodes, internal).map_err(|e| Error::malformed(tree.section.offset, format!("tree structure: {e}")))?;
+    t.set_two_sided(tree.two_sided());
+    Ok(t)
 }
 
 /// Decodes levels `1..max_levels` of `tree` breadth-first and hands each decoded block to
@@ -381,7 +390,7 @@ pub(crate) fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits
     let header = TreeHeader::parse(&mut c)?;
     let at = e.offset;
     let profile = Profile::from_id(header.profile).ok_or_else(|| Error::malformed(at, format!("unknown profile id {}", header.profile)))?;
-    if header.flags & !1 != 0 || header.root_internal > 1 {
+    if header.flags & !3 != 0 || header.root_internal > 1 {
         return Err(Error::malformed(at + 1, "reserved tree flag bits set"));
     }
     Limits::check("tree levels", header.level_count as u64, limits.max_tree_levels as u64)?;

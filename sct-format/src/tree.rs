@@ -23,12 +23,14 @@ pub struct SceneTree {
     /// child addressing needs: 0.19 bytes per node instead of a 4-byte index.
     bits: Vec<u64>,
     rank: Vec<u32>,
+    /// Surfaces seen from both sides (spec §6.2, tree flag bit 1).
+    two_sided: bool,
 }
 
 impl Default for SceneTree {
     /// The empty tree (same as `from_bfs(vec![], vec![])`).
     fn default() -> Self {
-        SceneTree { nodes: Vec::new(), internal: Vec::new(), level_starts: vec![0], bits: Vec::new(), rank: Vec::new() }
+        SceneTree { nodes: Vec::new(), internal: Vec::new(), level_starts: vec![0], bits: Vec::new(), rank: Vec::new(), two_sided: false }
     }
 }
 
@@ -54,7 +56,7 @@ impl SceneTree {
         }
         let mut level_starts = vec![0usize];
         if nodes.is_empty() {
-            return Ok(SceneTree { nodes, internal, level_starts, bits: Vec::new(), rank: Vec::new() });
+            return Ok(SceneTree { nodes, internal, level_starts, bits: Vec::new(), rank: Vec::new(), two_sided: false });
         }
         // The rank directory first (in parallel: a few passes over every flag otherwise),
         // so each level's internal nodes are counted in constant time.
@@ -98,7 +100,7 @@ impl SceneTree {
             start = end;
             end = next_end;
         }
-        Ok(SceneTree { nodes, internal, level_starts, bits, rank })
+        Ok(SceneTree { nodes, internal, level_starts, bits, rank, two_sided: false })
     }
 
     /// Breadth-first index of the first child node `i` has in the full tree (whether loaded
@@ -112,6 +114,20 @@ impl SceneTree {
         }
         let k = self.rank[w] as usize + (word & ((1u64 << b) - 1)).count_ones() as usize;
         Some(2 * k + 1)
+    }
+
+    /// Whether the tree's surfaces are seen from both sides (spec §6.2, tree flag bit 1): a
+    /// renderer lights each node from the side facing the eye. A builder marks such a tree
+    /// and gives its leaves the cone π (see [`SceneTree::set_two_sided`]).
+    pub fn is_two_sided(&self) -> bool {
+        self.two_sided
+    }
+
+    /// Marks the tree two-sided (or not). Only the flag: the builder also gives two-sided
+    /// leaves the cone π before building the hierarchy, so that normal-cone culling, here
+    /// and in group trees above, never removes a surface seen from its back.
+    pub fn set_two_sided(&mut self, two_sided: bool) {
+        self.two_sided = two_sided;
     }
 
     /// All nodes, breadth first.

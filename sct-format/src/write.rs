@@ -12,7 +12,7 @@ use std::path::Path;
 use rayon::prelude::*;
 
 use crate::codec::{encode_children, CodecParams, Profile};
-use crate::container::{header_and_table, write_container, SectionOut};
+use crate::container::{header_and_table, write_container_minor, SectionOut};
 use crate::error::{Error, Result};
 use crate::graph::{Generator, GraphNode, Propagation, SceneGraph};
 use crate::node::Node;
@@ -121,6 +121,12 @@ pub struct WriteStats {
     pub trees: Vec<TreeStats>,
 }
 
+/// The minor version a scene file is labelled with: 1 when a tree is two-sided (the only
+/// 1.1 feature), else 0, so that files without it stay byte-for-byte 1.0 files.
+fn scene_minor(two_sided: impl IntoIterator<Item = bool>) -> u16 {
+    two_sided.into_iter().any(|t| t) as u16
+}
+
 /// Encodes and writes `scene` to `w`.
 pub fn write_scene<W: Write>(scene: &Scene, opts: &WriteOptions, w: W) -> Result<WriteStats> {
     check_graph(scene)?;
@@ -132,7 +138,7 @@ pub fn write_scene<W: Write>(scene: &Scene, opts: &WriteOptions, w: W) -> Result
         tree_stats.push(stats);
         sections.push(SectionOut::plain(tags::TREE, bytes));
     }
-    let (bytes, _) = write_container(SCT_MAGIC, &sections, w)?;
+    let (bytes, _) = write_container_minor(SCT_MAGIC, scene_minor(scene.trees.iter().map(SceneTree::is_two_sided)), &sections, w)?;
     Ok(WriteStats {
         bytes,
         sections: sections.iter().map(|s| (s.tag.escape_ascii().to_string(), s.stored.len() as u64)).collect(),
@@ -220,7 +226,9 @@ fn stream_scene<'a, W: Write + Seek + Send>(
         offset += s.stored.len() as u64;
     }
     let mut tree_stats = Vec::with_capacity(section_count);
+    let mut two_sided = false;
     for tree in trees {
+        two_sided |= tree.two_sided;
         let index_len = tree.index_len(block_nodes(opts));
         w.write_all(&vec![0u8; index_len])?;
         let st = stream_tree(tree, opts, &mut |b| write_block(w, b))?;
@@ -245,7 +253,7 @@ fn stream_scene<'a, W: Write + Seek + Send>(
         tree_stats.push(st.stats);
     }
     w.seek(SeekFrom::Start(start))?;
-    w.write_all(&header_and_table(SCT_MAGIC, &entries, offset))?;
+    w.write_all(&header_and_table(SCT_MAGIC, scene_minor([two_sided]), &entries, offset))?;
     w.seek(SeekFrom::Start(start + offset))?;
     Ok(WriteStats {
         bytes: offset,
@@ -522,6 +530,7 @@ struct TreeInput<'a> {
     leaves: usize,
     root: Option<Node>,
     alpha: bool,
+    two_sided: bool,
     nodes: NodeSource<'a>,
 }
 
@@ -544,19 +553,21 @@ impl<'a> TreeInput<'a> {
 
     fn borrowed(tree: &'a SceneTree) -> Self {
         let (levels, leaves, root, alpha) = Self::shape(tree);
-        TreeInput { flags: tree.internal_flags().into(), levels, leaves, root, alpha, nodes: NodeSource::Borrowed(tree.nodes()) }
+        let two_sided = tree.is_two_sided();
+        TreeInput { flags: tree.internal_flags().into(), levels, leaves, root, alpha, two_sided, nodes: NodeSource::Borrowed(tree.nodes()) }
     }
 
     /// Takes the tree's nodes, reversed in place (no second allocation); the root, which
     /// the tree header holds, is dropped.
     fn owned(tree: SceneTree) -> Self {
         let (levels, leaves, root, alpha) = Self::shape(&tree);
+        let two_sided = tree.is_two_sided();
         let (mut rest, flags) = tree.into_parts();
         let total = rest.len();
         let (front, back) = rest.split_at_mut(total / 2);
         front.par_iter_mut().zip(back.par_iter_mut().rev()).with_min_len(1 << 12).for_each(|(a, b)| std::mem::swap(a, b));
         rest.pop();
-        TreeInput { flags: flags.into(), levels, leaves, root, alpha, nodes: NodeSource::Reversed { rest, total } }
+        TreeInput { flags: flags.into(), levels, leaves, root, alpha, two_sided, nodes: NodeSource::Reversed { rest, total } }
     }
 
     fn len(&self) -> usize {
@@ -772,7 +783,7 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
     let mut index = Vec::with_capacity(index_len);
     TreeHeader {
         profile: profile.id(),
-        flags: params.alpha as u8,
+        flags: params.alpha as u8 | (tree.two_sided as u8) << 1,
         root_internal: flags.first().copied().unwrap_or(false) as u8,
         level_count: levels as u32,
         node_count: node_count as u64,

@@ -128,3 +128,30 @@ fn output_is_identical_with_one_and_two_threads() {
     };
     assert_eq!(run(1), run(2));
 }
+
+#[test]
+fn two_sided_flag_round_trips_and_labels_the_file_1_1() {
+    let mut tree = common::random_tree(11, 2_001, false);
+    let one_sided = write(&tree, Profile::Default);
+    // Without a two-sided tree the file is a 1.0 file, byte for byte as before.
+    assert_eq!(u16::from_le_bytes([one_sided[10], one_sided[11]]), 0, "minor version");
+    let r = SctReader::from_bytes(one_sided, &Limits::default()).expect("read");
+    assert!(!r.trees()[0].two_sided() && !r.read_tree(0).expect("decode").is_two_sided());
+
+    tree.set_two_sided(true);
+    for profile in [Profile::Raw, Profile::Canopy, Profile::Default] {
+        let bytes = write(&tree, profile);
+        assert_eq!(u16::from_le_bytes([bytes[10], bytes[11]]), 1, "minor version ({profile:?})");
+        let r = SctReader::from_bytes(bytes, &Limits::default()).expect("read");
+        assert!(r.trees()[0].two_sided(), "{profile:?}");
+        assert!(r.read_tree(0).expect("decode").is_two_sided(), "{profile:?}");
+    }
+    // The streaming file writer labels the same way.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("two.sct");
+    let scene = Scene::single_tree(Generator { tool: "test".into(), version: "0".into(), ..Default::default() }, tree.clone());
+    sct_format::write::write_scene_file(&path, &scene, &WriteOptions::default()).expect("write file");
+    let r = SctReader::open(&path, &Limits::default()).expect("open");
+    assert_eq!(r.header().minor, 1);
+    assert!(r.trees()[0].two_sided());
+}

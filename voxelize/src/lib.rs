@@ -18,6 +18,7 @@ pub mod error;
 pub mod load;
 pub mod mesh;
 pub mod polygon;
+pub mod sides;
 
 pub use error::{Error, LoadError};
 pub use load::{load, LoadOptions};

@@ -192,6 +192,9 @@ pub struct LoadedScene {
     pub stats: LoadStats,
     /// Files read (the input and every resource it referenced that was found).
     pub files: Vec<PathBuf>,
+    /// The format says per material which surfaces are seen from both sides (glTF
+    /// `doubleSided`); otherwise sidedness comes from topology (see [`crate::sides`]).
+    pub declares_sides: bool,
 }
 
 impl LoadedScene {

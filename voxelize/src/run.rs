@@ -186,14 +186,14 @@ fn tables<'a>(meshes: impl Iterator<Item = MeshRow<'a>>, points: u64, generator:
     let mut first = 0u64;
     for (name, count, sims, affine) in meshes.filter(|m| m.1 > 0) {
         let idx = t.meshes.len() as u32;
-        t.meshes.push(MeshEntry { name: name.to_string(), first, count });
+        t.meshes.push(MeshEntry { name: name.to_string(), first, count, two_sided: false });
         first += count;
         t.instances.extend(sims.iter().map(|s| SampleInstance { mesh: idx, transform: *s }));
         t.affine_instances.extend(affine.iter().map(|a| AffineInstance { mesh: idx, matrix: *a }));
     }
     if points > 0 {
         let idx = t.meshes.len() as u32;
-        t.meshes.push(MeshEntry { name: "points".into(), first, count: points });
+        t.meshes.push(MeshEntry { name: "points".into(), first, count: points, two_sided: false });
         t.instances.push(SampleInstance { mesh: idx, transform: Similarity::IDENTITY });
     }
     t

@@ -75,7 +75,7 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
     }
     let document = gltf::Document::from_json(root).map_err(|e| perr("document validation", e.to_string()))?;
     let base = path.parent().unwrap_or_else(|| Path::new("."));
-    let mut scene = LoadedScene::default();
+    let mut scene = LoadedScene { declares_sides: true, ..Default::default() };
 
     // Buffers: a missing one is fatal (the geometry is in it).
     let mut buffers: Vec<gltf::buffer::Data> = Vec::new();
