@@ -70,6 +70,13 @@ impl Shard {
     }
 }
 
+/// Samples per asset in batch mode unless `--sample-budget` says otherwise: about four
+/// leaves per pixel of a full 1280 × 720 view, so the default density (one leaf per pixel
+/// of the intended view) never meets it, while an explicit fine `--voxel-size` or EQ 16 on a
+/// finely tessellated asset cannot take a library's memory (about 125 B per sample at the
+/// peak: 500 MB per job).
+pub const DEFAULT_SAMPLE_BUDGET: u64 = 4_000_000;
+
 /// What to convert and how.
 #[derive(Clone, Debug)]
 pub struct BatchOptions {
@@ -478,7 +485,7 @@ pub fn format_table(rep: &BatchReport) -> String {
     use std::fmt::Write;
     let w = rep.jobs.iter().map(|j| j.input.len()).max().unwrap_or(5).max(5);
     let mut s = String::new();
-    let _ = writeln!(s, "{:<10} {:<w$} {:>11} {:>11} {:>10} {:>8}  error", "status", "input", "samples", "leaves", "bytes", "seconds");
+    let _ = writeln!(s, "{:<10} {:<w$} {:>11} {:>11} {:>10} {:>8} {:>8}  error", "status", "input", "samples", "leaves", "bytes", "seconds", "warnings");
     for j in &rep.jobs {
         let status = match j.status {
             JobStatus::Converted => "converted",
@@ -487,16 +494,29 @@ pub fn format_table(rep: &BatchReport) -> String {
         };
         let _ = writeln!(
             s,
-            "{:<10} {:<w$} {:>11} {:>11} {:>10} {:>8.2}  {}",
+            "{:<10} {:<w$} {:>11} {:>11} {:>10} {:>8.2} {:>8}  {}",
             status,
             j.input,
             j.samples,
             j.leaves,
             j.bytes,
             j.seconds,
+            j.warnings.len(),
             // One line per input, whatever the error text holds (parsers quote whole lines).
             j.error.as_deref().unwrap_or("").split_whitespace().collect::<Vec<_>>().join(" ")
         );
+    }
+    // Warnings after the table, named by input (a missing texture, a mesh left out, an
+    // asset the sample budget coarsened): what a person reading the log must not miss.
+    let warned: Vec<&JobResult> = rep.jobs.iter().filter(|j| !j.warnings.is_empty()).collect();
+    if !warned.is_empty() {
+        let count: usize = warned.iter().map(|j| j.warnings.len()).sum();
+        let _ = writeln!(s, "{count} warning(s) in {} input(s):", warned.len());
+        for j in warned {
+            for warning in &j.warnings {
+                let _ = writeln!(s, "  {}: {}", j.input, warning.split_whitespace().collect::<Vec<_>>().join(" "));
+            }
+        }
     }
     let shard = rep.shard.map(|s| format!(" (shard {}/{})", s.index, s.count)).unwrap_or_default();
     let _ = writeln!(

@@ -179,10 +179,14 @@ fn main() -> ExitCode {
             eprintln!("error: --scene does not apply to a directory of meshes");
             return ExitCode::from(2);
         }
+        // A library holds assets far finer than any view needs: each gets a sample budget
+        // unless one is given, and every asset it coarsens is named in a warning.
+        let mut sampling = cli.sampling.clone();
+        sampling.sample_budget.get_or_insert(batch::DEFAULT_SAMPLE_BUDGET);
         let opts = BatchOptions {
             input_dir: dir.clone(),
             output_dir: cli.output.clone(),
-            sampling: cli.sampling.clone(),
+            sampling,
             profile: cli.profile,
             compression_level: cli.compression_level,
             build,
