@@ -8,7 +8,9 @@
 //! voxels. Counting and emitting read the same spans, so every slab divides by the same
 //! count and the slabs' samples partition the triangle's.
 
-use super::{face_axes, shade_color, unit_or, KeyPack, Mat, Planes, Rec, RecSink, Tex, Tri};
+use super::keys::{KeyPack, Rec, RecSink};
+use super::shade::{face_axes, shade_color, unit_or, Mat, Planes, Tri};
+use super::texture::Tex;
 use crate::mesh::AlphaMode;
 use crate::mesh::{floor_i64, norm};
 
@@ -777,7 +779,8 @@ mod tests {
     /// the exact per-sample path runs (also for corners beyond 2^50).
     #[test]
     fn rows_match_the_per_sample_definition() {
-        use super::super::{decode_textures, SlabParts, TexImage};
+        use super::super::slabs::SlabParts;
+        use super::super::texture::{decode_textures, TexImage};
         use crate::mesh::{Image, LoadedScene, Material, TextureRef, Wrap};
         let mut rng = sct_format::rng::SplitMix64(37);
         let (w, h) = (9u32, 6u32);

@@ -1,0 +1,109 @@
+//! Sample records before merging and their packed voxel keys, and where emitters put them.
+
+use crate::mesh::floor_i64;
+
+/// One sample before merging: a packed voxel key ([`KeyPack`]) and attributes.
+#[derive(Clone, Copy)]
+pub(super) struct Rec {
+    pub(super) key: u64,
+    pub(super) area: f32,
+    pub(super) normal: [f32; 3],
+    pub(super) color: [f32; 4],
+}
+
+/// Packs voxel coordinates of one unit into a `u64` (x major, then y, then z — the
+/// lexicographic order of the coordinates), so merging sorts plain integers.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct KeyPack {
+    pub(super) lo: [i64; 3],
+    pub(super) hi: [i64; 3],
+    pub(super) bits: [u32; 3],
+    /// `bits[1] + bits[2]`.
+    pub(super) shift_x: u32,
+}
+
+impl KeyPack {
+    /// Covers the grid cells of `lo..=hi` (grid units) with one cell of margin.
+    pub(super) fn new(lo: [f64; 3], hi: [f64; 3]) -> Result<KeyPack, String> {
+        // Saturating: coordinates far beyond the grid must give an error, not an overflow.
+        let l = lo.map(|v| floor_i64(v).saturating_sub(1));
+        let h = hi.map(|v| floor_i64(v).saturating_add(1));
+        let bits: [u32; 3] = std::array::from_fn(|k| 64 - (h[k].saturating_sub(l[k]).max(1) as u64).leading_zeros());
+        if bits.iter().sum::<u32>() > 64 {
+            return Err(format!(
+                "the voxel grid ({} × {} × {} voxels) is too large to index with 64-bit voxel keys; use a larger voxel size",
+                h[0].saturating_sub(l[0]),
+                h[1].saturating_sub(l[1]),
+                h[2].saturating_sub(l[2])
+            ));
+        }
+        Ok(KeyPack { lo: l, hi: h, bits, shift_x: bits[1] + bits[2] })
+    }
+    #[inline]
+    pub(super) fn pack(&self, k: [i64; 3]) -> u64 {
+        // Clamped so a rounding stray can never spill into a neighbouring field (max then min:
+        // `clamp` would also check lo ≤ hi, which `new` guarantees, on every sample).
+        let v: [u64; 3] = std::array::from_fn(|i| (k[i].max(self.lo[i]).min(self.hi[i]) - self.lo[i]) as u64);
+        (v[0] << self.shift_x) | (v[1] << self.bits[2]) | v[2]
+    }
+    /// Where axis `k`'s field starts in a key.
+    #[inline]
+    pub(super) fn shift(&self, k: usize) -> u32 {
+        match k {
+            0 => self.shift_x,
+            1 => self.bits[2],
+            _ => 0,
+        }
+    }
+    #[inline]
+    pub(super) fn unpack(&self, key: u64) -> [i64; 3] {
+        let mask = |b: u32| if b == 0 { 0 } else { u64::MAX >> (64 - b) };
+        let z = key & mask(self.bits[2]);
+        let y = (key >> self.bits[2]) & mask(self.bits[1]);
+        let x = key.checked_shr(self.bits[1] + self.bits[2]).unwrap_or(0) & mask(self.bits[0]);
+        [x as i64 + self.lo[0], y as i64 + self.lo[1], z as i64 + self.lo[2]]
+    }
+}
+
+/// Where an emitter puts its records.
+pub(super) trait RecSink {
+    fn push(&mut self, r: Rec);
+    /// The buffer where every key of `lo..=hi` goes, when there is one: a run of records
+    /// is then pushed there without finding each one's place.
+    fn run(&mut self, lo: u64, hi: u64) -> Option<&mut Vec<Rec>>;
+}
+
+impl RecSink for Vec<Rec> {
+    #[inline]
+    fn push(&mut self, r: Rec) {
+        Vec::push(self, r);
+    }
+    #[inline]
+    fn run(&mut self, _lo: u64, _hi: u64) -> Option<&mut Vec<Rec>> {
+        Some(self)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn key_pack_round_trips_and_orders_x_major() {
+        let kp = KeyPack::new([-5.5, 0.0, 1000.2], [300.0, 2.0, 1001.0]).unwrap();
+        let pts = [[-6, 0, 999], [-6, 3, 1002], [0, 1, 1000], [301, -1, 1002], [17, 2, 1001]];
+        for p in pts {
+            assert_eq!(kp.unpack(kp.pack(p)), p);
+        }
+        let mut by_key = pts.to_vec();
+        by_key.sort_by_key(|p| kp.pack(*p));
+        let mut lex = pts.to_vec();
+        lex.sort();
+        assert_eq!(by_key, lex);
+        // Out-of-range coordinates clamp instead of spilling into another field.
+        assert_eq!(kp.unpack(kp.pack([i64::MAX, 0, 1000])), [301, 0, 1000]);
+        assert_eq!(kp.unpack(kp.pack([i64::MIN, 9, i64::MIN])), [-7, 3, 999]);
+        assert!(KeyPack::new([0.0; 3], [3e6; 3]).is_err(), "3 × 22 bits do not fit");
+        assert!(KeyPack::new([-1e300; 3], [1e300; 3]).is_err(), "saturates, then refuses");
+    }
+}

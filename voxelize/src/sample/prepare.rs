@@ -1,0 +1,116 @@
+//! Primitives ready for sampling: positions in grid units of their unit's frame, normals
+//! transformed or computed, materials bound to decoded textures.
+
+use crate::mesh::*;
+
+use super::plan::Unit;
+use super::shade::{Mat, Tri};
+use super::texture::{Tex, TexImage};
+
+/// A material with owned texture references (a `Prepared` outlives the scene borrow only
+/// through the images).
+pub(super) struct MatOwned<'a> {
+    pub(super) base: [f32; 4],
+    pub(super) tex: Option<(TexImage<'a>, TextureRef)>,
+    pub(super) alpha_tex: Option<(TexImage<'a>, TextureRef)>,
+    pub(super) alpha: AlphaMode,
+}
+
+impl MatOwned<'_> {
+    pub(super) fn view(&self) -> Mat<'_> {
+        Mat {
+            base: self.base,
+            tex: self.tex.as_ref().map(|(i, t)| Tex::new(*i, t)),
+            alpha_tex: self.alpha_tex.as_ref().map(|(i, t)| Tex::new(*i, t)),
+            alpha: self.alpha,
+        }
+    }
+}
+
+/// A primitive ready for sampling: vertex positions in grid units of the unit's frame,
+/// normals transformed and normalised (or computed per corner).
+pub(super) struct Prepared<'a> {
+    pub(super) prim: &'a Primitive,
+    pub(super) mat: MatOwned<'a>,
+    pub(super) pos: Vec<[f64; 3]>,
+    pub(super) nrm: Option<Vec<[f32; 3]>>,
+    pub(super) computed: Option<Vec<[[f32; 3]; 3]>>,
+    /// `computed` through the bake, in the flipped winding when it mirrors: what [`Self::tri`]
+    /// reads, done once rather than per (triangle, slab).
+    pub(super) baked: Option<Vec<[[f32; 3]; 3]>>,
+    pub(super) flip: bool,
+}
+
+impl<'a> Prepared<'a> {
+    pub(super) fn new(prim: &'a Primitive, u: &Unit, mat: MatOwned<'a>, crease_deg: f32) -> Self {
+        let inv_h = 1.0 / u.h;
+        let pos: Vec<[f64; 3]> = prim
+            .positions
+            .iter()
+            .map(|&p| {
+                let w = match &u.bake {
+                    Some(m) => transform_point(m, p),
+                    None => p.map(f64::from),
+                };
+                w.map(|x| x * inv_h)
+            })
+            .collect();
+        let flip = u.bake.as_ref().is_some_and(|m| determinant(m) < 0.0);
+        let nrm: Option<Vec<[f32; 3]>> = prim.normals.as_ref().map(|ns| {
+            ns.iter()
+                .map(|&n| {
+                    let w = match &u.bake {
+                        Some(m) => transform_normal(m, n),
+                        None => n.map(f64::from),
+                    };
+                    let l = norm(w);
+                    if l > 0.0 && l.is_finite() {
+                        w.map(|x| (x / l) as f32)
+                    } else {
+                        [0.0; 3]
+                    }
+                })
+                .collect()
+        });
+        let computed = if nrm.is_none() { Some(corner_normals(prim, crease_deg)) } else { None };
+        let baked = computed.as_ref().map(|c| c.iter().map(|&c| bake_corner_normals(c, u.bake.as_ref(), flip)).collect());
+        Prepared { prim, mat, pos, nrm, computed, baked, flip }
+    }
+
+    /// Triangle `ti` with its attributes.
+    pub(super) fn tri(&self, ti: usize) -> Tri {
+        let prim = self.prim;
+        let t = prim.triangles[ti];
+        // A mirroring bake flips the winding; swap to keep the front side.
+        let idx = if self.flip { [t[0], t[2], t[1]] } else { t };
+        let vi = idx.map(|i| i as usize);
+        let n = match (&self.nrm, &self.baked) {
+            (Some(n), _) => vi.map(|i| n[i]),
+            (None, Some(c)) => c.get(ti).copied().unwrap_or_default(),
+            _ => [[0.0; 3]; 3],
+        };
+        let uvset = self.mat.tex.as_ref().and_then(|t| prim.uvs.get(t.1.tex_coord as usize));
+        let uvset2 = self.mat.alpha_tex.as_ref().and_then(|t| prim.uvs.get(t.1.tex_coord as usize));
+        Tri {
+            p: vi.map(|i| self.pos[i]),
+            n,
+            c: vi.map(|i| prim.colors.as_ref().map_or([1.0; 4], |c| c[i])),
+            uv: vi.map(|i| uvset.map_or([0.0; 2], |s| s[i])),
+            uv2: vi.map(|i| uvset2.map_or([0.0; 2], |s| s[i])),
+        }
+    }
+}
+
+/// A triangle's computed corner normals as [`Prepared::tri`] gives them: in the winding of
+/// `flip`, through `bake` and normalised.
+pub(super) fn bake_corner_normals(c: [[f32; 3]; 3], bake: Option<&Mat4>, flip: bool) -> [[f32; 3]; 3] {
+    let cn = if flip { [c[0], c[2], c[1]] } else { c };
+    match bake {
+        Some(m) => cn.map(|n| {
+            let w = transform_normal(m, n);
+            let l = norm(w);
+            if l > 0.0 { w.map(|x| (x / l) as f32) } else { [0.0; 3] }
+        }),
+        None => cn,
+    }
+}

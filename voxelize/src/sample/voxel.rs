@@ -1,0 +1,266 @@
+//! The voxel method's triangle rasterizer: exact triangle ∩ voxel pieces, swept strip by
+//! strip and column by column in the projection plane.
+
+use crate::mesh::*;
+
+use super::clip::{ping, Poly2, MAXV};
+use super::keys::{KeyPack, Rec};
+use super::shade::{face_axes, Mat, Planes, Tri};
+use super::AreaMode;
+
+/// Every voxel x index (no slab restriction).
+pub(super) const ALL_X: (i64, i64) = (i64::MIN, i64::MAX);
+
+/// Emits the samples of one triangle of [`voxel_triangle_axis`] (depth axis `D`): a struct
+/// rather than a closure so that its always-inlined call sites need no argument passing.
+pub(super) struct Emitter<'p, 'm, const D: usize> {
+    planes: &'p Planes<'m>,
+    kp: &'p KeyPack,
+    keep: (i64, i64),
+    ascale: f64,
+    dropped: u64,
+    skipped: u64,
+}
+
+impl<const D: usize> Emitter<'_, '_, D> {
+    /// The piece of projected area `area2` and centroid `cen` in voxel (ia, ib, k) along axes
+    /// (D + 1, D + 2, D).
+    #[inline(always)]
+    pub(super) fn emit(&mut self, out: &mut Vec<Rec>, ia: i64, ib: i64, k: i64, area2: f64, cen: [f64; 2]) {
+        let mut key = [0i64; 3];
+        key[(D + 1) % 3] = ia;
+        key[(D + 2) % 3] = ib;
+        key[D] = k;
+        if self.keep != ALL_X && !(self.keep.0..=self.keep.1).contains(&key[0].clamp(self.kp.lo[0], self.kp.hi[0])) {
+            self.skipped += 1;
+            return;
+        }
+        match self.planes.shade(cen) {
+            (Some(color), normal) => out.push(Rec { key: self.kp.pack(key), area: (area2 * self.ascale) as f32, normal, color }),
+            (None, _) => self.dropped += 1,
+        }
+    }
+}
+
+/// Conservative voxelization of one triangle; returns the number of alpha-dropped samples.
+///
+/// Works in the projection plane (axes a, b; depth d is a linear function of them): the
+/// triangle is clipped to each grid strip, then to each column of the strip, and the depth
+/// range of the piece gives the voxels it crosses. Columns entirely inside the triangle —
+/// most of them for triangles larger than a voxel — skip clipping: their piece is the unit
+/// square. Only pieces crossing a depth boundary are split by depth lines.
+///
+/// Only voxels whose x index lies in `xr` (inclusive) are emitted (the caller's slab), and
+/// the triangle is cut to that band first. `keep` restricts output the same way without the
+/// cut: voxels outside it (x index clamped to the key range) are counted, not shaded or
+/// emitted, so EQ 17 areas still divide by the whole triangle's count.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i64, i64), keep: (i64, i64), out: &mut Vec<Rec>) -> u64 {
+    let (fnrm, d, _, _) = face_axes(t);
+    // One copy per depth axis: the axis indices become constants (key assembly, the slab
+    // tests), the arithmetic is the same.
+    match d {
+        0 => voxel_triangle_axis::<0>(t, fnrm, mat, area_mode, kp, xr, keep, out),
+        1 => voxel_triangle_axis::<1>(t, fnrm, mat, area_mode, kp, xr, keep, out),
+        _ => voxel_triangle_axis::<2>(t, fnrm, mat, area_mode, kp, xr, keep, out),
+    }
+}
+
+/// [`voxel_triangle`] with depth axis `D` (`fnrm` = the face normal of [`face_axes`]).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn voxel_triangle_axis<const D: usize>(
+    t: &Tri,
+    fnrm: [f64; 3],
+    mat: &Mat,
+    area_mode: AreaMode,
+    kp: &KeyPack,
+    xr: (i64, i64),
+    keep: (i64, i64),
+    out: &mut Vec<Rec>,
+) -> u64 {
+    let (d, a, b) = (D, (D + 1) % 3, (D + 2) % 3);
+    let tri_area_grid = 0.5 * norm(fnrm);
+    // Projected area → surface area; depth = d0 + ga·x + gb·y.
+    let ascale = norm(fnrm) / fnrm[d].abs();
+    let (ga, gb) = (-fnrm[a] / fnrm[d], -fnrm[b] / fnrm[d]);
+    let d0 = t.p[0][d] - ga * t.p[0][a] - gb * t.p[0][b];
+    let depth = |p: &[f64; 2]| d0 + ga * p[0] + gb * p[1];
+    let q = t.p.map(|p| [p[a], p[b]]);
+    // Edge functions e(x, y) = A x + B y + C ≥ 0 inside (orientation fixed by the sign).
+    let orient = if (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]) >= 0.0 { 1.0 } else { -1.0 };
+    let edges: [[f64; 3]; 3] = std::array::from_fn(|i| {
+        let (p0, p1) = (q[i], q[(i + 1) % 3]);
+        let (ea, eb) = (-(p1[1] - p0[1]) * orient, (p1[0] - p0[0]) * orient);
+        [ea, eb, -(ea * p0[0] + eb * p0[1])]
+    });
+    // Attributes at a piece's centroid (inside the triangle up to rounding, so the planes
+    // need no clamping).
+    let planes = Planes::new(t, &q, fnrm, mat);
+    let start = out.len();
+    let mut em = Emitter::<D> { planes: &planes, kp, keep, ascale, dropped: 0, skipped: 0 };
+    let mut tri = Poly2 { v: [[0.0; 2]; MAXV], n: 3 };
+    tri.v[..3].copy_from_slice(&q);
+    let (txlo, txhi) = t.p.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| (l.min(p[0]), h.max(p[0])));
+    if floor_i64(txlo) < xr.0 || floor_i64(txhi) > xr.1 {
+        // Only part of the triangle lies in the caller's slab: cut it to the slab's x band
+        // first, so strips and columns outside it cost nothing. The band's faces are voxel
+        // faces, so pieces and areas are unchanged.
+        let (x0, x1) = (xr.0 as f64, xr.1 as f64 + 1.0);
+        tri = match (a, b) {
+            (0, _) => tri.clip_axis(0, x0, x1),
+            (_, 0) => tri.clip_axis(1, x0, x1),
+            _ => tri.clip_half(|p| depth(p) - x0, None).clip_half(|p| x1 - depth(p), None),
+        };
+        if tri.n < 3 {
+            return 0;
+        }
+    }
+    let (alo, ahi) = tri.range(|p| p[0]);
+    let mut lo_a = floor_i64(alo);
+    let mut hi_a = floor_i64(ahi);
+    if a == 0 {
+        (lo_a, hi_a) = (lo_a.max(xr.0), hi_a.min(xr.1));
+    }
+    let half = 0.5 * (ga.abs() + gb.abs());
+    const EPS: f64 = 1e-9;
+    // The triangle is swept: each strip is split off the rest of the triangle (one pass, the
+    // cut shared by both sides), each boundary column off the rest of its strip. Reused
+    // buffers: the rest of the triangle and of the strip (ping-pong pairs), the strip, the
+    // column piece, the lower depth part and a clip temporary.
+    let mut rest = [tri, Poly2::empty()];
+    let mut r = 0;
+    let (mut col, mut lower, mut tmp) = (Poly2::empty(), Poly2::empty(), Poly2::empty());
+    // The strip is split off into `srest[0]`, where the rest of the strip starts.
+    let mut srest = [Poly2::empty(), Poly2::empty()];
+    for ia in lo_a..=hi_a {
+        let (x0, x1) = (ia as f64, ia as f64 + 1.0);
+        if x1 >= ahi {
+            // The rest lies below x1: it is the strip (the split would copy it).
+            srest[0] = rest[r]; // a copy: a third of a swap's moves
+            rest[r].n = 0;
+        } else {
+            let (src, dst) = ping(&mut rest, r);
+            src.split_axis_into::<0>(x1, &mut srest[0], dst);
+            r ^= 1;
+        }
+        let strip = &srest[0];
+        if strip.n < 3 {
+            continue;
+        }
+        let (bmin, bmax) = strip.range(|p| p[1]);
+        // Columns [ib, ib+1] of this strip lying inside every edge's half-plane.
+        let (mut in_lo, mut in_hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        for e in &edges {
+            let amin = (e[0] * x0).min(e[0] * x1) + e[2];
+            if e[1] > 0.0 {
+                in_lo = in_lo.max(-amin / e[1]);
+            } else if e[1] < 0.0 {
+                in_hi = in_hi.min(-amin / e[1]);
+            } else if amin < 0.0 {
+                in_hi = f64::NEG_INFINITY;
+            }
+        }
+        let first_in = (in_lo + EPS).ceil();
+        let last_in = (in_hi - EPS).floor() - 1.0; // last ib with ib + 1 ≤ in_hi
+        let (mut blo, mut bhi) = (floor_i64(bmin), floor_i64(bmax));
+        if b == 0 {
+            (blo, bhi) = (blo.max(xr.0), bhi.min(xr.1));
+        }
+        // The rest of the strip lies above `cut` (interior columns are skipped, not split off).
+        let (mut sr, mut cut) = (0, blo as f64);
+        // Depths of the current piece's vertices.
+        let mut dv = [0.0; MAXV];
+        for ib in blo..=bhi {
+            let y = ib as f64;
+            let interior = y >= first_in && y <= last_in;
+            let (area2, cen, dmin, dmax) = if interior {
+                let cen = [x0 + 0.5, y + 0.5];
+                let dc = depth(&cen);
+                (1.0, cen, dc - half, dc + half)
+            } else {
+                if y > cut {
+                    let (src, dst) = ping(&mut srest, sr);
+                    src.clip_half_into(|p| p[1] - y, Some((1, y)), dst);
+                    sr ^= 1;
+                }
+                if y + 1.0 >= bmax {
+                    col = srest[sr];
+                    srest[sr].n = 0;
+                } else {
+                    let (src, dst) = ping(&mut srest, sr);
+                    src.split_axis_into::<1>(y + 1.0, &mut col, dst);
+                    sr ^= 1;
+                }
+                cut = y + 1.0;
+                if col.n < 3 {
+                    continue;
+                }
+                let (ar, cen) = col.area_centroid();
+                let (dmin, dmax) = col.range_keeping(depth, &mut dv);
+                (ar, cen, dmin, dmax)
+            };
+            let kmin = floor_i64(dmin);
+            let mut kmax = floor_i64(dmax);
+            if kmax > kmin && dmax == kmax as f64 {
+                kmax -= 1; // touches the next voxel's face only
+            }
+            if kmin == kmax {
+                if d != 0 || (xr.0..=xr.1).contains(&kmin) {
+                    em.emit(out, ia, ib, kmin, area2, cen);
+                }
+                continue;
+            }
+            if interior {
+                col.set_square(x0, y);
+            }
+            let poly = &col;
+            if kmax == kmin + 1 {
+                // One depth face crosses the piece (the common steep case): one clip gives the
+                // lower part; the upper part is the remainder (area and centroid by
+                // difference), so the two areas still add up to the piece's exactly.
+                let kf = kmax as f64;
+                if interior {
+                    for (v, p) in dv.iter_mut().zip(&poly.v[..poly.n]) {
+                        *v = depth(p);
+                    }
+                }
+                // The piece's vertex depths were computed once (by range_keeping or above).
+                poly.clip_half_by_index_into(|i, _| kf - dv[i], None, &mut lower);
+                let (al, cl) = if lower.n >= 3 { lower.area_centroid() } else { (0.0, cen) };
+                let au = area2 - al;
+                let cu = if au > 0.0 { [(area2 * cen[0] - al * cl[0]) / au, (area2 * cen[1] - al * cl[1]) / au] } else { cen };
+                let keep = |k: i64| d != 0 || (xr.0..=xr.1).contains(&k);
+                if al > 0.0 && keep(kmin) {
+                    em.emit(out, ia, ib, kmin, al, cl);
+                }
+                if au > 0.0 && keep(kmax) {
+                    em.emit(out, ia, ib, kmax, au, cu);
+                }
+                continue;
+            }
+            let (kmin, kmax) = if d == 0 { (kmin.max(xr.0), kmax.min(xr.1)) } else { (kmin, kmax) };
+            for k in kmin..=kmax {
+                let kf = k as f64;
+                poly.clip_half_into(|p| depth(p) - kf, None, &mut tmp);
+                tmp.clip_half_into(|p| kf + 1.0 - depth(p), None, &mut lower);
+                let sub = &lower;
+                if sub.n < 3 {
+                    continue;
+                }
+                let (ar, cen) = sub.area_centroid();
+                if ar > 0.0 {
+                    em.emit(out, ia, ib, k, ar, cen);
+                }
+            }
+        }
+    }
+    let (dropped, skipped) = (em.dropped, em.skipped);
+    let made = out.len() - start;
+    if area_mode == AreaMode::Eq17 && made > 0 {
+        let each = (tri_area_grid / (made as u64 + dropped + skipped) as f64) as f32;
+        for r in &mut out[start..] {
+            r.area = each;
+        }
+    }
+    dropped
+}
