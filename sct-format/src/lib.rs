@@ -13,6 +13,7 @@
 //! - [`codec`] holds the node profiles (raw, canopy, default).
 //! - [`samples`] reads and writes the samples file that `sct-voxelize` produces.
 //! - [`write`] and [`read`] write and read SCT files; [`raw`] mirrors the on-disk tables.
+//! - [`view`] defines the default view (presets, up axis, framing) shared by the tools.
 //! - [`Limits`] caps what a hostile file can make a reader allocate; every failure is an
 //!   [`Error`].
 //!
@@ -55,6 +56,7 @@ pub mod samples;
 pub mod traverse;
 pub mod tree;
 pub mod validate;
+pub mod view;
 pub mod write;
 
 pub use codec::Profile;
