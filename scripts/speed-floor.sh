@@ -18,7 +18,7 @@ trap 'rm -rf "$tmp"' EXIT
 cargo build --release --quiet -p voxelize -p build-tree
 bunny=$models/scans/stanford-bunny/stanford-bunny.obj
 spot=$models/textured-obj/spot
-"$bin/sct-voxelize" "$bunny" -o "$tmp/t8.samples" --k 3 --gamma 2 > /dev/null
+"$bin/sct-voxelize" "$bunny" -o "$tmp/t8.samples" --density eq16 --k 3 --gamma 2 > /dev/null
 
 # arithmetic on the arguments, e.g. calc "$a + $b"
 calc() { awk "BEGIN {print $*}"; }

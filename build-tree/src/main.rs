@@ -19,7 +19,7 @@ use voxelize::args::SamplingArgs;
 const EXAMPLES: &str = "Examples:
   sct-build-tree bunny.samples -o bunny.sct                  # samples from sct-voxelize
   sct-build-tree model.glb -o model.sct                      # one step: mesh -> SCT (voxelizes in memory)
-  sct-build-tree spot.obj --texture spot.png --k 2 -o spot.sct
+  sct-build-tree spot.obj --texture spot.png --screen-error 0.5 -o spot.sct
   sct-build-tree assets/ -o sct/ --json                      # batch: a library, folders mirrored
   sct-build-tree assets/ -o sct/ --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT
   sct-build-tree bunny.samples -o bunny.sct --profile canopy --json

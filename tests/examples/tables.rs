@@ -100,7 +100,7 @@ fn main() {
 
     // Table 8: voxelize at k = 3, γ = 2, then build in each profile.
     eprintln!("tables: voxelize bunny (k = 3, γ = 2) × {r}");
-    let (t_vox, vox) = timed("sct-voxelize", &[bunny, "-o", &p("bunny.samples"), "--k", "3", "--gamma", "2", "--json"], r);
+    let (t_vox, vox) = timed("sct-voxelize", &[bunny, "-o", &p("bunny.samples"), "--density", "eq16", "--k", "3", "--gamma", "2", "--json"], r);
     let mut builds = Vec::new();
     for profile in ["default", "canopy"] {
         eprintln!("tables: build-tree --profile {profile} × {r}");
@@ -109,7 +109,7 @@ fn main() {
         builds.push((profile, t, rep));
     }
     eprintln!("tables: one-step mesh -> SCT × {r}");
-    let (t_one, one) = timed("sct-build-tree", &[bunny, "-o", &p("bunny-onestep.sct"), "--k", "3", "--gamma", "2", "--json"], r);
+    let (t_one, one) = timed("sct-build-tree", &[bunny, "-o", &p("bunny-onestep.sct"), "--density", "eq16", "--k", "3", "--gamma", "2", "--json"], r);
 
     // §6.7: 600 × 600 jittered, randomly tinted instances of the bunny, built and previewed.
     let scene = a.out.join("grid.json");

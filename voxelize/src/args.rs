@@ -21,6 +21,16 @@ pub enum MethodArg {
     Vertex,
 }
 
+/// Density rule on the command line (when no --voxel-size or --distance is given).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DensityArg {
+    /// The intended view: the model framed as sct-render-preview frames it by default (90 % of 1280 × 720, 40°), voxels --screen-error pixels wide there (default 1).
+    View,
+    /// The thesis's EQ 16 from the mesh's edge lengths (--k, --gamma, --min-base): follows the triangles, not any view.
+    Eq16,
+}
+
 /// Area mode on the command line.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -32,7 +42,8 @@ pub enum AreaArg {
 }
 
 /// How meshes are sampled (thesis §5.2). The voxel size comes from --voxel-size, else from
-/// a viewing target (--screen-error with --distance), else automatically from EQ 16.
+/// a viewing target (--screen-error with --distance), else from the --density rule: the
+/// intended view (default) or EQ 16.
 #[derive(Args, Clone, Debug, serde::Serialize)]
 #[command(next_help_heading = "Sampling (mesh inputs)")]
 pub struct SamplingArgs {
@@ -42,17 +53,20 @@ pub struct SamplingArgs {
     /// Voxel edge length in world units (overrides everything else).
     #[arg(long, value_name = "LEN")]
     pub voxel_size: Option<f64>,
-    /// EQ 16: standard deviations below the mean edge length.
-    #[arg(long, default_value_t = 3.0)]
-    pub k: f64,
-    /// EQ 16: samples per base length.
-    #[arg(long, default_value_t = 2.0)]
-    pub gamma: f64,
-    /// EQ 16: minimum base length β (default 1e-4 × scene diagonal).
+    /// Density rule: the intended view (default preview framing, leaves about one pixel wide) or the thesis's EQ 16.
+    #[arg(long, value_enum, default_value = "view")]
+    pub density: DensityArg,
+    /// EQ 16: standard deviations below the mean edge length [default: 3]; implies --density eq16.
+    #[arg(long)]
+    pub k: Option<f64>,
+    /// EQ 16: samples per base length [default: 2]; implies --density eq16.
+    #[arg(long)]
+    pub gamma: Option<f64>,
+    /// EQ 16: minimum base length β (default a quarter of the mean edge length); implies --density eq16.
     #[arg(long, value_name = "LEN")]
     pub min_base: Option<f64>,
-    /// Viewing target: largest projected sample diameter in pixels (needs --distance).
-    #[arg(long, value_name = "PX", requires = "distance")]
+    /// Leaf size in pixels: of the intended view (--density view), or, with --distance, the largest projected sample diameter of that viewing target.
+    #[arg(long, value_name = "PX")]
     pub screen_error: Option<f64>,
     /// Viewing target: image width in pixels.
     #[arg(long, value_name = "PX", default_value_t = 1920.0)]
@@ -93,10 +107,16 @@ impl SamplingArgs {
     pub fn density(&self) -> Density {
         if let Some(h) = self.voxel_size {
             Density::VoxelSize(h)
-        } else if let (Some(px), Some(d)) = (self.screen_error, self.distance) {
-            Density::Screen { pixels: px, resolution: self.resolution, distance: d, fov_deg: self.fov }
+        } else if let Some(d) = self.distance {
+            Density::Screen { pixels: self.screen_error.unwrap_or(1.0), resolution: self.resolution, distance: d, fov_deg: self.fov }
         } else {
-            Density::Auto { k: self.k, gamma: self.gamma, min_base: self.min_base }
+            // A flag of EQ 16 asks for EQ 16: it would otherwise be silently ignored.
+            let eq16 = self.density == DensityArg::Eq16 || self.k.is_some() || self.gamma.is_some() || self.min_base.is_some();
+            if eq16 {
+                Density::Auto { k: self.k.unwrap_or(3.0), gamma: self.gamma.unwrap_or(2.0), min_base: self.min_base }
+            } else {
+                Density::View { pixels: self.screen_error.unwrap_or(1.0) }
+            }
         }
     }
 
@@ -138,12 +158,17 @@ mod tests {
     }
 
     #[test]
-    fn density_precedence_voxel_size_then_screen_then_auto() {
+    fn density_precedence_voxel_size_then_screen_then_rule() {
         let p = |a: &[&str]| Cli::try_parse_from(std::iter::once("x").chain(a.iter().copied())).map(|c| c.s.density());
         assert!(matches!(p(&["--voxel-size", "0.5", "--screen-error", "1", "--distance", "3"]), Ok(Density::VoxelSize(h)) if h == 0.5));
         assert!(matches!(p(&["--screen-error", "1", "--distance", "3"]), Ok(Density::Screen { distance, .. }) if distance == 3.0));
-        assert!(matches!(p(&["--k", "2"]), Ok(Density::Auto { k, gamma, .. }) if k == 2.0 && gamma == 2.0));
-        // --screen-error alone is a usage error, not a silent fallback to EQ 16.
-        assert!(p(&["--screen-error", "1"]).is_err());
+        // The default is the intended view; --screen-error alone sets its leaf width.
+        assert!(matches!(p(&[]), Ok(Density::View { pixels }) if pixels == 1.0));
+        assert!(matches!(p(&["--screen-error", "2"]), Ok(Density::View { pixels }) if pixels == 2.0));
+        // EQ 16 only when asked for.
+        assert!(matches!(p(&["--density", "eq16", "--k", "2"]), Ok(Density::Auto { k, gamma, .. }) if k == 2.0 && gamma == 2.0));
+        assert!(matches!(p(&["--density", "eq16"]), Ok(Density::Auto { k, gamma, .. }) if k == 3.0 && gamma == 2.0));
+        // Its own flags imply it rather than being ignored.
+        assert!(matches!(p(&["--gamma", "4"]), Ok(Density::Auto { k, gamma, .. }) if k == 3.0 && gamma == 4.0));
     }
 }

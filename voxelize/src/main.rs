@@ -11,10 +11,13 @@ use voxelize::Options;
 /// Sample textured meshes (OBJ/MTL, glTF/GLB, PLY) into SCT surface samples (thesis §5.2).
 ///
 /// The voxel size comes from --voxel-size, else from a viewing target (--screen-error with
-/// --distance), else automatically from EQ 16 (--k, --gamma).
+/// --distance), else from the intended view (default: the model as sct-render-preview frames
+/// it by default, leaves about one pixel wide) or EQ 16 (--density eq16, --k, --gamma).
 #[derive(Parser)]
 #[command(name = "sct-voxelize", version, after_help = "EXAMPLES:
-  sct-voxelize bunny.obj -o bunny.samples                      # automatic EQ 16 (k=3, γ=2)
+  sct-voxelize bunny.obj -o bunny.samples                      # leaves ~1 px in the default view
+  sct-voxelize bunny.obj -o bunny.samples --screen-error 0.5    # twice as fine
+  sct-voxelize bunny.obj -o bunny.samples --density eq16        # thesis EQ 16 (k=3, γ=2)
   sct-voxelize scene.glb -o scene.samples --voxel-size 0.01
   sct-voxelize spot.obj --texture spot_texture.png -o spot.samples --k 2 --gamma 4
   sct-voxelize city.gltf -o city.samples --screen-error 1 --resolution 1920 --distance 50

@@ -175,34 +175,37 @@ impl Tables {
     }
 }
 
-/// One sampled mesh as the tables see it: name, sample count, similarity and affine placements.
-type MeshRow<'a> = (&'a str, u64, &'a [Similarity], &'a [[[f64; 4]; 3]]);
+/// One sampled mesh as the tables see it: name, sample count, similarity and affine
+/// placements, two-sidedness.
+type MeshRow<'a> = (&'a str, u64, &'a [Similarity], &'a [[[f64; 4]; 3]], bool);
 
 /// The tables of sampled meshes, in sample order, followed by `points` point-cloud samples.
 /// A mesh without samples (only points/lines, or fully transparent) has nothing to build a
 /// tree from; it is left out (and reported by [`sample_into`]).
-fn tables<'a>(meshes: impl Iterator<Item = MeshRow<'a>>, points: u64, generator: Generator) -> Tables {
+fn tables<'a>(meshes: impl Iterator<Item = MeshRow<'a>>, points: (u64, bool), generator: Generator) -> Tables {
     let mut t = Tables { generator, meshes: Vec::new(), instances: Vec::new(), affine_instances: Vec::new() };
     let mut first = 0u64;
-    for (name, count, sims, affine) in meshes.filter(|m| m.1 > 0) {
+    for (name, count, sims, affine, two_sided) in meshes.filter(|m| m.1 > 0) {
         let idx = t.meshes.len() as u32;
-        t.meshes.push(MeshEntry { name: name.to_string(), first, count, two_sided: false });
+        t.meshes.push(MeshEntry { name: name.to_string(), first, count, two_sided });
         first += count;
         t.instances.extend(sims.iter().map(|s| SampleInstance { mesh: idx, transform: *s }));
         t.affine_instances.extend(affine.iter().map(|a| AffineInstance { mesh: idx, matrix: *a }));
     }
+    let (points, points_two_sided) = points;
     if points > 0 {
         let idx = t.meshes.len() as u32;
-        t.meshes.push(MeshEntry { name: "points".into(), first, count: points, two_sided: false });
+        t.meshes.push(MeshEntry { name: "points".into(), first, count: points, two_sided: points_two_sided });
         t.instances.push(SampleInstance { mesh: idx, transform: Similarity::IDENTITY });
     }
     t
 }
 
-/// Assembles the samples file of a sampled scene (plus an optional point cloud).
-pub fn to_samples_file(sampled: &Sampled, points: Vec<Node>, generator: Generator) -> SamplesFile {
-    let rows = sampled.meshes.iter().map(|m| (m.name.as_str(), m.samples.len() as u64, &m.instances[..], &m.affine[..]));
-    let t = tables(rows, points.len() as u64, generator);
+/// Assembles the samples file of a sampled scene (plus an optional point cloud, two-sided
+/// when it has no normals).
+pub fn to_samples_file(sampled: &Sampled, points: Vec<Node>, points_two_sided: bool, generator: Generator) -> SamplesFile {
+    let rows = sampled.meshes.iter().map(|m| (m.name.as_str(), m.samples.len() as u64, &m.instances[..], &m.affine[..], m.two_sided));
+    let t = tables(rows, (points.len() as u64, points_two_sided), generator);
     let mut samples = Vec::with_capacity(t.sample_count() as usize);
     for m in &sampled.meshes {
         samples.extend_from_slice(&m.samples);
@@ -365,6 +368,7 @@ pub fn sample_into(
     let s = &opts.sample;
     let density = match s.density {
         Density::VoxelSize(h) => json!({"voxel_size": h}),
+        Density::View { pixels } => json!({"view": {"pixels": pixels}}),
         Density::Auto { k, gamma, min_base } => json!({"auto": {"k": k, "gamma": gamma, "min_base": min_base}}),
         Density::Screen { pixels, resolution, distance, fov_deg } => {
             json!({"screen": {"pixels": pixels, "resolution": resolution, "distance": distance, "fov_deg": fov_deg}})
@@ -391,11 +395,17 @@ pub fn sample_into(
     for m in sampled.meshes.iter().filter(|m| m.count == 0) {
         warnings.push(format!("mesh {:?} produced no samples (no triangles, or every sample transparent) and is left out", m.name));
     }
-    let rows = sampled.meshes.iter().map(|m| (m.name.as_str(), m.count, &m.instances[..], &m.affine[..]));
-    let tables = tables(rows, n_points, generator);
+    let rows = sampled.meshes.iter().map(|m| (m.name.as_str(), m.count, &m.instances[..], &m.affine[..], m.two_sided));
+    let tables = tables(rows, (n_points, scene.points_two_sided()), generator);
     let n_samples = tables.sample_count();
     let st = &sampled.stats;
     let rel = if st.mesh_area > 0.0 { (st.sample_area - st.mesh_area) / st.mesh_area } else { 0.0 };
+    if let (Some((chosen, used)), Some(budget)) = (st.coarsened, s.budget) {
+        warnings.push(format!(
+            "the sample budget of {budget} coarsened the voxel from {chosen:.6} to {used:.6} ({:.1}× coarser): the model is sampled more coarsely than its density rule asks",
+            used / chosen
+        ));
+    }
     if st.baked_non_similar > 0 {
         warnings.push(format!("{} placement(s) of reused meshes had a projective or singular transform and were baked into world space", st.baked_non_similar));
     }

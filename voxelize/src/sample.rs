@@ -119,7 +119,7 @@ impl Default for SampleOptions {
     fn default() -> Self {
         SampleOptions {
             method: Method::Voxel,
-            density: Density::Auto { k: 3.0, gamma: 2.0, min_base: None },
+            density: Density::View { pixels: 1.0 },
             area: AreaMode::Exact,
             merge: true,
             crease_deg: 60.0,
@@ -141,6 +141,8 @@ pub struct SampledMesh {
     /// Affine placements (non-uniform scale, shear, mirror) as row-major 3 × 4 matrices;
     /// written to the samples file's `AFFI` section (spec §8).
     pub affine: Vec<[[f64; 4]; 3]>,
+    /// Seen from both sides ([`LoadedScene::mesh_two_sided`]).
+    pub two_sided: bool,
 }
 
 /// Counters of a sampling run.
@@ -165,6 +167,9 @@ pub struct SampleStats {
     pub sample_area: f64,
     /// Mesh area over the scene (instances included).
     pub mesh_area: f64,
+    /// `(voxel the density rule chose, the coarser voxel used)` when the sample budget
+    /// coarsened the voxel.
+    pub coarsened: Option<(f64, f64)>,
 }
 
 /// Result of [`sample_scene`].
@@ -189,6 +194,8 @@ pub struct StreamedMesh {
     pub instances: Vec<sct_format::Similarity>,
     /// Affine placements, row-major 3 × 4.
     pub affine: Vec<[[f64; 4]; 3]>,
+    /// Seen from both sides ([`LoadedScene::mesh_two_sided`]).
+    pub two_sided: bool,
 }
 
 /// Result of [`sample_scene_into`]: everything but the samples.
@@ -240,7 +247,7 @@ pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn F
         .meshes
         .into_iter()
         .zip(samples)
-        .map(|(m, samples)| SampledMesh { name: m.name, samples, instances: m.instances, affine: m.affine })
+        .map(|(m, samples)| SampledMesh { name: m.name, samples, instances: m.instances, affine: m.affine, two_sided: m.two_sided })
         .collect();
     Ok(Sampled { meshes, voxel: streamed.voxel, stats: streamed.stats })
 }
@@ -307,7 +314,8 @@ pub fn sample_scene_into<E: Send>(
         stats.samples_before_merge += before;
         stats.samples += tally.count;
         stats.sample_area = tally.add_placed_area(stats.sample_area, &u.instances);
-        out.push(StreamedMesh { name: u.name.clone(), count: tally.count, instances: u.instances.clone(), affine: u.affine.clone() });
+        let two_sided = scene.mesh_two_sided(u.mesh);
+        out.push(StreamedMesh { name: u.name.clone(), count: tally.count, instances: u.instances.clone(), affine: u.affine.clone(), two_sided });
     }
     stats.mesh_area = scene.world_area();
     Ok(Streamed { meshes: out, voxel, stats })

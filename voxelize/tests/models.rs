@@ -245,7 +245,7 @@ fn instancing_samples_once() {
     assert!(rel(&s) < 0.01, "merged: area error {}", rel(&s));
     let unmerged = sample(&scene, coarse(&scene, 100.0), false);
     assert!(rel(&unmerged) < 1e-5, "unmerged: area error {}", rel(&unmerged));
-    let f = voxelize::run::to_samples_file(&s, Vec::new(), sct_format::Generator::default());
+    let f = voxelize::run::to_samples_file(&s, Vec::new(), false, sct_format::Generator::default());
     let mut bytes = Vec::new();
     f.write_to(&mut bytes).unwrap();
     let back = sct_format::samples::SamplesFile::read(&bytes, &sct_format::Limits::default()).unwrap();
@@ -367,7 +367,7 @@ fn deterministic_across_thread_counts() {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {
             let s = sample(&scene, h, true);
-            let f = voxelize::run::to_samples_file(&s, Vec::new(), sct_format::Generator::default());
+            let f = voxelize::run::to_samples_file(&s, Vec::new(), false, sct_format::Generator::default());
             let mut bytes = Vec::new();
             f.write_to(&mut bytes).unwrap();
             bytes

@@ -9,6 +9,15 @@ use super::Method;
 /// How the voxel size is chosen.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Density {
+    /// The intended view (the default): the view `sct-render-preview` shows by default —
+    /// the model's bounding box framed at 90 % of a 1280 × 720, 40° frame from the front and
+    /// from the iso direction, +Y up ([`sct_format::view::default_pixel_size`]) — with
+    /// voxels `pixels` pixels wide there, so a default preview draws about one leaf per
+    /// pixel: the density follows what that view can show, not the triangle count.
+    View {
+        /// Voxel edge in pixels of the intended view.
+        pixels: f64,
+    },
     /// Explicit voxel edge length (world units).
     VoxelSize(f64),
     /// EQ 16: base length l = max(μ − kσ, β) of the edge lengths, γ samples per l.
@@ -44,10 +53,25 @@ pub struct VoxelChoice {
     pub reason: String,
 }
 
-/// Chooses the voxel size (EQ 16, explicit, or viewing needs).
+/// Chooses the voxel size (the intended view, EQ 16, explicit, or a viewing target).
 pub fn choose_voxel_size(scene: &LoadedScene, d: &Density) -> Result<VoxelChoice, String> {
     let c = match *d {
         Density::VoxelSize(h) => VoxelChoice { size: h, reason: format!("explicit --voxel-size {h}") },
+        Density::View { pixels } => {
+            let (lo, hi) = scene.world_bounds().ok_or("the scene has no geometry to size a voxel from; give --voxel-size")?;
+            let pix = sct_format::view::default_pixel_size(lo, hi, sct_format::view::UpAxis::Y);
+            let h = pixels * pix;
+            VoxelChoice {
+                size: h,
+                reason: format!(
+                    "intended view: the model framed at {:.0} % of {} × {} px ({}° vertical field of view, front and iso, +Y up): pixel {pix:.6}, voxel {pixels} px = {h:.6}",
+                    100.0 * sct_format::view::DEFAULT_FILL,
+                    sct_format::view::DEFAULT_WIDTH,
+                    sct_format::view::DEFAULT_HEIGHT,
+                    sct_format::view::DEFAULT_FOV_Y_DEG
+                ),
+            }
+        }
         Density::Screen { pixels, resolution, distance, fov_deg } => {
             let pix = 2.0 * distance * (fov_deg.to_radians() / 2.0).tan() / resolution;
             // Sample diameter 2r = √3 h (EQ 15) must project to ≤ `pixels` pixels.

@@ -95,8 +95,8 @@ pub(super) fn plan_sampling(scene: &LoadedScene, opts: &SampleOptions) -> Result
     if let (Some(budget), false) = (opts.budget, opts.method == Method::Vertex) {
         if let Some(coarser) = est.voxel_for(budget as f64, opts.merge).filter(|&c| c > voxel.size) {
             voxel.reason = format!("{}; coarsened to {coarser:.6} to stay within --sample-budget {budget}", voxel.reason);
+            stats = SampleStats { coarsened: Some((voxel.size, coarser)), ..Default::default() };
             voxel.size = coarser;
-            stats = SampleStats::default();
             units = plan_units(scene, coarser, &mut stats);
             est = SampleEstimate::of(scene, &units, coarser, opts.method);
         } else if !opts.merge && est.at(voxel.size) > budget as f64 {
@@ -117,7 +117,7 @@ pub(super) fn plan_sampling(scene: &LoadedScene, opts: &SampleOptions) -> Result
     let estimate = est.at(h);
     if estimate > opts.max_samples as f64 {
         return Err(format!(
-            "voxel size {h} would make about {estimate:.0} samples, more than --max-samples {}; use a larger --voxel-size, a smaller γ or --sample-budget",
+            "voxel size {h} would make about {estimate:.0} samples, more than --max-samples {}; use a larger --voxel-size or --screen-error, or --sample-budget",
             opts.max_samples
         ));
     }
