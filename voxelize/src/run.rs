@@ -396,6 +396,7 @@ pub fn sample_into(
     let n_samples = tables.sample_count();
     let st = &sampled.stats;
     let rel = if st.mesh_area > 0.0 { (st.sample_area - st.mesh_area) / st.mesh_area } else { 0.0 };
+    warnings.extend(st.warnings.iter().cloned());
     if st.baked_non_similar > 0 {
         warnings.push(format!("{} placement(s) of reused meshes had a projective or singular transform and were baked into world space", st.baked_non_similar));
     }

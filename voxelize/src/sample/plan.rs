@@ -107,6 +107,20 @@ pub(super) fn plan_sampling(scene: &LoadedScene, opts: &SampleOptions) -> Result
             ));
         }
     }
+    // A voxel wider than the model says nothing more than one that just spans it; the
+    // vertex sampler has no voxels.
+    let extent = scene.world_bounds().map_or(0.0, |(lo, hi)| (0..3).fold(0.0f64, |m, k| m.max(hi[k] - lo[k])));
+    if opts.method != Method::Vertex && extent > 0.0 && extent < voxel.size {
+        let asked = voxel.size;
+        voxel.reason = format!("{}; clamped to the model's largest extent {extent:.6}", voxel.reason);
+        voxel.size = extent;
+        stats = SampleStats::default();
+        units = plan_units(scene, extent, &mut stats);
+        est = SampleEstimate::of(scene, &units, extent, opts.method);
+        stats.warnings.push(format!(
+            "voxel size {asked} is larger than the model (largest bounding-box extent {extent}); clamped to {extent}"
+        ));
+    }
     let h = voxel.size;
     if let Some(b) = scene.world_bounds() {
         let ext = b.0.iter().chain(b.1.iter()).fold(0.0f64, |m, v| m.max(v.abs()));
