@@ -400,12 +400,7 @@ pub fn sample_into(
     let n_samples = tables.sample_count();
     let st = &sampled.stats;
     let rel = if st.mesh_area > 0.0 { (st.sample_area - st.mesh_area) / st.mesh_area } else { 0.0 };
-    if let (Some((chosen, used)), Some(budget)) = (st.coarsened, s.budget) {
-        warnings.push(format!(
-            "the sample budget of {budget} coarsened the voxel from {chosen:.6} to {used:.6} ({:.1}× coarser): the model is sampled more coarsely than its density rule asks",
-            used / chosen
-        ));
-    }
+    warnings.extend(st.warnings.iter().cloned());
     if st.baked_non_similar > 0 {
         warnings.push(format!("{} placement(s) of reused meshes had a projective or singular transform and were baked into world space", st.baked_non_similar));
     }

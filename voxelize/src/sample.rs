@@ -167,9 +167,8 @@ pub struct SampleStats {
     pub sample_area: f64,
     /// Mesh area over the scene (instances included).
     pub mesh_area: f64,
-    /// `(voxel the density rule chose, the coarser voxel used)` when the sample budget
-    /// coarsened the voxel.
-    pub coarsened: Option<(f64, f64)>,
+    /// Non-fatal problems of the sampling (the run report adds them to its own).
+    pub warnings: Vec<String>,
 }
 
 /// Result of [`sample_scene`].
@@ -516,7 +515,14 @@ mod tests {
             assert!(a.stats.samples > 40_000, "{method:?}: {} samples", a.stats.samples);
             let (na, nb) = (&a.meshes[0].samples, &b.meshes[0].samples);
             // Slab outputs are placed in slab order across batches: voxels x-major throughout.
-            assert!(na.windows(2).all(|w| w[0].center <= w[1].center), "{method:?}: nodes out of voxel order");
+            // Samples lie in their voxels (up to rounding: a centre on a face may be counted in
+            // either voxel), so their x layers of voxels can be chosen non-decreasing.
+            let mut layer = f64::NEG_INFINITY;
+            for n in na {
+                let x = f64::from(n.center[0]) / 0.004;
+                assert!((x + 1e-4).floor() >= layer, "{method:?}: nodes out of voxel order");
+                layer = layer.max((x - 1e-4).floor());
+            }
             assert_eq!(na.len(), nb.len());
             for (x, y) in na.iter().zip(nb) {
                 assert_eq!((x.center, x.area.to_bits(), x.normal, x.color), (y.center, y.area.to_bits(), y.normal, y.color), "{method:?}");

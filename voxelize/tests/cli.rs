@@ -70,3 +70,17 @@ fn sample_budget_caps_the_density() {
     assert_eq!(code, Some(1), "{err}");
     assert!(err.contains("--sample-budget 1000 cannot be met"), "{err}");
 }
+
+/// A voxel wider than the model is clamped to the model's largest extent, and the JSON
+/// summary carries the warning (also printed to stderr).
+#[test]
+fn oversized_voxel_is_clamped_with_a_warning() {
+    let Some(duck) = model("gltf/Duck/glTF-Binary/Duck.glb") else { return };
+    let st = bin().arg(&duck).args(["--dry-run", "--json", "--voxel-size", "1000"]).output().unwrap();
+    assert_eq!(st.status.code(), Some(0), "{}", String::from_utf8_lossy(&st.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&st.stdout).unwrap();
+    assert!(v["voxel_size"].as_f64().unwrap() < 1000.0, "{v}");
+    let warnings = v["warnings"].as_array().unwrap();
+    assert!(warnings.iter().any(|w| w.as_str().unwrap().contains("larger than the model")), "{v}");
+    assert!(String::from_utf8_lossy(&st.stderr).contains("larger than the model"));
+}

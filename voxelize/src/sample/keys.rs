@@ -2,13 +2,40 @@
 
 use crate::mesh::floor_i64;
 
-/// One sample before merging: a packed voxel key ([`KeyPack`]) and attributes.
-#[derive(Clone, Copy)]
+/// One sample before merging: a packed voxel key ([`KeyPack`]), attributes, and the point
+/// of the surface it stands for with the radius that reaches all of its piece of surface.
+#[derive(Clone, Copy, Debug)]
 pub(super) struct Rec {
     pub(super) key: u64,
     pub(super) area: f32,
     pub(super) normal: [f32; 3],
     pub(super) color: [f32; 4],
+    /// The sample's point (the centroid of its piece of surface) relative to the centre of
+    /// its voxel, in voxel units: voxel-local so that f32 keeps it to 2^-25 of a voxel
+    /// wherever the voxel lies.
+    pub(super) off: [f32; 3],
+    /// Radius (voxel units) of the ball around `off` that holds the sample's whole piece of
+    /// surface, rounded up.
+    pub(super) r: f32,
+}
+
+/// `x` as an f32 no smaller than `x` (for radii: containment must survive the rounding).
+#[inline(always)]
+pub(super) fn up_f32(x: f64) -> f32 {
+    let y = x as f32;
+    if f64::from(y) < x { y.next_up() } else { y }
+}
+
+/// A record's offset ([`Rec::off`]) for the point `p` (grid units) sampling voxel `v`, and
+/// its radius for a piece that lies within `r` of `p`: `r` grown by how far rounding to f32
+/// moved the point (the L1 length of the move, at least its length: no square root), so the
+/// ball around the stored point still holds the piece.
+#[inline(always)]
+pub(super) fn offset_reach(p: [f64; 3], v: [i64; 3], r: f64) -> ([f32; 3], f32) {
+    let o: [f64; 3] = std::array::from_fn(|k| p[k] - v[k] as f64 - 0.5);
+    let off = o.map(|x| x as f32);
+    let moved = (f64::from(off[0]) - o[0]).abs() + (f64::from(off[1]) - o[1]).abs() + (f64::from(off[2]) - o[2]).abs();
+    (off, up_f32(r + moved))
 }
 
 /// Packs voxel coordinates of one unit into a `u64` (x major, then y, then z — the
@@ -41,9 +68,19 @@ impl KeyPack {
     }
     #[inline]
     pub(super) fn pack(&self, k: [i64; 3]) -> u64 {
-        // Clamped so a rounding stray can never spill into a neighbouring field (max then min:
-        // `clamp` would also check lo ≤ hi, which `new` guarantees, on every sample).
-        let v: [u64; 3] = std::array::from_fn(|i| (k[i].max(self.lo[i]).min(self.hi[i]) - self.lo[i]) as u64);
+        self.pack_in_range(self.clamp(k))
+    }
+    /// The voxel of the key range nearest to `k`: the voxel whose key [`KeyPack::pack`] gives
+    /// `k`. Clamped so a rounding stray can never spill into a neighbouring field (max then
+    /// min: `clamp` would also check lo ≤ hi, which `new` guarantees, on every sample).
+    #[inline]
+    pub(super) fn clamp(&self, k: [i64; 3]) -> [i64; 3] {
+        std::array::from_fn(|i| k[i].max(self.lo[i]).min(self.hi[i]))
+    }
+    /// [`KeyPack::pack`] of a voxel already in the key range.
+    #[inline]
+    pub(super) fn pack_in_range(&self, k: [i64; 3]) -> u64 {
+        let v: [u64; 3] = std::array::from_fn(|i| (k[i] - self.lo[i]) as u64);
         (v[0] << self.shift_x) | (v[1] << self.bits[2]) | v[2]
     }
     /// Where axis `k`'s field starts in a key.

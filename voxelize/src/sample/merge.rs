@@ -1,48 +1,61 @@
-//! Turning sorted records into samples: one per voxel when merging (areas add, normal and
-//! colour are area-weighted means), else one per record.
+//! Turning sorted records into samples: one per voxel when merging, else one per record.
+//! A merged sample stands at the area-weighted centroid of its records' points (the
+//! centroid of the union of their pieces), with a radius that reaches every piece; areas
+//! add, normal and colour are area-weighted means.
 
 use sct_format::Node;
 
 use crate::mesh::norm;
 
-use super::keys::{KeyPack, Rec};
+use super::keys::{up_f32, KeyPack, Rec};
 use super::shade::srgb8;
 
 /// Appends to `out` the nodes of records in the order of `items` (record index = item &
-/// `idx_mask`, in key order), merging records of one voxel when `merge` (areas add;
-/// normal and colour are area-weighted means).
-#[allow(clippy::too_many_arguments)]
-pub(super) fn merge_sorted(items: &[u64], idx_mask: u64, recs: &[Rec], kp: &KeyPack, r: f32, h: f64, h2: f64, merge: bool, out: &mut Vec<Node>) {
+/// `idx_mask`, in key order), merging records of one voxel when `merge`.
+pub(super) fn merge_sorted(items: &[u64], idx_mask: u64, recs: &[Rec], shape: &NodeShape, merge: bool, out: &mut Vec<Node>) {
     // One copy of the loop per case: the flags do not take registers in it. Items carry
     // their keys above the index unless they are bare indices (idx_mask all ones).
-    let shape = NodeShape { kp, r, h, h2 };
     match (merge, idx_mask != u64::MAX) {
-        (true, true) => merge_loop::<true, true>(items, idx_mask, recs, &shape, out),
-        (true, false) => merge_loop::<true, false>(items, idx_mask, recs, &shape, out),
-        (false, _) => merge_loop::<false, false>(items, idx_mask, recs, &shape, out),
+        (true, true) => merge_loop::<true, true>(items, idx_mask, recs, shape, out),
+        (true, false) => merge_loop::<true, false>(items, idx_mask, recs, shape, out),
+        (false, _) => merge_loop::<false, false>(items, idx_mask, recs, shape, out),
     }
 }
 
-/// What turns a voxel key and a record's area into a node's centre, radius and area.
+/// What turns a voxel key and records into a node's centre, radius and area.
 pub(super) struct NodeShape<'k> {
     kp: &'k KeyPack,
-    r: f32,
     h: f64,
     h2: f64,
+    /// Whether every record's piece lies in its voxel (the voxel method; a scan-line sample
+    /// stands for its column's piece of plane, which can leave the voxel): a merged sample's
+    /// radius then need not exceed the distance to the voxel's farthest corner.
+    in_voxel: bool,
+    /// Added to every radius (voxel units): pieces are computed in grid coordinates of
+    /// magnitude up to M, each vertex and centroid to within a few ulps of M; 64 ulps of M
+    /// bound how far a computed piece, centroid or centre lies from the exact one.
+    slack: f64,
+}
+
+impl<'k> NodeShape<'k> {
+    /// The shape of the nodes of key range `kp` at voxel size `h`; `in_voxel` as the field.
+    pub(super) fn new(kp: &'k KeyPack, h: f64, in_voxel: bool) -> Self {
+        let m = kp.lo.iter().chain(&kp.hi).fold(0.0f64, |m, &v| m.max((v as f64).abs()));
+        NodeShape { kp, h, h2: h * h, in_voxel, slack: (m + 2.0) * (1.0 / (1u64 << 46) as f64) }
+    }
 }
 
 /// [`merge_sorted`]'s loop; `KEYED`: runs of one voxel are found from the items' key bits,
 /// without reading the records.
 pub(super) fn merge_loop<const MERGE: bool, const KEYED: bool>(items: &[u64], idx_mask: u64, recs: &[Rec], shape: &NodeShape, out: &mut Vec<Node>) {
-    let &NodeShape { kp, r, h, h2 } = shape;
-    // Keys ascend, so neighbours mostly share x and y (the bits above z): their centre
-    // coordinates are taken once per (x, y) column, only z per key. (Each key field has at
-    // least 1 bit and they sum to at most 64, so z's are fewer than 64: the shift is exact.)
+    let &NodeShape { kp, h, h2, in_voxel, slack } = shape;
+    // Keys ascend, so neighbours mostly share x and y (the bits above z): their voxel
+    // centres are taken once per (x, y) column, only z per key. (Each key field has at least
+    // 1 bit and they sum to at most 64, so z's are fewer than 64: the shift is exact.)
     let z_bits = kp.bits[2] & 63;
     let z_mask = (1u64 << z_bits) - 1;
     let z_lo = kp.lo[2];
-    let c = |v: i64| ((v as f64 + 0.5) * h) as f32;
-    let mut column = (u64::MAX, [0.0f32; 2]);
+    let mut column = (u64::MAX, [0.0f64; 2]);
     // Neighbouring voxels mostly carry the same colour (always for untextured meshes without
     // vertex colours): encode a colour once for a run of equal ones (equal bits: one integer
     // compare; a colour equal as floats but not in bits, ±0, only encodes again).
@@ -72,32 +85,38 @@ pub(super) fn merge_loop<const MERGE: bool, const KEYED: bool>(items: &[u64], id
         let hi = key >> z_bits;
         if hi != column.0 {
             let v = kp.unpack(key);
-            column = (hi, [c(v[0]), c(v[1])]);
+            column = (hi, [v[0] as f64 + 0.5, v[1] as f64 + 0.5]);
         }
-        let center = [column.1[0], column.1[1], c((key & z_mask) as i64 + z_lo)];
-        if j == i + 1 {
+        let voxel_centre = [column.1[0], column.1[1], ((key & z_mask) as i64 + z_lo) as f64 + 0.5];
+        let (normal, area, color, off, reach) = if j == i + 1 {
             // The common case: nothing to merge.
-            if bits(first.color) != memo.0 {
-                memo = (bits(first.color), srgb8(first.color));
-            }
-            nodes.push(Node { center, radius: r, normal: first.normal, cone: 0.0, area: (f64::from(first.area) * h2) as f32, color: memo.1 });
+            (first.normal, (f64::from(first.area) * h2) as f32, first.color, first.off.map(f64::from), f64::from(first.r))
         } else {
-            let (normal, area, color) = merge_run(&items[i..j], idx_mask, recs, h2);
-            if bits(color) != memo.0 {
-                memo = (bits(color), srgb8(color));
-            }
-            nodes.push(Node { center, radius: r, normal, cone: 0.0, area, color: memo.1 });
+            merge_run(&items[i..j], idx_mask, recs, h2, in_voxel)
+        };
+        if bits(color) != memo.0 {
+            memo = (bits(color), srgb8(color));
         }
+        let exact: [f64; 3] = std::array::from_fn(|k| (voxel_centre[k] + off[k]) * h);
+        let center = exact.map(|x| x as f32);
+        // The ball must hold the pieces around the stored centre: grown by how far rounding
+        // to f32 moved it (L1, at least the distance).
+        let moved = (f64::from(center[0]) - exact[0]).abs() + (f64::from(center[1]) - exact[1]).abs() + (f64::from(center[2]) - exact[2]).abs();
+        let radius = up_f32((reach + slack) * h + moved);
+        nodes.push(Node { center, radius, normal, cone: 0.0, area, color: memo.1 });
         i = j;
     }
     *out = nodes;
 }
 
-/// (normal, area, colour) of a run of records of one voxel (its own function with its own
-/// locals; inlined: a call per run measured +4 % instructions in the voxel method's merge).
+/// (normal, area, colour, offset, reach) of a run of records of one voxel: the offset is
+/// the area-weighted mean of the records' offsets (the centroid of their pieces), the reach
+/// (voxel units) the farthest any piece lies from it, bounded by the voxel's farthest
+/// corner when `in_voxel`. Its own function with its own locals; inlined: a call per run
+/// measured +4 % instructions in the voxel method's merge.
 #[inline(always)]
-pub(super) fn merge_run(run: &[u64], idx_mask: u64, recs: &[Rec], h2: f64) -> ([f32; 3], f32, [f32; 4]) {
-    let (mut a, mut wsum, mut nn, mut c) = (0.0f64, 0.0f64, [0.0f64; 3], [0.0f64; 4]);
+pub(super) fn merge_run(run: &[u64], idx_mask: u64, recs: &[Rec], h2: f64, in_voxel: bool) -> ([f32; 3], f32, [f32; 4], [f64; 3], f64) {
+    let (mut a, mut wsum, mut nn, mut c, mut o) = (0.0f64, 0.0f64, [0.0f64; 3], [0.0f64; 4], [0.0f64; 3]);
     for &it in run {
         let x = &recs[(it & idx_mask) as usize];
         // Zero-area pieces (edge slivers) still count a little so colour is defined.
@@ -110,31 +129,62 @@ pub(super) fn merge_run(run: &[u64], idx_mask: u64, recs: &[Rec], h2: f64) -> ([
         for (s, v) in c.iter_mut().zip(x.color) {
             *s += w * f64::from(v);
         }
+        for (s, v) in o.iter_mut().zip(x.off) {
+            *s += w * f64::from(v);
+        }
+    }
+    let o = o.map(|x| x / wsum);
+    // Each piece lies within its record's radius of the record's point.
+    let mut reach = 0.0f64;
+    for &it in run {
+        let x = &recs[(it & idx_mask) as usize];
+        let d = [0, 1, 2].map(|k| o[k] - f64::from(x.off[k]));
+        reach = reach.max((d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() + f64::from(x.r));
+    }
+    if in_voxel {
+        let corner = [0, 1, 2].map(|k| 0.5 + o[k].abs());
+        reach = reach.min((corner[0] * corner[0] + corner[1] * corner[1] + corner[2] * corner[2]).sqrt());
     }
     let l = norm(nn);
     let first = run.first().map_or([0.0; 3], |&it| recs[(it & idx_mask) as usize].normal);
     let normal = if l > 1e-9 * wsum { nn.map(|x| (x / l) as f32) } else { first };
-    (normal, (a * h2) as f32, c.map(|x| (x / wsum) as f32))
+    (normal, (a * h2) as f32, c.map(|x| (x / wsum) as f32), o, reach)
 }
 
 #[cfg(test)]
 mod tests {
-    use super::*;
+    use super::super::keys::offset_reach;
     use super::super::sort::sort_order;
+    use super::*;
+
+    /// Random records of pieces in voxels: each piece is a few points of its voxel, its record
+    /// their mean with the radius reaching them all. Returns the records and their pieces
+    /// (grid units).
+    fn pieces(kp: &KeyPack, n: usize, seed: u64) -> (Vec<Rec>, Vec<Vec<[f64; 3]>>) {
+        let mut rng = sct_format::rng::SplitMix64(seed);
+        let (mut recs, mut pts) = (Vec::new(), Vec::new());
+        for i in 0..n {
+            let v = [(rng.next_u64() % 4) as i64, (rng.next_u64() % 5) as i64, (rng.next_u64() % 30) as i64];
+            let piece: Vec<[f64; 3]> = (0..1 + i % 4).map(|_| std::array::from_fn(|k| v[k] as f64 + rng.next_f64())).collect();
+            let mean: [f64; 3] = std::array::from_fn(|k| piece.iter().map(|p| p[k]).sum::<f64>() / piece.len() as f64);
+            let reach = piece.iter().map(|p| (0..3).map(|k| (p[k] - mean[k]).powi(2)).sum::<f64>().sqrt()).fold(0.0, f64::max);
+            let (off, r) = offset_reach(mean, v, reach);
+            let c = |r: &mut sct_format::rng::SplitMix64| (r.next_u64() % 1000) as f32 / 1000.0;
+            let area = if i % 7 == 0 { 0.0 } else { c(&mut rng) };
+            recs.push(Rec { key: kp.pack(v), area, normal: [c(&mut rng), 0.5, -0.25], color: [c(&mut rng), 0.25, 0.5, 1.0], off, r });
+            pts.push(piece);
+        }
+        (recs, pts)
+    }
 
     /// Merging from keyed items (runs found from the items) and from bare indices (runs found
     /// from the records' keys) gives the same nodes; equal voxels merge, others pass through.
+    /// Every node's ball holds the pieces of its records, and its centre is their records'
+    /// area-weighted mean point (each record's own point when unmerged).
     #[test]
     fn merge_sorted_finds_runs_from_items_or_records() {
-        let kp = KeyPack::new([0.0; 3], [20.0; 3]).expect("keys");
-        let mut rng = sct_format::rng::SplitMix64(9);
-        let recs: Vec<Rec> = (0..3000)
-            .map(|i| {
-                let v = |r: &mut sct_format::rng::SplitMix64| (r.next_u64() % 1000) as f32 / 1000.0;
-                let key = kp.pack([(rng.next_u64() % 4) as i64, (rng.next_u64() % 5) as i64, (rng.next_u64() % 30) as i64]);
-                Rec { key, area: if i % 7 == 0 { 0.0 } else { v(&mut rng) }, normal: [v(&mut rng), 0.5, -0.25], color: [v(&mut rng), 0.25, 0.5, 1.0] }
-            })
-            .collect();
+        let kp = KeyPack::new([0.0; 3], [4.0, 5.0, 30.0]).expect("keys");
+        let (recs, pts) = pieces(&kp, 3000, 9);
         let (mut items, mut tmp) = (Vec::new(), Vec::new());
         let mask = sort_order(&recs, None, &mut items, &mut tmp);
         assert_ne!(mask, u64::MAX);
@@ -146,17 +196,51 @@ mod tests {
         keys.dedup();
         let voxels = keys.len();
         assert!(voxels < recs.len() / 4);
-        for merge in [true, false] {
+        let h = 0.1;
+        for (merge, in_voxel) in [(true, true), (true, false), (false, true)] {
+            let shape = NodeShape::new(&kp, h, in_voxel);
             let (mut a, mut b) = (Vec::new(), Vec::new());
-            merge_sorted(&items, mask, &recs, &kp, 0.5, 0.1, 0.01, merge, &mut a);
-            merge_sorted(&bare, u64::MAX, &recs, &kp, 0.5, 0.1, 0.01, merge, &mut b);
+            merge_sorted(&items, mask, &recs, &shape, merge, &mut a);
+            merge_sorted(&bare, u64::MAX, &recs, &shape, merge, &mut b);
             assert_eq!(a.len(), if merge { voxels } else { recs.len() });
-            // Centres (x and y taken once per column) are those of the unpacked keys.
-            let want: Vec<u64> = if merge { keys.clone() } else { items.iter().map(|&it| recs[(it & mask) as usize].key).collect() };
-            let centre = |k: u64| kp.unpack(k).map(|v| ((v as f64 + 0.5) * 0.1) as f32);
-            assert!(a.iter().zip(&want).all(|(n, &k)| n.center == centre(k)));
-            let bits = |n: &Node| (n.center, n.normal.map(f32::to_bits), n.area.to_bits(), n.color);
+            let bits = |n: &Node| (n.center.map(f32::to_bits), n.radius.to_bits(), n.normal.map(f32::to_bits), n.area.to_bits(), n.color);
             assert_eq!(a.iter().map(bits).collect::<Vec<_>>(), b.iter().map(bits).collect::<Vec<_>>());
+            // The records of each node, in item order.
+            let mut groups: Vec<Vec<usize>> = Vec::new();
+            for &it in &items {
+                let r = (it & mask) as usize;
+                match groups.last_mut() {
+                    Some(g) if merge && recs[g[0]].key == recs[r].key => g.push(r),
+                    _ => groups.push(vec![r]),
+                }
+            }
+            assert_eq!(groups.len(), a.len());
+            let mut corner_bound = 0;
+            for (node, g) in a.iter().zip(&groups) {
+                let c = node.center.map(f64::from);
+                let mut far = 0.0f64;
+                for p in g.iter().flat_map(|&r| &pts[r]) {
+                    let d = (0..3).map(|k| (p[k] * h - c[k]).powi(2)).sum::<f64>().sqrt();
+                    assert!(d <= f64::from(node.radius), "{d} > {}", node.radius);
+                    far = far.max(d);
+                }
+                let w = |r: usize| f64::from(recs[r].area).max(1e-12);
+                let v = kp.unpack(recs[g[0]].key);
+                for k in 0..3 {
+                    let mean = g.iter().map(|&r| w(r) * (v[k] as f64 + 0.5 + f64::from(recs[r].off[k]))).sum::<f64>() / g.iter().map(|&r| w(r)).sum::<f64>();
+                    assert!((mean * h - c[k]).abs() <= 3e-7, "{mean} {c:?}");
+                }
+                // Tight: no larger than the records' own balls allow.
+                let balls = g.iter().map(|&r| {
+                    let o = (0..3).map(|k| ((v[k] as f64 + 0.5 + f64::from(recs[r].off[k])) * h - c[k]).powi(2)).sum::<f64>().sqrt();
+                    o + f64::from(recs[r].r) * h
+                });
+                let bound = balls.fold(0.0, f64::max);
+                // Up to the f32 rounding of the centre (coordinates below 3: 2^-22 each).
+                assert!(f64::from(node.radius) <= bound + 1e-6, "{} > {bound}", node.radius);
+                corner_bound += usize::from(f64::from(node.radius) < bound * 0.999);
+            }
+            assert_eq!(corner_bound > 0, merge && in_voxel, "{corner_bound} radii bounded by the voxel's corners");
         }
     }
 }

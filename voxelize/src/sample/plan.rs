@@ -95,7 +95,12 @@ pub(super) fn plan_sampling(scene: &LoadedScene, opts: &SampleOptions) -> Result
     if let (Some(budget), false) = (opts.budget, opts.method == Method::Vertex) {
         if let Some(coarser) = est.voxel_for(budget as f64, opts.merge).filter(|&c| c > voxel.size) {
             voxel.reason = format!("{}; coarsened to {coarser:.6} to stay within --sample-budget {budget}", voxel.reason);
-            stats = SampleStats { coarsened: Some((voxel.size, coarser)), ..Default::default() };
+            stats = SampleStats::default();
+            stats.warnings.push(format!(
+                "the sample budget of {budget} coarsened the voxel from {:.6} (what the density rule asks) to {coarser:.6} ({:.1}× coarser)",
+                voxel.size,
+                coarser / voxel.size
+            ));
             voxel.size = coarser;
             units = plan_units(scene, coarser, &mut stats);
             est = SampleEstimate::of(scene, &units, coarser, opts.method);
@@ -106,6 +111,20 @@ pub(super) fn plan_sampling(scene: &LoadedScene, opts: &SampleOptions) -> Result
                 est.per_triangle
             ));
         }
+    }
+    // A voxel wider than the model says nothing more than one that just spans it; the
+    // vertex sampler has no voxels.
+    let extent = scene.world_bounds().map_or(0.0, |(lo, hi)| (0..3).fold(0.0f64, |m, k| m.max(hi[k] - lo[k])));
+    if opts.method != Method::Vertex && extent > 0.0 && extent < voxel.size {
+        let asked = voxel.size;
+        voxel.reason = format!("{}; clamped to the model's largest extent {extent:.6}", voxel.reason);
+        voxel.size = extent;
+        stats = SampleStats { warnings: std::mem::take(&mut stats.warnings), ..Default::default() };
+        units = plan_units(scene, extent, &mut stats);
+        est = SampleEstimate::of(scene, &units, extent, opts.method);
+        stats.warnings.push(format!(
+            "voxel size {asked} is larger than the model (largest bounding-box extent {extent}); clamped to {extent}"
+        ));
     }
     let h = voxel.size;
     if let Some(b) = scene.world_bounds() {

@@ -8,7 +8,7 @@
 //! voxels. Counting and emitting read the same spans, so every slab divides by the same
 //! count and the slabs' samples partition the triangle's.
 
-use super::keys::{KeyPack, Rec, RecSink};
+use super::keys::{offset_reach, up_f32, KeyPack, Rec, RecSink};
 use super::shade::{face_axes, shade_color, unit_or, Mat, Planes, Tri};
 use super::texture::Tex;
 use crate::mesh::AlphaMode;
@@ -331,7 +331,11 @@ fn scanline_axis<const D: usize, S: RecSink>(t: &Tri, fnrm: [f64; 3], mat: &Mat,
         }
         return match planes.shade([cen[a], cen[b]]) {
             (Some(color), normal) => {
-                out.push(Rec { key: kp.pack(key), area: area as f32, normal, color });
+                // The sample stands for the whole triangle: at its centroid, reaching its corners.
+                let reach = t.p.iter().map(|p| norm([p[0] - cen[0], p[1] - cen[1], p[2] - cen[2]])).fold(0.0, f64::max);
+                let v = kp.clamp(key);
+                let (off, r) = offset_reach(cen, v, reach);
+                out.push(Rec { key: kp.pack_in_range(v), area: area as f32, normal, color, off, r });
                 0
             }
             (None, _) => 1,
@@ -340,6 +344,9 @@ fn scanline_axis<const D: usize, S: RecSink>(t: &Tri, fnrm: [f64; 3], mat: &Mat,
     let each = (area / total as f64) as f32;
     // Depth plane through corner 0: depth = p0 + ga·(a − a0) + gb·(b − b0).
     let (ga, gb) = (-fnrm[a] / fnrm[D], -fnrm[b] / fnrm[D]);
+    // A sample stands for its column's square lifted onto the plane, centred on the plane
+    // point above the column centre: its corners lie √(½ + (depth change to a corner)²) away.
+    let half = 0.5 * (ga.abs() + gb.abs());
     let rows = TriRows::<D> {
         spans: &spans,
         kept: &kept,
@@ -350,6 +357,7 @@ fn scanline_axis<const D: usize, S: RecSink>(t: &Tri, fnrm: [f64; 3], mat: &Mat,
         gb,
         p0: t.p[0],
         each,
+        reach: (0.5 + half * half).sqrt(),
         // Most triangles lie in one slab: no row needs cutting to it.
         whole_in_slab: in_slab(cells[0].0) && in_slab(cells[0].1),
         fast: FastKeys::new::<D>(t, fnrm, kp, (klo, khi)),
@@ -368,13 +376,16 @@ fn scanline_axis<const D: usize, S: RecSink>(t: &Tri, fnrm: [f64; 3], mat: &Mat,
 const ROUND_MAGIC: f64 = 6_755_399_441_055_744.0;
 
 /// `floor(x) + ROUND_MAGIC.to_bits()` (wrapping) for `|x| < 2^50`: the floor without the
-/// saturation and NaN fix-ups of an `as i64` conversion (which this range never needs).
+/// saturation and NaN fix-ups of an `as i64` conversion (which this range never needs); and
+/// the floor as an `f64`.
 #[inline(always)]
-fn floor_biased(x: f64) -> u64 {
+fn floor_biased(x: f64) -> (u64, f64) {
     let z = x + ROUND_MAGIC;
     // `z − ROUND_MAGIC` is exact: `x` rounded to an integer, one above the floor when `x`
     // was rounded up.
-    z.to_bits().wrapping_sub(u64::from(z - ROUND_MAGIC > x))
+    let r = z - ROUND_MAGIC;
+    let up = r > x;
+    (z.to_bits().wrapping_sub(u64::from(up)), r - f64::from(u8::from(up)))
 }
 
 /// Largest magnitude of a voxel index or coordinate (grid units) for [`FastKeys`]: column
@@ -421,9 +432,16 @@ impl FastKeys {
     /// depth cells and the key range, biased by `ROUND_MAGIC` (which `offset` takes back).
     #[inline(always)]
     fn depth_field(&self, depth: f64) -> u64 {
+        self.depth_cell(depth).0
+    }
+
+    /// [`FastKeys::depth_field`] and the index of that voxel as an `f64`.
+    #[inline(always)]
+    fn depth_cell(&self, depth: f64) -> (u64, f64) {
         let depth = if depth < self.lo { self.lo } else { depth };
         let depth = if depth > self.hi { self.hi } else { depth };
-        floor_biased(depth) << self.shift_d
+        let (biased, floor) = floor_biased(depth);
+        (biased << self.shift_d, floor)
     }
 }
 
@@ -441,11 +459,24 @@ struct TriRows<'s, 'k, const D: usize> {
     p0: [f64; 3],
     /// EQ 17 area of a sample.
     each: f32,
+    /// How far a sample's piece (its column's square on the plane) reaches from its point.
+    reach: f64,
     whole_in_slab: bool,
     fast: Option<FastKeys>,
 }
 
 impl<const D: usize> TriRows<'_, '_, D> {
+    /// A sample's offset and radius for its plane point at depth `depth` in depth voxel `k`
+    /// (the column centre's offsets are exactly 0 where [`FastKeys`] apply).
+    #[inline(always)]
+    fn depth_offset(&self, depth: f64, k: f64) -> ([f32; 3], f32) {
+        let o = depth - k - 0.5;
+        let o32 = o as f32;
+        let mut off = [0.0; 3];
+        off[D] = o32;
+        (off, up_f32(self.reach + (f64::from(o32) - o).abs()))
+    }
+
     /// Emits the slab's samples row by row, shaded by `shade`; returns the number dropped
     /// by alpha.
     fn emit<S: RecSink>(&self, shade: impl ColumnShade, out: &mut S) -> u64 {
@@ -514,17 +545,24 @@ impl<const D: usize> TriRows<'_, '_, D> {
                 continue;
             }
             shade.row(ca);
-            let mut push = |key: u64, (color, normal): (Option<[f32; 4]>, [f32; 3])| match color {
-                Some(color) => out.push(Rec { key, area: self.each, normal, color }),
-                None => dropped += 1,
-            };
             let Some(f) = &self.fast else {
                 for ib in first..=last {
                     let mut key = [0i64; 3];
                     key[a] = ia;
                     key[b] = ib;
                     key[D] = depth_key(ib);
-                    push(kp.pack(key), shade.at(ib as f64 + 0.5));
+                    match shade.at(ib as f64 + 0.5) {
+                        (Some(color), normal) => {
+                            // The plane point above the column centre, from the voxel of its key.
+                            let cb = ib as f64 + 0.5;
+                            let mut p = [0.0; 3];
+                            (p[a], p[b], p[D]) = (ca, cb, drow + gb * (cb - p0[b]));
+                            let v = kp.clamp(key);
+                            let (off, r) = offset_reach(p, v, self.reach);
+                            out.push(Rec { key: kp.pack_in_range(v), area: self.each, normal, color, off, r });
+                        }
+                        (None, _) => dropped += 1,
+                    }
                 }
                 continue;
             };
@@ -539,7 +577,13 @@ impl<const D: usize> TriRows<'_, '_, D> {
             let n = last.abs_diff(first) + 1;
             // The depth expression of `depth_key` (never NaN here), at `ib + ½` counted in
             // f64 (exact below 2^50).
-            let depth = |cb: f64| f.depth_field(drow + gb * (cb - p0[b]));
+            // With the sample's offset and radius: the plane point's depth from its voxel.
+            let depth = |cb: f64| {
+                let depth = drow + gb * (cb - p0[b]);
+                let (field, k) = f.depth_cell(depth);
+                let (off, r) = self.depth_offset(depth, k);
+                (field, off, r)
+            };
             let row = FastRow { key_b, step: 1 << f.shift_b, cb: first as f64 + 0.5, n, each: self.each };
             // The row's keys lie between its first column at the lowest depth and its last
             // at the highest (a key is monotone in each field).
@@ -565,14 +609,17 @@ struct FastRow {
 }
 
 impl FastRow {
-    /// Pushes the row's samples to `out` (`depth` = the depth field at a column centre);
-    /// returns the number dropped by alpha.
+    /// Pushes the row's samples to `out` (`depth` = the depth field, offset and radius at a
+    /// column centre); returns the number dropped by alpha.
     #[inline(always)]
-    fn emit<S: RecSink>(self, shade: &impl ColumnShade, depth: impl Fn(f64) -> u64, out: &mut S) -> u64 {
+    fn emit<S: RecSink>(self, shade: &impl ColumnShade, depth: impl Fn(f64) -> (u64, [f32; 3], f32), out: &mut S) -> u64 {
         let (mut key_b, mut cb, mut dropped) = (self.key_b, self.cb, 0);
         for _ in 0..self.n {
             match shade.at(cb) {
-                (Some(color), normal) => out.push(Rec { key: key_b.wrapping_add(depth(cb)), area: self.each, normal, color }),
+                (Some(color), normal) => {
+                    let (field, off, r) = depth(cb);
+                    out.push(Rec { key: key_b.wrapping_add(field), area: self.each, normal, color, off, r });
+                }
                 (None, _) => dropped += 1,
             }
             key_b = key_b.wrapping_add(self.step);
@@ -661,7 +708,7 @@ mod tests {
         let mut rng = sct_format::rng::SplitMix64(23);
         let mat = Mat { base: [0.5, 0.6, 0.7, 1.0], tex: None, alpha_tex: None, alpha: crate::mesh::AlphaMode::Opaque };
         let kp = KeyPack::new([-80.0; 3], [80.0; 3]).expect("keys");
-        let key_fields = |r: &Rec| (r.key, r.area.to_bits(), r.normal.map(f32::to_bits), r.color.map(f32::to_bits));
+        let key_fields = |r: &Rec| (r.key, r.area.to_bits(), r.normal.map(f32::to_bits), r.color.map(f32::to_bits), r.off.map(f32::to_bits), r.r.to_bits());
         let (mut axes, mut centroid_only) = ([0; 3], 0);
         for i in 0..3000 {
             let scale = [0.8, 4.0, 30.0][i % 3];
@@ -710,7 +757,8 @@ mod tests {
             xs.extend([x, x.floor(), x.floor().next_down()]);
         }
         for x in xs {
-            assert_eq!(floor_biased(x).wrapping_sub(ROUND_MAGIC.to_bits()) as i64, floor_i64(x), "{x:e}");
+            assert_eq!(floor_biased(x).0.wrapping_sub(ROUND_MAGIC.to_bits()) as i64, floor_i64(x), "{x:e}");
+            assert_eq!(floor_biased(x).1, x.floor(), "{x:e}");
         }
     }
 
@@ -732,6 +780,7 @@ mod tests {
                 let want = floor_i64(x).clamp(klo, khi).clamp(kp.lo[2], kp.hi[2]);
                 let got = f.depth_field(x).wrapping_sub(ROUND_MAGIC.to_bits()) as i64;
                 assert_eq!(got, want, "{x} in {klo}..={khi}");
+                assert_eq!(f.depth_cell(x).1, want as f64, "{x} in {klo}..={khi}");
             }
         }
     }
@@ -752,6 +801,7 @@ mod tests {
         let (lo, hi) = t.p.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| (l.min(p[d]), h.max(p[d])));
         let (ga, gb, p0) = (-fnrm[a] / fnrm[d], -fnrm[b] / fnrm[d], t.p[0]);
         let each = (0.5 * norm(fnrm) / total as f64) as f32;
+        let reach = (0.5 + (0.5 * (ga.abs() + gb.abs())).powi(2)).sqrt();
         let (mut recs, mut dropped) = (Vec::new(), 0);
         for ia in spans.rows.0..=spans.rows.1 {
             let (first, last) = spans.row(ia);
@@ -761,9 +811,14 @@ mod tests {
                 let cb = ib as f64 + 0.5;
                 let mut key = [0; 3];
                 (key[a], key[b]) = (ia, ib);
-                key[d] = floor_i64(drow + gb * (cb - p0[b])).clamp(floor_i64(lo), floor_i64(hi));
+                let depth = drow + gb * (cb - p0[b]);
+                key[d] = floor_i64(depth).clamp(floor_i64(lo), floor_i64(hi));
+                // At the plane point above the column centre, from the voxel of the key.
+                let mut p = [0.0; 3];
+                (p[a], p[b], p[d]) = (ca, cb, depth);
+                let (off, r) = offset_reach(p, kp.clamp(key), reach);
                 match planes.shade([ca, cb]) {
-                    (Some(color), normal) => recs.push(Rec { key: kp.pack(key), area: each, normal, color }),
+                    (Some(color), normal) => recs.push(Rec { key: kp.pack(key), area: each, normal, color, off, r }),
                     (None, _) => dropped += 1,
                 }
             }
@@ -807,7 +862,7 @@ mod tests {
         ];
         let small = KeyPack::new([-80.0; 3], [80.0; 3]).expect("keys");
         let huge = KeyPack::new([-1e16, -6.0, -6.0], [1e16, 6.0, 6.0]).expect("keys");
-        let bits = |r: &Rec| (r.key, r.area.to_bits(), r.normal.map(f32::to_bits), r.color.map(f32::to_bits));
+        let bits = |r: &Rec| (r.key, r.area.to_bits(), r.normal.map(f32::to_bits), r.color.map(f32::to_bits), r.off.map(f32::to_bits), r.r.to_bits());
         let (mut fast, mut exact, mut dropped_any, mut compared) = (0, 0, 0, 0);
         let (mut one_part, mut many_parts) = (0, 0);
         for i in 0..6000 {

@@ -7,7 +7,7 @@ use sct_format::Node;
 use crate::mesh::*;
 
 use super::keys::{KeyPack, Rec, RecSink};
-use super::merge::merge_sorted;
+use super::merge::{merge_sorted, NodeShape};
 use super::prepare::Prepared;
 use super::sort::sort_order;
 use super::voxel::{voxel_triangle, ALL_X};
@@ -85,8 +85,9 @@ pub(super) fn sample_slabs<E: Send>(
         }
     }
     let per_slab = total / slab_x.len() as f64;
-    let radius = (0.5 * 3f64.sqrt() * h) as f32;
-    let h2 = h * h;
+    // A voxel-method record's piece lies in its voxel; a scan-line record's column of plane
+    // need not.
+    let shape = NodeShape::new(kp, h, opts.method == Method::Voxel);
     #[derive(Default)]
     struct Bufs {
         recs: Vec<Rec>,
@@ -159,7 +160,7 @@ pub(super) fn sample_slabs<E: Send>(
                     out.reserve(if opts.merge { before * 4 / 5 } else { before });
                     for (i, part) in bufs.parts.parts.iter().enumerate() {
                         let idx_mask = sort_order(part, bufs.parts.key_range(i), &mut bufs.items, &mut bufs.tmp);
-                        merge_sorted(&bufs.items, idx_mask, part, kp, radius, h, h2, opts.merge, &mut out);
+                        merge_sorted(&bufs.items, idx_mask, part, &shape, opts.merge, &mut out);
                     }
                     let before = before as u64;
                     (out, before, dropped)
@@ -313,7 +314,7 @@ mod tests {
                     .map(|i| {
                         let x = xs.0 - 3 + (rng.next_u64() % (xs.1 - xs.0 + 7) as u64) as i64;
                         let key = kp.pack([x, (rng.next_u64() % 40) as i64, (rng.next_u64() % 40) as i64]);
-                        Rec { key, area: 0.5, normal: [(all.len() + i as usize) as f32; 3], color: [0.0; 4] }
+                        Rec { key, area: 0.5, normal: [(all.len() + i as usize) as f32; 3], color: [0.0; 4], off: [0.0; 3], r: 0.0 }
                     })
                     .collect();
                 all.extend_from_slice(&tri);

@@ -4,7 +4,7 @@
 use crate::mesh::*;
 
 use super::clip::{ping, Poly2, MAXV};
-use super::keys::{KeyPack, Rec};
+use super::keys::{offset_reach, KeyPack, Rec};
 use super::shade::{face_axes, Mat, Planes, Tri};
 use super::AreaMode;
 
@@ -23,10 +23,12 @@ pub(super) struct Emitter<'p, 'm, const D: usize> {
 }
 
 impl<const D: usize> Emitter<'_, '_, D> {
-    /// The piece of projected area `area2` and centroid `cen` in voxel (ia, ib, k) along axes
-    /// (D + 1, D + 2, D).
+    /// The piece of projected area `area2` and centroid `cen` (at depth `dc`: the centroid of
+    /// the piece itself lies above the centroid of its projection) in voxel (ia, ib, k) along
+    /// axes (D + 1, D + 2, D), lying within `reach` of its centroid.
+    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    pub(super) fn emit(&mut self, out: &mut Vec<Rec>, ia: i64, ib: i64, k: i64, area2: f64, cen: [f64; 2]) {
+    pub(super) fn emit(&mut self, out: &mut Vec<Rec>, ia: i64, ib: i64, k: i64, area2: f64, cen: [f64; 2], dc: f64, reach: f64) {
         let mut key = [0i64; 3];
         key[(D + 1) % 3] = ia;
         key[(D + 2) % 3] = ib;
@@ -36,10 +38,32 @@ impl<const D: usize> Emitter<'_, '_, D> {
             return;
         }
         match self.planes.shade(cen) {
-            (Some(color), normal) => out.push(Rec { key: self.kp.pack(key), area: (area2 * self.ascale) as f32, normal, color }),
+            (Some(color), normal) => {
+                // The key range holds every piece with a voxel to spare, so the clamp leaves
+                // the voxel as it is; the offset is taken from the voxel of the key all the same.
+                let v = self.kp.clamp(key);
+                let mut p = [0.0; 3];
+                (p[(D + 1) % 3], p[(D + 2) % 3], p[D]) = (cen[0], cen[1], dc);
+                let (off, r) = offset_reach(p, v, reach);
+                out.push(Rec { key: self.kp.pack_in_range(v), area: (area2 * self.ascale) as f32, normal, color, off, r });
+            }
             (None, _) => self.dropped += 1,
         }
     }
+}
+
+/// Largest distance from the point (`c`, depth `dc`) to the vertices of `poly` lifted onto
+/// the triangle's plane (vertex `i` at depth `depth_at(i, vertex)`): a piece is convex, so
+/// the ball of this radius around the point holds it.
+#[inline(always)]
+fn reach(poly: &Poly2, c: [f64; 2], dc: f64, depth_at: impl Fn(usize, &[f64; 2]) -> f64) -> f64 {
+    let mut m = 0.0f64;
+    for (i, p) in poly.v[..poly.n].iter().enumerate() {
+        let (x, y, z) = (p[0] - c[0], p[1] - c[1], depth_at(i, p) - dc);
+        let s = x * x + y * y + z * z;
+        m = if s > m { s } else { m };
+    }
+    m.sqrt()
 }
 
 /// Conservative voxelization of one triangle; returns the number of alpha-dropped samples.
@@ -122,6 +146,9 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
         (lo_a, hi_a) = (lo_a.max(xr.0), hi_a.min(xr.1));
     }
     let half = 0.5 * (ga.abs() + gb.abs());
+    // An interior column's piece is the unit square lifted onto the plane: its corners lie
+    // √(½ + (depth change to a corner)²) from its centre, the largest change being `half`.
+    let reach_interior = (0.5 + half * half).sqrt();
     const EPS: f64 = 1e-9;
     // The triangle is swept: each strip is split off the rest of the triangle (one pass, the
     // cut shared by both sides), each boundary column off the rest of its strip. Reused
@@ -129,7 +156,7 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
     // column piece, the lower depth part and a clip temporary.
     let mut rest = [tri, Poly2::empty()];
     let mut r = 0;
-    let (mut col, mut lower, mut tmp) = (Poly2::empty(), Poly2::empty(), Poly2::empty());
+    let (mut col, mut lower, mut upper, mut tmp) = (Poly2::empty(), Poly2::empty(), Poly2::empty(), Poly2::empty());
     // The strip is split off into `srest[0]`, where the rest of the strip starts.
     let mut srest = [Poly2::empty(), Poly2::empty()];
     for ia in lo_a..=hi_a {
@@ -173,10 +200,10 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
         for ib in blo..=bhi {
             let y = ib as f64;
             let interior = y >= first_in && y <= last_in;
-            let (area2, cen, dmin, dmax) = if interior {
+            let (area2, cen, dc, dmin, dmax) = if interior {
                 let cen = [x0 + 0.5, y + 0.5];
                 let dc = depth(&cen);
-                (1.0, cen, dc - half, dc + half)
+                (1.0, cen, dc, dc - half, dc + half)
             } else {
                 if y > cut {
                     let (src, dst) = ping(&mut srest, sr);
@@ -197,7 +224,7 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
                 }
                 let (ar, cen) = col.area_centroid();
                 let (dmin, dmax) = col.range_keeping(depth, &mut dv);
-                (ar, cen, dmin, dmax)
+                (ar, cen, depth(&cen), dmin, dmax)
             };
             let kmin = floor_i64(dmin);
             let mut kmax = floor_i64(dmax);
@@ -206,7 +233,8 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
             }
             if kmin == kmax {
                 if d != 0 || (xr.0..=xr.1).contains(&kmin) {
-                    em.emit(out, ia, ib, kmin, area2, cen);
+                    let reach = if interior { reach_interior } else { reach(&col, cen, dc, |i, _| dv[i]) };
+                    em.emit(out, ia, ib, kmin, area2, cen, dc, reach);
                 }
                 continue;
             }
@@ -215,9 +243,10 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
             }
             let poly = &col;
             if kmax == kmin + 1 {
-                // One depth face crosses the piece (the common steep case): one clip gives the
-                // lower part; the upper part is the remainder (area and centroid by
-                // difference), so the two areas still add up to the piece's exactly.
+                // One depth face crosses the piece (the common steep case): one split gives
+                // both parts. The upper part's area is the remainder, so the two areas still
+                // add up to the piece's exactly; its centroid is its own (a centroid by
+                // difference loses digits when the part is a sliver).
                 let kf = kmax as f64;
                 if interior {
                     for (v, p) in dv.iter_mut().zip(&poly.v[..poly.n]) {
@@ -225,16 +254,21 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
                     }
                 }
                 // The piece's vertex depths were computed once (by range_keeping or above).
-                poly.clip_half_by_index_into(|i, _| kf - dv[i], None, &mut lower);
+                poly.split_values_into(&dv, kf, &mut lower, &mut upper);
                 let (al, cl) = if lower.n >= 3 { lower.area_centroid() } else { (0.0, cen) };
                 let au = area2 - al;
-                let cu = if au > 0.0 { [(area2 * cen[0] - al * cl[0]) / au, (area2 * cen[1] - al * cl[1]) / au] } else { cen };
                 let keep = |k: i64| d != 0 || (xr.0..=xr.1).contains(&k);
                 if al > 0.0 && keep(kmin) {
-                    em.emit(out, ia, ib, kmin, al, cl);
+                    let dl = depth(&cl);
+                    em.emit(out, ia, ib, kmin, al, cl, dl, reach(&lower, cl, dl, |_, p| depth(p)));
                 }
                 if au > 0.0 && keep(kmax) {
-                    em.emit(out, ia, ib, kmax, au, cu);
+                    let (ad, cd) = if upper.n >= 3 { upper.area_centroid() } else { (0.0, cen) };
+                    let cu = if ad > 0.0 { cd } else { [(area2 * cen[0] - al * cl[0]) / au, (area2 * cen[1] - al * cl[1]) / au] };
+                    let du = depth(&cu);
+                    // A part too thin for its own polygon lies in the piece.
+                    let reach = if upper.n >= 3 { reach(&upper, cu, du, |_, p| depth(p)) } else { reach(poly, cu, du, |i, _| dv[i]) };
+                    em.emit(out, ia, ib, kmax, au, cu, du, reach);
                 }
                 continue;
             }
@@ -249,7 +283,8 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
                 }
                 let (ar, cen) = sub.area_centroid();
                 if ar > 0.0 {
-                    em.emit(out, ia, ib, k, ar, cen);
+                    let dc = depth(&cen);
+                    em.emit(out, ia, ib, k, ar, cen, dc, reach(sub, cen, dc, |_, p| depth(p)));
                 }
             }
         }
