@@ -259,3 +259,38 @@ fn meshes_without_samples_are_left_out_with_a_warning() {
         assert!(v.issues.is_empty(), "{model}: {:?}", v.issues);
     }
 }
+
+/// A batch whose sample budget coarsens one asset names that asset in a warning, in the
+/// JSON report and in the human table; the asset within budget gets none.
+#[test]
+fn budget_that_coarsens_an_asset_warns_by_name() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let lib = dir.path().join("lib");
+    let m = models();
+    copy_dir(&m.join("gltf/Box/glTF-Binary"), &lib.join("box"));
+    copy_dir(&m.join("nasty/gltf-no-indices/glTF"), &lib.join("triangle"));
+    let out = dir.path().join("out");
+    let args = |json: bool| {
+        let mut a: Vec<&std::ffi::OsStr> = vec![lib.as_os_str(), "-o".as_ref(), out.as_os_str(), "--sample-budget".as_ref(), "150000".as_ref(), "--force".as_ref()];
+        if json {
+            a.push("--json".as_ref());
+        }
+        bin(&a)
+    };
+    let rep = json(&args(true));
+    let warned: Vec<(String, Vec<String>)> = rep["jobs"]
+        .as_array()
+        .expect("jobs")
+        .iter()
+        .map(|j| {
+            let w = j["warnings"].as_array().expect("warnings").iter().filter_map(|w| w.as_str()).filter(|w| w.contains("sample budget")).map(String::from).collect();
+            (j["input"].as_str().unwrap_or("").to_string(), w)
+        })
+        .collect();
+    let coarsened: Vec<&str> = warned.iter().filter(|(_, w)| !w.is_empty()).map(|(i, _)| i.as_str()).collect();
+    assert_eq!(coarsened, ["box/Box.glb"], "{warned:?}");
+    let human = args(false);
+    let table = String::from_utf8_lossy(&human.stdout);
+    assert!(table.lines().any(|l| l.starts_with("  box/Box.glb: the sample budget of 150000 coarsened")), "{table}");
+    assert!(!table.contains("triangle/TriangleWithoutIndices.gltf: the sample budget"), "{table}");
+}

@@ -25,7 +25,7 @@ pub enum MethodArg {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum DensityArg {
-    /// The intended view: the model framed as sct-render-preview frames it by default (90 % of 1280 × 720, 40°), voxels --screen-error pixels wide there (default 1).
+    /// The intended view: the model framed as sct-render-preview frames it by default (90 % of 1280 × 720, 40°), voxels --screen-error pixels wide there (default 1.5: the finest leaves its default --pixel-error 1 draws).
     View,
     /// The thesis's EQ 16 from the mesh's edge lengths (--k, --gamma, --min-base): follows the triangles, not any view.
     Eq16,
@@ -53,7 +53,7 @@ pub struct SamplingArgs {
     /// Voxel edge length in world units (overrides everything else).
     #[arg(long, value_name = "LEN")]
     pub voxel_size: Option<f64>,
-    /// Density rule: the intended view (default preview framing, leaves about one pixel wide) or the thesis's EQ 16.
+    /// Density rule: the intended view (default preview framing, voxels 1.5 px wide) or the thesis's EQ 16.
     #[arg(long, value_enum, default_value = "view")]
     pub density: DensityArg,
     /// EQ 16: standard deviations below the mean edge length [default: 3]; implies --density eq16.
@@ -115,7 +115,7 @@ impl SamplingArgs {
             if eq16 {
                 Density::Auto { k: self.k.unwrap_or(3.0), gamma: self.gamma.unwrap_or(2.0), min_base: self.min_base }
             } else {
-                Density::View { pixels: self.screen_error.unwrap_or(1.0) }
+                Density::View { pixels: self.screen_error.unwrap_or(Density::VIEW_PIXELS) }
             }
         }
     }
@@ -163,7 +163,7 @@ mod tests {
         assert!(matches!(p(&["--voxel-size", "0.5", "--screen-error", "1", "--distance", "3"]), Ok(Density::VoxelSize(h)) if h == 0.5));
         assert!(matches!(p(&["--screen-error", "1", "--distance", "3"]), Ok(Density::Screen { distance, .. }) if distance == 3.0));
         // The default is the intended view; --screen-error alone sets its leaf width.
-        assert!(matches!(p(&[]), Ok(Density::View { pixels }) if pixels == 1.0));
+        assert!(matches!(p(&[]), Ok(Density::View { pixels }) if pixels == Density::VIEW_PIXELS));
         assert!(matches!(p(&["--screen-error", "2"]), Ok(Density::View { pixels }) if pixels == 2.0));
         // EQ 16 only when asked for.
         assert!(matches!(p(&["--density", "eq16", "--k", "2"]), Ok(Density::Auto { k, gamma, .. }) if k == 2.0 && gamma == 2.0));

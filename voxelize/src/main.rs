@@ -12,7 +12,7 @@ use voxelize::Options;
 ///
 /// The voxel size comes from --voxel-size, else from a viewing target (--screen-error with
 /// --distance), else from the intended view (default: the model as sct-render-preview frames
-/// it by default, leaves about one pixel wide) or EQ 16 (--density eq16, --k, --gamma).
+/// it by default, voxels 1.5 pixels wide) or EQ 16 (--density eq16, --k, --gamma).
 #[derive(Parser)]
 #[command(name = "sct-voxelize", version, after_help = "EXAMPLES:
   sct-voxelize bunny.obj -o bunny.samples                      # leaves ~1 px in the default view

@@ -119,7 +119,7 @@ impl Default for SampleOptions {
     fn default() -> Self {
         SampleOptions {
             method: Method::Voxel,
-            density: Density::View { pixels: 1.0 },
+            density: Density::View { pixels: Density::VIEW_PIXELS },
             area: AreaMode::Exact,
             merge: true,
             crease_deg: 60.0,

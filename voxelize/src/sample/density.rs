@@ -12,8 +12,8 @@ pub enum Density {
     /// The intended view (the default): the view `sct-render-preview` shows by default —
     /// the model's bounding box framed at 90 % of a 1280 × 720, 40° frame from the front and
     /// from the iso direction, +Y up ([`sct_format::view::default_pixel_size`]) — with
-    /// voxels `pixels` pixels wide there, so a default preview draws about one leaf per
-    /// pixel: the density follows what that view can show, not the triangle count.
+    /// voxels `pixels` pixels wide there ([`Density::VIEW_PIXELS`] by default): the density
+    /// follows what that view can show, not the triangle count.
     View {
         /// Voxel edge in pixels of the intended view.
         pixels: f64,
@@ -42,6 +42,15 @@ pub enum Density {
         /// Horizontal field of view in degrees.
         fov_deg: f64,
     },
+}
+
+impl Density {
+    /// Voxel edge, in pixels of the intended view, of the default density. The preview's
+    /// default LOD (`--pixel-error 1`: splats whose equal-area disc has a radius of at most
+    /// one pixel) draws leaves of up to π px²; a voxel of 1.5 px gives leaves of about
+    /// 2.25 px², so the default preview draws the leaves themselves, and nothing finer is
+    /// made than it draws (a 1-px voxel made 2.2× the samples for the same image).
+    pub const VIEW_PIXELS: f64 = 1.5;
 }
 
 /// The chosen voxel size and why.
