@@ -591,7 +591,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let out = dir.path().join("m.sct");
         let seen = std::cell::Cell::new(None);
-        let r = sct_format::atomic::write_atomic(&out, |_| {
+        let r: sct_format::Result<()> = sct_format::atomic::write_atomic(&out, |_| {
             let tmp = std::fs::read_dir(dir.path()).expect("dir").flatten().map(|e| e.file_name()).next();
             seen.set(tmp);
             Err(sct_format::Error::Misuse("stop before publishing".into()))
