@@ -306,27 +306,32 @@ pub fn is_up_to_date(output: &Path, key: &str, root: &Path) -> bool {
         && g.sources.iter().all(|s| sct_format::atomic::hash_file(&root.join(&s.path)).is_ok_and(|h| h == s.blake3))
 }
 
-/// Removes temporary files (`.NAME.PID.tmp`, see `sct_format::atomic`) that an interrupted
-/// run left beside `output` at least [`STALE_TEMP_AGE`] ago. Returns how many were removed.
+/// Removes temporary files (`.NAME.PID.RANDOM.tmp`, see `sct_format::atomic`, and the older
+/// `.NAME.PID.tmp`) that an interrupted run left beside `output` at least [`STALE_TEMP_AGE`]
+/// ago. Returns how many were removed.
 fn remove_stale_temp_files(output: &Path) -> u64 {
     let (Some(dir), Some(name)) = (output.parent(), output.file_name()) else {
         return 0;
     };
     let prefix = format!(".{}.", name.to_string_lossy());
-    let ours = format!(".{}.tmp", std::process::id());
+    let own_pid = std::process::id().to_string();
     let Ok(entries) = std::fs::read_dir(dir) else {
         return 0;
     };
     let mut removed = 0;
     for e in entries.flatten() {
         let n = e.file_name().to_string_lossy().into_owned();
-        let Some(pid) = n.strip_prefix(&prefix).and_then(|r| r.strip_suffix(".tmp")) else {
+        let Some(middle) = n.strip_prefix(&prefix).and_then(|r| r.strip_suffix(".tmp")) else {
             continue;
         };
-        // Only `.NAME.<digits>.tmp`, never this process's own file in flight, and only
-        // when old enough that no live run can still be writing it.
+        // Only `.NAME.<digits>.tmp` or `.NAME.<digits>.<16 hex digits>.tmp`, never one of
+        // this process's (its own files in flight), and only when old enough that no live
+        // run can still be writing it (a writer of another container may share our PID).
+        let (pid, random) = middle.split_once('.').unwrap_or((middle, ""));
+        let pid_ok = !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit());
+        let random_ok = random.is_empty() || (random.len() == 16 && random.bytes().all(|b| b.is_ascii_hexdigit()));
         let old = e.metadata().and_then(|m| m.modified()).ok().and_then(|t| t.elapsed().ok()).is_some_and(|age| age >= STALE_TEMP_AGE);
-        if !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()) && !n.ends_with(&ours) && old && std::fs::remove_file(e.path()).is_ok() {
+        if pid_ok && random_ok && pid != own_pid && old && std::fs::remove_file(e.path()).is_ok() {
             removed += 1;
         }
     }
@@ -572,17 +577,51 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let out = dir.path().join("m.sct");
         let old = std::time::SystemTime::now() - 2 * STALE_TEMP_AGE;
-        for n in [".m.sct.123.tmp", ".m.sct.x1.tmp", ".n.sct.5.tmp", "m.sct", ".m.sct.77.tmp"] {
+        let own = format!(".m.sct.{}.00000000deadbeef.tmp", std::process::id());
+        let names = [
+            ".m.sct.123.tmp",
+            ".m.sct.124.0123456789abcdef.tmp",
+            ".m.sct.x1.tmp",
+            ".m.sct.125.xyz.tmp",
+            ".n.sct.5.tmp",
+            "m.sct",
+            ".m.sct.77.tmp",
+            own.as_str(),
+        ];
+        for n in names {
             let f = std::fs::File::create(dir.path().join(n)).expect("create");
             // All old but `.m.sct.77.tmp`: a run that may still be writing it.
             if n != ".m.sct.77.tmp" {
                 f.set_modified(old).expect("mtime");
             }
         }
-        assert_eq!(remove_stale_temp_files(&out), 1);
+        assert_eq!(remove_stale_temp_files(&out), 2);
         assert!(!dir.path().join(".m.sct.123.tmp").exists());
+        assert!(!dir.path().join(".m.sct.124.0123456789abcdef.tmp").exists(), "the random-suffixed pattern is cleaned too");
         assert!(dir.path().join(".m.sct.77.tmp").exists(), "a fresh temp file is left alone");
         assert!(dir.path().join(".m.sct.x1.tmp").exists() && dir.path().join(".n.sct.5.tmp").exists());
+        assert!(dir.path().join(".m.sct.125.xyz.tmp").exists());
+        assert!(dir.path().join(&own).exists(), "this process's own temp files are left alone");
         assert!(out.exists());
+    }
+
+    /// A temporary file named by `sct_format::atomic` today matches the cleanup's pattern.
+    #[test]
+    fn atomic_temp_names_are_recognised_as_stale() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = dir.path().join("m.sct");
+        let seen = std::cell::Cell::new(None);
+        let r: sct_format::Result<()> = sct_format::atomic::write_atomic(&out, |_| {
+            let tmp = std::fs::read_dir(dir.path()).expect("dir").flatten().map(|e| e.file_name()).next();
+            seen.set(tmp);
+            Err(sct_format::Error::Misuse("stop before publishing".into()))
+        });
+        assert!(r.is_err());
+        let name = seen.take().expect("a temporary file existed while writing");
+        // Recreate it as another process's leftover (a different PID) and age it.
+        let name = name.to_string_lossy().replace(&format!(".{}.", std::process::id()), ".1.");
+        let f = std::fs::File::create(dir.path().join(&name)).expect("create");
+        f.set_modified(std::time::SystemTime::now() - 2 * STALE_TEMP_AGE).expect("mtime");
+        assert_eq!(remove_stale_temp_files(&out), 1, "{name}");
     }
 }

@@ -111,6 +111,9 @@ pub struct Phases {
 pub fn run(cfg: &Config, phase: &mut dyn FnMut(&str)) -> Result<Report, BuildError> {
     let t0 = Instant::now();
     phase("reading samples");
+    // A FIFO or device given as the samples file would block or never end in the reader's
+    // open: refused here, by type, without blocking.
+    ensure_regular(&cfg.samples)?;
     let (samples, blake3) = SamplesFile::read_file_hashed(&cfg.samples, &Limits::default()).map_err(|e| match e {
         sct_format::Error::Io { .. } => BuildError::Io(e.to_string()),
         other => BuildError::Input(format!("{}: {other}", cfg.samples.display())),
@@ -145,13 +148,23 @@ pub fn run_samples(
     let mut rep = Report { output: cfg.output.display().to_string(), profile: cfg.profile.name().into(), ..Default::default() };
     let limits = Limits::default();
     rep.samples = samples.samples.len() as u64;
-    bake_affine_instances(&mut samples, &limits)?;
+    normalize_normals(&mut samples)?;
+    bake_affine_instances(&mut samples, &limits, DEFAULT_MAX_BAKED_BYTES)?;
+    if cfg.scene.is_none() {
+        // Refused before any tree is built: the file would hold more trees than a reader
+        // accepts (see `check_reader_limits`).
+        let trees = source_tree_count(&samples);
+        check_sections(trees, &limits)?;
+    }
     rep.seconds.read = t0.elapsed().as_secs_f64();
 
     phase("building trees");
     let t1 = Instant::now();
     let out_dir = cfg.output.parent().map(Path::to_path_buf).unwrap_or_default();
     let composer = Composer::new(&mut samples, cfg.build, &out_dir, limits.clone());
+    if let Some(scene) = &cfg.scene {
+        ensure_regular(scene)?;
+    }
     let scene_file = cfg.scene.as_deref().map(read_scene_file).transpose()?;
     let composed = match &scene_file {
         Some(s) => composer.compose_file(s)?,
@@ -190,6 +203,10 @@ pub fn run_samples(
         .map(|(_, t)| t.leaf_count() as u64)
         .sum();
 
+    // The writer must never write what the reader refuses (a file of 5,003 sections that
+    // every reader rejects was once written with exit status 0).
+    check_reader_limits(&composed, &limits)?;
+
     phase("writing");
     let t2 = Instant::now();
     let generator = generator(cfg, &upstream, &composed.inlines)?;
@@ -212,42 +229,169 @@ pub fn run_samples(
     Ok(rep)
 }
 
-/// Turns every affine instance (spec §8) into a mesh of its own — the samples baked through
-/// the matrix — placed at the identity, since a scene-tree instance must be a similarity.
+/// Default of the bytes that baking affine instances may cost ([`bake_affine_instances`]):
+/// 2 GiB, about 16.7 million baked samples at [`BAKED_BYTES_PER_SAMPLE`].
+pub const DEFAULT_MAX_BAKED_BYTES: u64 = 2 << 30;
+
+/// Peak bytes one baked sample costs through the build: the baked copy (40-byte node), the
+/// copy handed to the tree builder and its tree (about two nodes per leaf) — about 120
+/// bytes measured (1,000 placements of a 56 k-sample mesh: 6.8 GB), rounded up.
+pub const BAKED_BYTES_PER_SAMPLE: u64 = 128;
+
+/// Turns the affine instances (spec §8) into baked meshes — the samples mapped through each
+/// matrix — placed at the identity, since a scene-tree instance must be a similarity. All
+/// placements of one mesh are baked into one mesh `NAME#affine` (one tree, not one per
+/// placement: 5,000 placements made 5,000 trees, more sections than a reader accepts).
 /// Original meshes keep their indices and names (scene files refer to them); a mesh left
 /// with no similarity instance is simply not built.
 ///
-/// A few bytes of compressed `AFFI` entries can ask for billions of baked samples, so the
-/// total is checked against `limits.max_samples` before anything is allocated, and a matrix
-/// that maps a sample to a non-finite node (finite but huge entries) is refused.
-pub fn bake_affine_instances(samples: &mut SamplesFile, limits: &Limits) -> Result<(), BuildError> {
-    let mut total = samples.samples.len() as u64;
+/// A few bytes of compressed `AFFI` entries can ask for billions of baked samples, so
+/// before anything is allocated the baked total (placements × samples of their mesh) is
+/// checked against `limits.max_samples` and its memory, at [`BAKED_BYTES_PER_SAMPLE`],
+/// against `max_bytes`. A matrix that maps a sample to a non-finite node (finite but huge
+/// entries) is refused.
+pub fn bake_affine_instances(samples: &mut SamplesFile, limits: &Limits, max_bytes: u64) -> Result<(), BuildError> {
+    let placements = samples.affine_instances.len();
+    let mut baked = 0u64;
     for a in &samples.affine_instances {
         let count = samples.meshes.get(a.mesh as usize).map_or(0, |m| m.count);
-        total = total.checked_add(count).filter(|&t| t <= limits.max_samples).ok_or_else(|| {
-            BuildError::Input(format!(
-                "baking {} affine instances needs more than the limit of {} samples",
-                samples.affine_instances.len(),
-                limits.max_samples
-            ))
-        })?;
+        baked = baked.checked_add(count).ok_or_else(|| BuildError::Input(format!("baking {placements} affine placements overflows the sample count")))?;
     }
-    for a in std::mem::take(&mut samples.affine_instances) {
-        let m = a.mesh as usize;
-        let Some(src) = samples.meshes.get(m).cloned() else { continue };
-        let stretch = a.max_stretch();
-        let first = samples.samples.len() as u64;
-        let baked: Vec<_> = samples.mesh_samples(m).iter().map(|n| a.transform_node(n, stretch)).collect();
-        let finite = |n: &sct_format::Node| n.center.iter().chain(&n.normal).chain([&n.radius, &n.area]).all(|v| v.is_finite());
-        if !baked.iter().all(finite) {
-            return Err(BuildError::Input(format!("affine instance of mesh {:?} maps its samples outside the f32 range", src.name)));
+    let total = (samples.samples.len() as u64).checked_add(baked).filter(|&t| t <= limits.max_samples);
+    let bytes = baked.checked_mul(BAKED_BYTES_PER_SAMPLE).filter(|&b| b <= max_bytes);
+    if total.is_none() || bytes.is_none() {
+        return Err(BuildError::Input(format!(
+            "baking {placements} affine (non-similarity) placements needs {baked} samples, about {} bytes; the limits are {} bytes of baked samples ({} samples) and {} samples in all",
+            baked.saturating_mul(BAKED_BYTES_PER_SAMPLE),
+            max_bytes,
+            max_bytes / BAKED_BYTES_PER_SAMPLE,
+            limits.max_samples
+        )));
+    }
+    // Checked above: the new samples fit in memory's budget, so reserve them exactly (a
+    // growing vector could briefly need twice as much).
+    samples.samples.reserve_exact(usize::try_from(baked).map_err(|_| BuildError::Input("baked samples exceed the address space".into()))?);
+    let affine = std::mem::take(&mut samples.affine_instances);
+    // The placements of each mesh, meshes in the order of their first placement (grouped
+    // through a map: a hostile file may list a million placements of distinct meshes).
+    let mut groups: Vec<(u32, Vec<usize>)> = Vec::new();
+    let mut group_of: std::collections::HashMap<u32, usize> = std::collections::HashMap::new();
+    for (k, a) in affine.iter().enumerate() {
+        let g = *group_of.entry(a.mesh).or_insert_with(|| {
+            groups.push((a.mesh, Vec::new()));
+            groups.len() - 1
+        });
+        groups[g].1.push(k);
+    }
+    let finite = |n: &sct_format::Node| n.center.iter().chain(&n.normal).chain([&n.radius, &n.area]).all(|v| v.is_finite());
+    for (mesh, placements) in groups {
+        let Some(src) = samples.meshes.get(mesh as usize).cloned() else { continue };
+        if src.count == 0 {
+            continue; // nothing to bake, no tree to build
         }
-        samples.samples.extend(baked);
+        let first = samples.samples.len() as u64;
+        for a in placements.iter().map(|&k| &affine[k]) {
+            let stretch = a.max_stretch();
+            let start = samples.samples.len();
+            let (range_first, range_count) = (src.first as usize, src.count as usize);
+            for i in range_first..range_first + range_count {
+                let n = a.transform_node(&samples.samples[i], stretch);
+                samples.samples.push(n);
+            }
+            if !samples.samples[start..].iter().all(finite) {
+                return Err(BuildError::Input(format!("affine instance of mesh {:?} maps its samples outside the f32 range", src.name)));
+            }
+        }
+        let count = samples.samples.len() as u64 - first;
         let idx = samples.meshes.len() as u32;
-        samples.meshes.push(MeshEntry { name: format!("{}#affine", src.name), first, count: src.count, two_sided: src.two_sided });
+        samples.meshes.push(MeshEntry { name: format!("{}#affine", src.name), first, count, two_sided: src.two_sided });
         samples.instances.push(SampleInstance { mesh: idx, transform: sct_format::Similarity::IDENTITY });
     }
     Ok(())
+}
+
+/// Normalises every sample's normal to unit length (the spec's samples carry unit normals,
+/// and a tree built from others fails its own validation: cone containment, non-unit axes).
+/// Normals already unit within 2 f32 epsilons are left bit for bit. A zero, denormal-only
+/// or non-finite normal has no direction: refused, naming the sample and its mesh.
+pub fn normalize_normals(samples: &mut SamplesFile) -> Result<(), BuildError> {
+    use rayon::prelude::*;
+    let bad = samples
+        .samples
+        .par_iter_mut()
+        .enumerate()
+        .filter_map(|(i, n)| {
+            let v = n.normal.map(f64::from);
+            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if !(len > 0.0 && len.is_finite()) {
+                return Some(i);
+            }
+            if (len - 1.0).abs() > 2.0 * f64::from(f32::EPSILON) {
+                n.normal = v.map(|c| (c / len) as f32);
+            }
+            None
+        })
+        .min();
+    if let Some(i) = bad {
+        let mesh = samples.meshes.iter().find(|m| (m.first..m.first.saturating_add(m.count)).contains(&(i as u64)));
+        let name = mesh.map_or_else(|| "no mesh".to_string(), |m| format!("mesh {:?}", m.name));
+        return Err(BuildError::Input(format!(
+            "sample {i} ({name}) has normal {:?}, which has no direction (zero or not finite); every sample needs a non-zero finite normal",
+            samples.samples[i].normal
+        )));
+    }
+    Ok(())
+}
+
+/// Sections of a file besides its trees: `GENR` and `GRPH` (spec §3).
+const FIXED_SECTIONS: u64 = 2;
+
+/// Trees a build without a scene file makes: one per mesh with an instance, plus the group
+/// over them when there is more than one instance.
+fn source_tree_count(samples: &SamplesFile) -> u64 {
+    let mut meshes: Vec<u32> = samples.instances.iter().map(|i| i.mesh).collect();
+    meshes.sort_unstable();
+    meshes.dedup();
+    meshes.len() as u64 + u64::from(samples.instances.len() > 1)
+}
+
+fn check_sections(trees: u64, limits: &Limits) -> Result<(), BuildError> {
+    let sections = trees.saturating_add(FIXED_SECTIONS);
+    if sections > u64::from(limits.max_sections) {
+        return Err(BuildError::Input(format!(
+            "the scene needs {trees} trees, {sections} sections in all, more than the {} sections a reader accepts; use fewer distinct meshes or group them in a scene file",
+            limits.max_sections
+        )));
+    }
+    Ok(())
+}
+
+/// Checks what is about to be written against the reader's limits: sections, graph nodes,
+/// nodes and levels per tree.
+fn check_reader_limits(composed: &crate::scene::Composed, limits: &Limits) -> Result<(), BuildError> {
+    check_sections(composed.trees.len() as u64, limits)?;
+    let over = |what: &str, value: u64, limit: u64| {
+        BuildError::Input(format!("the scene has {value} {what}, more than the {limit} a reader accepts"))
+    };
+    let nodes = composed.graph.nodes.len() as u64;
+    if nodes > limits.max_graph_nodes {
+        return Err(over("graph nodes", nodes, limits.max_graph_nodes));
+    }
+    for (i, t) in composed.trees.iter().enumerate() {
+        if t.len() as u64 > limits.max_tree_nodes {
+            return Err(over(&format!("nodes in tree {i}"), t.len() as u64, limits.max_tree_nodes));
+        }
+        if t.level_count() as u64 > u64::from(limits.max_tree_levels) {
+            return Err(over(&format!("levels in tree {i}"), t.level_count() as u64, limits.max_tree_levels.into()));
+        }
+    }
+    Ok(())
+}
+
+/// Refuses a path that is not a regular file (after symlinks) before it is opened: a FIFO
+/// blocks `open` forever, a device never ends.
+fn ensure_regular(path: &Path) -> Result<(), BuildError> {
+    voxelize::load::fsio::open_regular(path).map(drop).map_err(|e| BuildError::Io(e.to_string()))
 }
 
 /// Fills the container, topology and per-stream figures from the writer's statistics.
@@ -322,7 +466,7 @@ fn generator(cfg: &Config, upstream: &Upstream, inlines: &[(String, String)]) ->
 fn source(path: &Path) -> Result<SourceRef, BuildError> {
     // Streamed, so hashing a large samples file costs no extra memory.
     let io = |e: std::io::Error| BuildError::Io(format!("{}: {e}", path.display()));
-    let mut f = std::fs::File::open(path).map_err(io)?;
+    let (mut f, _) = voxelize::load::fsio::open_regular(path).map_err(|e| BuildError::Io(e.to_string()))?;
     let mut h = blake3::Hasher::new();
     std::io::copy(&mut f, &mut h).map_err(io)?;
     Ok(SourceRef { path: path.display().to_string(), blake3: h.finalize().to_hex().to_string() })
@@ -341,6 +485,7 @@ mod tests {
     use super::*;
     use sct_format::samples::AffineInstance;
     use sct_format::Node;
+    use crate::tree::BuildOptions;
 
     /// A non-similarity instance becomes its own baked tree whose leaves contain the image
     /// of every original sample sphere (points on each sphere mapped by the matrix).
@@ -356,7 +501,7 @@ mod tests {
         let a = AffineInstance { mesh: 0, matrix: [[1.0, 0.4, 0.0, 3.0], [0.0, 2.5, 0.0, 0.0], [0.0, 0.0, 0.5, -1.0]] };
         f.affine_instances.push(a);
         let mut huge = f.clone();
-        bake_affine_instances(&mut f, &Limits::default()).expect("bake");
+        bake_affine_instances(&mut f, &Limits::default(), DEFAULT_MAX_BAKED_BYTES).expect("bake");
         assert!(f.affine_instances.is_empty());
         assert_eq!(f.meshes.len(), 2);
         assert_eq!(f.instances.len(), 2);
@@ -383,9 +528,131 @@ mod tests {
         // Hostile AFFI: many entries need more samples than allowed — refused before baking.
         huge.affine_instances = vec![a; 1000];
         let small = Limits { max_samples: 100 * samples.len() as u64, ..Limits::default() };
-        assert!(matches!(bake_affine_instances(&mut huge.clone(), &small), Err(BuildError::Input(_))));
+        assert!(matches!(bake_affine_instances(&mut huge.clone(), &small, DEFAULT_MAX_BAKED_BYTES), Err(BuildError::Input(_))));
         // Finite but huge entries overflow f32: refused, not baked into infinities.
         huge.affine_instances = vec![AffineInstance { mesh: 0, matrix: [[1e300, 0.0, 0.0, 0.0], [0.0, 1e-300, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]] }];
-        assert!(matches!(bake_affine_instances(&mut huge, &Limits::default()), Err(BuildError::Input(_))));
+        assert!(matches!(bake_affine_instances(&mut huge, &Limits::default(), DEFAULT_MAX_BAKED_BYTES), Err(BuildError::Input(_))));
+    }
+
+    fn ring(n: usize) -> Vec<Node> {
+        (0..n)
+            .map(|i| {
+                let t = i as f32 * 0.37;
+                Node { center: [t.cos(), t.sin(), (i % 7) as f32 * 0.1], radius: 0.05, normal: [t.cos(), t.sin(), 0.0], cone: 0.0, area: 0.004, color: [90, 120, 200, 255] }
+            })
+            .collect()
+    }
+
+    fn config(out: &Path) -> Config {
+        Config {
+            samples: PathBuf::new(),
+            output: out.to_path_buf(),
+            scene: None,
+            profile: sct_format::Profile::Raw,
+            compression_level: None,
+            build: BuildOptions::default(),
+        }
+    }
+
+    fn build(f: SamplesFile, out: &Path) -> Result<Report, BuildError> {
+        run_samples(&config(out), f, Upstream::None, Instant::now(), &mut |_| {})
+    }
+
+    /// Item 13: a 10 KB samples file can ask for 10⁶ placements of one mesh, or 1,000 of a
+    /// 56 k-sample mesh: refused by the baked-bytes limit before anything is allocated
+    /// (the sample-count limit alone let 3.6–6.8 GB through).
+    #[test]
+    fn baking_is_bounded_in_bytes_before_allocating() {
+        let stretch = AffineInstance { mesh: 0, matrix: [[1.0, 0.0, 0.0, 0.0], [0.0, 3.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]] };
+        for (samples, placements) in [(64usize, 1_000_000usize), (56_000, 1_000)] {
+            let mut f = SamplesFile::single_mesh(Generator::default(), "m", ring(samples));
+            f.affine_instances = vec![stretch; placements];
+            let e = bake_affine_instances(&mut f, &Limits::default(), DEFAULT_MAX_BAKED_BYTES).expect_err("refused");
+            assert!(matches!(&e, BuildError::Input(m) if m.contains("bytes")), "{e}");
+            // Nothing was baked or reserved for it.
+            assert_eq!((f.meshes.len(), f.samples.len()), (1, samples));
+            assert!(f.samples.capacity() < 2 * samples);
+        }
+        // Under the limit: baked.
+        let mut f = SamplesFile::single_mesh(Generator::default(), "m", ring(400));
+        f.affine_instances = vec![stretch; 100];
+        bake_affine_instances(&mut f, &Limits::default(), DEFAULT_MAX_BAKED_BYTES).expect("baked");
+        assert_eq!(f.samples.len(), 400 * 101);
+    }
+
+    /// Item 15: 5,000 non-uniformly scaled placements of one mesh (a realistic glTF) build
+    /// one baked tree, and the file opens with the reader's default limits. A samples file
+    /// whose instances need more trees than a reader accepts sections is refused before any
+    /// tree is built, with a clear error.
+    #[test]
+    fn the_writer_never_writes_more_sections_than_a_reader_accepts() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = dir.path().join("many.sct");
+        let mut f = SamplesFile::single_mesh(Generator::default(), "m", ring(20));
+        f.affine_instances = (0..5000)
+            .map(|i| AffineInstance { mesh: 0, matrix: [[1.0, 0.0, 0.0, i as f64 * 3.0], [0.0, 2.0, 0.0, 0.0], [0.0, 0.0, 0.5, 0.0]] })
+            .collect();
+        // The similarity placement of the source goes too: only baked copies remain.
+        f.instances.clear();
+        let rep = build(f, &out).expect("builds");
+        assert_eq!(rep.trees, 1, "one baked tree for all placements");
+        let reader = sct_format::read::SctReader::open(&out, &Limits::default()).expect("a reader accepts it");
+        assert!(reader.sections().len() as u64 <= u64::from(Limits::default().max_sections));
+
+        let n = Limits::default().max_sections as usize;
+        let samples: Vec<Node> = (0..n).flat_map(|m| ring(2).into_iter().map(move |mut s| {
+            s.center[0] += m as f32 * 4.0;
+            s
+        })).collect();
+        let meshes = (0..n).map(|m| MeshEntry { name: format!("m{m}"), first: 2 * m as u64, count: 2, two_sided: false }).collect();
+        let instances = (0..n as u32).map(|m| SampleInstance { mesh: m, transform: sct_format::Similarity::IDENTITY }).collect();
+        let f = SamplesFile { generator: Generator::default(), meshes, instances, affine_instances: Vec::new(), samples };
+        let out = dir.path().join("refused.sct");
+        let e = build(f, &out).expect_err("too many sections");
+        assert!(matches!(&e, BuildError::Input(m) if m.contains("sections")), "{e}");
+        assert!(!out.exists());
+    }
+
+    /// Item 18: normals scaled by 1000, tiny, denormal or of a slightly wrong length are
+    /// normalised at input, so the written file passes the deep validation (cone
+    /// containment, unit axes); a zero or non-finite normal is refused naming the sample.
+    #[test]
+    fn normals_are_normalised_or_refused() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut s = ring(300);
+        for (i, n) in s.iter_mut().enumerate() {
+            let k = [1000.0, 1e-20, 1e-40 / n.normal.iter().map(|c| c.abs()).fold(0.0, f32::max).max(1e-3), 1.01, 1.0][i % 5];
+            n.normal = n.normal.map(|c| c * k);
+        }
+        assert!(s[2].normal.iter().any(|c| *c != 0.0 && c.abs() < f32::MIN_POSITIVE), "a denormal normal is tested");
+        let out = dir.path().join("n.sct");
+        build(SamplesFile::single_mesh(Generator::default(), "m", s.clone()), &out).expect("builds");
+        let opts = sct_format::validate::ValidateOptions { deep: true, limits: Limits::default() };
+        let report = sct_format::validate::validate_file(&out, &opts).expect("validate");
+        assert!(report.is_valid(), "{:?}", report.issues);
+
+        for bad in [[0.0; 3], [f32::NAN, 0.0, 1.0], [f32::INFINITY, 0.0, 0.0]] {
+            let mut s = s.clone();
+            s[7].normal = bad;
+            let e = build(SamplesFile::single_mesh(Generator::default(), "m", s), &dir.path().join("bad.sct")).expect_err("refused");
+            assert!(matches!(&e, BuildError::Input(m) if m.contains("sample 7") && m.contains("\"m\"")), "{e}");
+        }
+    }
+
+    /// Item 5: a samples file or scene file that is a FIFO is refused at once (opening it
+    /// for reading would block forever), naming it.
+    #[cfg(unix)]
+    #[test]
+    fn fifo_inputs_are_refused_without_blocking() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let fifo = dir.path().join("in.samples");
+        assert!(std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo").success());
+        let mut cfg = config(&dir.path().join("o.sct"));
+        cfg.samples = fifo.clone();
+        let e = run(&cfg, &mut |_| {}).expect_err("refused");
+        assert!(matches!(&e, BuildError::Io(m) if m.contains("in.samples") && m.contains("FIFO")), "{e}");
+        cfg.scene = Some(fifo);
+        let e = run_samples(&cfg, SamplesFile::single_mesh(Generator::default(), "m", ring(10)), Upstream::None, Instant::now(), &mut |_| {}).expect_err("refused");
+        assert!(matches!(&e, BuildError::Io(m) if m.contains("FIFO")), "{e}");
     }
 }

@@ -9,6 +9,22 @@ use crate::error::{Error, Result};
 
 /// Calls `fill` with a buffered writer on a temporary file next to `path`, then renames it
 /// over `path`. On any error the temporary file is removed and `path` is untouched.
+///
+/// What `path` is decides how it is written (symlinks followed):
+/// - absent, or a regular file: written atomically (temporary file beside it, renamed over
+///   it);
+/// - a symlink to a regular file: the link's final target is written atomically (the
+///   temporary file beside the target), so the link itself survives;
+/// - a character device or a FIFO (`/dev/null`, `/dev/stdout`, a named pipe, also through
+///   a symlink): written through directly, neither replaced nor synced — a device node must
+///   never become a regular file. A writer that seeks back (the SCT writer patches its
+///   header) fails on a FIFO with the OS's "illegal seek";
+/// - a directory, a block device, a socket or a dangling symlink: refused
+///   ([`Error::Misuse`]), nothing written.
+///
+/// The temporary file is `.NAME.PID.RANDOM.tmp` (RANDOM: 16 hex digits), created
+/// exclusively: two writers never share one, even with equal PIDs (containers on shared
+/// storage). Batch mode removes stale ones by that pattern.
 pub fn write_atomic<T>(path: &Path, fill: impl FnOnce(&mut BufWriter<File>) -> Result<T>) -> Result<T> {
     write_atomic_with(path, fill)
 }
@@ -17,20 +33,18 @@ pub fn write_atomic<T>(path: &Path, fill: impl FnOnce(&mut BufWriter<File>) -> R
 /// sampler fails with the sampler's errors too), into which this function's own I/O errors
 /// convert.
 pub fn write_atomic_with<T, E: From<Error>>(path: &Path, fill: impl FnOnce(&mut BufWriter<File>) -> std::result::Result<T, E>) -> std::result::Result<T, E> {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let name = path.file_name().ok_or_else(|| Error::Misuse(format!("{} is not a file path", path.display())))?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(".{}.tmp", std::process::id()));
-    let tmp: PathBuf = dir.join(tmp_name);
+    let target = match output_kind(path)? {
+        Output::Direct => return write_direct(path, fill),
+        Output::Atomic(target) => target,
+    };
+    let (file, tmp) = create_temp(&target)?;
     let result = (|| -> std::result::Result<T, E> {
-        let file = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
         let mut w = BufWriter::with_capacity(1 << 20, file);
         let value = fill(&mut w)?;
         w.flush().map_err(|e| Error::io(&tmp, e))?;
         let file = w.into_inner().map_err(|e| Error::io(&tmp, e.into_error()))?;
         file.sync_all().map_err(|e| Error::io(&tmp, e))?;
-        std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))?;
+        std::fs::rename(&tmp, &target).map_err(|e| Error::io(&target, e))?;
         Ok(value)
     })();
     if result.is_err() {
@@ -39,8 +53,109 @@ pub fn write_atomic_with<T, E: From<Error>>(path: &Path, fill: impl FnOnce(&mut 
     result
 }
 
-/// BLAKE3 hash of a file's bytes, lowercase hex (streams; memory stays small).
+/// How [`write_atomic`] writes a path.
+enum Output {
+    /// Temporary file and rename onto this path (the path itself, or a symlink's target).
+    Atomic(PathBuf),
+    /// Straight through the existing node.
+    Direct,
+}
+
+fn output_kind(path: &Path) -> Result<Output> {
+    let refuse = |what: &str| Err(Error::Misuse(format!("{}: is {what}; not written (give a regular file as output)", path.display())));
+    let link = match std::fs::symlink_metadata(path) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Output::Atomic(path.to_path_buf())),
+        Err(e) => return Err(Error::io(path, e)),
+    };
+    let meta = if link.file_type().is_symlink() {
+        match std::fs::metadata(path) {
+            Ok(m) => m,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return refuse("a dangling symlink"),
+            Err(e) => return Err(Error::io(path, e)),
+        }
+    } else {
+        link.clone()
+    };
+    let t = meta.file_type();
+    if t.is_file() {
+        if link.file_type().is_symlink() {
+            // Replace the file the link leads to, not the link.
+            return std::fs::canonicalize(path).map(Output::Atomic).map_err(|e| Error::io(path, e));
+        }
+        return Ok(Output::Atomic(path.to_path_buf()));
+    }
+    if t.is_dir() {
+        return refuse("a directory");
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_char_device() || t.is_fifo() {
+            return Ok(Output::Direct);
+        }
+        if t.is_block_device() {
+            return refuse("a block device");
+        }
+        if t.is_socket() {
+            return refuse("a socket");
+        }
+    }
+    refuse("not a regular file")
+}
+
+/// Writes through an existing device or FIFO: no temporary file, no rename, no sync (a
+/// device may refuse fsync; there is nothing durable to sync).
+fn write_direct<T, E: From<Error>>(path: &Path, fill: impl FnOnce(&mut BufWriter<File>) -> std::result::Result<T, E>) -> std::result::Result<T, E> {
+    let file = std::fs::OpenOptions::new().write(true).open(path).map_err(|e| Error::io(path, e))?;
+    let mut w = BufWriter::with_capacity(1 << 20, file);
+    let value = fill(&mut w)?;
+    w.flush().map_err(|e| Error::io(path, e))?;
+    Ok(value)
+}
+
+/// Creates `.NAME.PID.RANDOM.tmp` beside `target`, exclusively (`create_new`): an existing
+/// file of that name (another writer's) is never opened, a new name is drawn instead.
+fn create_temp(target: &Path) -> Result<(File, PathBuf)> {
+    let dir = target.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = target.file_name().ok_or_else(|| Error::Misuse(format!("{} is not a file path", target.display())))?;
+    let mut last = None;
+    for _ in 0..16 {
+        let mut tmp_name = std::ffi::OsString::from(".");
+        tmp_name.push(name);
+        tmp_name.push(format!(".{}.{:016x}.tmp", std::process::id(), random_u64()));
+        let tmp = dir.join(tmp_name);
+        match std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp) {
+            Ok(f) => return Ok((f, tmp)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last = Some(Error::io(&tmp, e)),
+            Err(e) => return Err(Error::io(&tmp, e)),
+        }
+    }
+    Err(last.unwrap_or_else(|| Error::Misuse("no temporary file name could be created".into())))
+}
+
+/// 64 unpredictable bits without a dependency: std's `RandomState` keys come from the OS's
+/// random source (per process and thread), mixed with a counter and the clock so that
+/// successive calls differ too.
+fn random_u64() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u64(COUNTER.fetch_add(1, Ordering::Relaxed));
+    h.write_u128(std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos()));
+    h.write_u32(std::process::id());
+    h.finish()
+}
+
+/// BLAKE3 hash of a file's bytes, lowercase hex (streams; memory stays small). Only a
+/// regular file is hashed: opening a FIFO would block and a device never ends.
 pub fn hash_file(path: &Path) -> Result<String> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
+        let e = std::io::Error::new(std::io::ErrorKind::InvalidInput, "not a regular file");
+        return Err(Error::io(path, e));
+    }
     let mut h = blake3::Hasher::new();
     h.update_reader(File::open(path).map_err(|e| Error::io(path, e))?).map_err(|e| Error::io(path, e))?;
     Ok(h.finalize().to_hex().to_string())
@@ -78,6 +193,120 @@ fn subtree_cv(data: &[u8], offset: u64) -> blake3::hazmat::ChainingValue {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    fn put(path: &Path, bytes: &[u8]) -> Result<()> {
+        write_atomic(path, |w| w.write_all(bytes).map_err(|e| Error::io(path, e)))
+    }
+
+    /// Two writers of one output at once (equal PIDs, as in two containers on shared
+    /// storage, look alike here: one process): each has its own temporary file, so the
+    /// published file is one writer's bytes whole, never a mix. The barriers force the
+    /// interleaving that corrupted it when both opened `.NAME.PID.tmp`: both create, the
+    /// first writes a long file, the second a short one over it, then both publish.
+    #[test]
+    fn concurrent_writers_never_publish_a_mix() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("out.sct");
+        let long = vec![b'a'; 1 << 20];
+        let short = vec![b'b'; 1 << 19];
+        let barrier = std::sync::Barrier::new(2);
+        std::thread::scope(|s| {
+            for (i, bytes) in [&long, &short].into_iter().enumerate() {
+                let (path, barrier) = (&path, &barrier);
+                s.spawn(move || {
+                    let r = write_atomic(path, |w| {
+                        barrier.wait();
+                        if i == 1 {
+                            barrier.wait();
+                        }
+                        w.write_all(bytes).and_then(|_| w.flush()).map_err(|e| Error::io(path, e))?;
+                        if i == 0 {
+                            barrier.wait();
+                        }
+                        barrier.wait();
+                        Ok(())
+                    });
+                    r.expect("each writer succeeds");
+                });
+            }
+        });
+        let got = std::fs::read(&path).expect("read");
+        assert!(got == long || got == short, "published a mix of two writers ({} bytes)", got.len());
+        let left: Vec<_> = std::fs::read_dir(dir.path()).expect("dir").flatten().map(|e| e.file_name()).collect();
+        assert_eq!(left.len(), 1, "temporary files left: {left:?}");
+    }
+
+    /// The temporary name keeps the `.NAME.PID.` prefix and `.tmp` suffix batch cleanup
+    /// looks for, with a random part between.
+    #[test]
+    fn temp_names_are_distinct_and_recognisable() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let target = dir.path().join("m.sct");
+        let (_a, ta) = create_temp(&target).expect("temp");
+        let (_b, tb) = create_temp(&target).expect("temp");
+        assert_ne!(ta, tb);
+        let n = ta.file_name().and_then(|n| n.to_str()).expect("utf-8").to_string();
+        let rest = n.strip_prefix(&format!(".m.sct.{}.", std::process::id())).and_then(|r| r.strip_suffix(".tmp")).expect("pattern");
+        assert!(rest.len() == 16 && rest.bytes().all(|b| b.is_ascii_hexdigit()), "{n}");
+    }
+
+    /// A symlink to a regular file: the target gets the new bytes, the link stays a link.
+    #[cfg(unix)]
+    #[test]
+    fn symlink_to_a_regular_file_survives() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let real = dir.path().join("real.sct");
+        let link = dir.path().join("link.sct");
+        std::fs::write(&real, b"old").expect("write");
+        std::os::unix::fs::symlink(&real, &link).expect("symlink");
+        put(&link, b"new").expect("write through link");
+        assert!(std::fs::symlink_metadata(&link).expect("lstat").file_type().is_symlink());
+        assert_eq!(std::fs::read(&real).expect("read"), b"new");
+    }
+
+    /// A FIFO is written through, not replaced by a regular file: the reader gets the
+    /// bytes and the path is still a FIFO.
+    #[cfg(unix)]
+    #[test]
+    fn fifo_is_written_through_not_replaced() {
+        use std::io::Read;
+        use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+        let dir = tempfile::tempdir().expect("tempdir");
+        let fifo = dir.path().join("out.sct");
+        assert!(std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo").success());
+        // Non-blocking read end first, so the writer's open finds a reader and never waits.
+        let mut reader = std::fs::OpenOptions::new().read(true).custom_flags(libc_o_nonblock()).open(&fifo).expect("open read end");
+        put(&fifo, b"through the pipe").expect("write");
+        assert!(std::fs::symlink_metadata(&fifo).expect("lstat").file_type().is_fifo(), "the FIFO was replaced");
+        let mut got = Vec::new();
+        let _ = reader.read_to_end(&mut got);
+        assert_eq!(got, b"through the pipe");
+    }
+
+    /// O_NONBLOCK on Linux (the tests' platform; sct-format has no libc dependency).
+    #[cfg(unix)]
+    fn libc_o_nonblock() -> i32 {
+        if cfg!(any(target_os = "macos", target_os = "ios", target_os = "freebsd", target_os = "openbsd", target_os = "netbsd")) {
+            0x0004
+        } else {
+            0o4000
+        }
+    }
+
+    /// A character device (`/dev/null`) is written through and stays a device; a directory
+    /// is refused.
+    #[cfg(unix)]
+    #[test]
+    fn device_is_written_through_and_directory_refused() {
+        use std::os::unix::fs::FileTypeExt;
+        let null = Path::new("/dev/null");
+        put(null, b"discarded").expect("write to /dev/null");
+        assert!(std::fs::symlink_metadata(null).expect("lstat").file_type().is_char_device());
+        let dir = tempfile::tempdir().expect("tempdir");
+        assert!(matches!(put(dir.path(), b"x"), Err(Error::Misuse(_))));
+    }
+
     /// The parallel hash is BLAKE3's, around every split size.
     #[test]
     fn hash_bytes_is_blake3() {

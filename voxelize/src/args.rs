@@ -92,6 +92,10 @@ pub struct SamplingArgs {
     /// Ignore textures (colours from factors and vertex colours).
     #[arg(long)]
     pub no_textures: bool,
+    /// Let glTF buffer and image URIs name files outside the model's directory (absolute
+    /// paths, file: URIs, `..`, symlinks leading out); refused by default.
+    #[arg(long)]
+    pub allow_outside_uris: bool,
     /// Refuse runs estimated to make more samples than this.
     #[arg(long, value_name = "N", default_value_t = 400_000_000)]
     pub max_samples: u64,
@@ -122,7 +126,12 @@ impl SamplingArgs {
 
     /// Loader options.
     pub fn load_options(&self) -> LoadOptions {
-        LoadOptions { texture_override: self.texture.clone(), load_textures: !self.no_textures, ..Default::default() }
+        LoadOptions {
+            texture_override: self.texture.clone(),
+            load_textures: !self.no_textures,
+            allow_outside_uris: self.allow_outside_uris,
+            ..Default::default()
+        }
     }
 
     /// Sampler options.

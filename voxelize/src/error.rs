@@ -85,6 +85,30 @@ pub enum LoadError {
         /// What exceeded which limit.
         what: String,
     },
+    /// The file (the input or a resource it names) is not a regular file after following
+    /// symlinks: a FIFO would block forever and a device never ends, so neither is read.
+    #[error("{}: is {kind}, not a regular file; only regular files are read", path.display())]
+    NotRegularFile {
+        /// The file.
+        path: PathBuf,
+        /// "a FIFO", "a character device", "a directory", …
+        kind: &'static str,
+    },
+    /// A glTF buffer or image URI resolves to a file outside the model's directory, which is
+    /// refused unless [`crate::LoadOptions::allow_outside_uris`] is set.
+    #[error("{}: {what} URI {uri:?} resolves to {}, outside the model's directory {} (pass --allow-outside-uris to read it)", path.display(), resolved.display(), dir.display())]
+    UriOutsideDirectory {
+        /// The model file.
+        path: PathBuf,
+        /// "buffer 0", "image 3".
+        what: String,
+        /// The URI as written.
+        uri: String,
+        /// Where it leads (symlinks followed where the file exists).
+        resolved: PathBuf,
+        /// The model's directory.
+        dir: PathBuf,
+    },
     /// A panic inside a third-party parser, caught so that hostile input never aborts the
     /// process.
     #[error("{}: {format} parser failed internally on this input: {message}", path.display())]
@@ -142,7 +166,7 @@ impl Error {
     /// The process exit status the binary uses for this error: 1 bad input, 2 usage or I/O.
     pub fn exit_code(&self) -> i32 {
         match self {
-            Error::Load(LoadError::Io { .. }) => 2,
+            Error::Load(LoadError::Io { .. } | LoadError::NotRegularFile { .. }) => 2,
             Error::Load(_) | Error::Sampling(_) => 1,
             Error::Usage(_) | Error::Write { .. } => 2,
         }

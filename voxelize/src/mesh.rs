@@ -255,6 +255,51 @@ impl LoadedScene {
     }
 }
 
+/// Largest magnitude a world-space coordinate may reach (after instancing), checked at load.
+/// Beyond it, products of edge lengths (areas, cross products) and sums of areas overflow the
+/// f32 of a sample: a triangle spanning ±3·10³⁸ has an infinite area. 10¹⁵ keeps any area
+/// (< 2·10³⁰) far inside f32 and is far beyond real scenes (the solar system is 10¹³ m).
+pub const MAX_WORLD_COORDINATE: f64 = 1e15;
+
+/// The largest world-space coordinate magnitude of the scene and the mesh that reaches it
+/// (`"points"` for a point cloud); `None` for an empty scene. Each mesh's local bounding box
+/// is mapped by each instance (the images of a box's corners bound the image of the box), so
+/// this costs one pass over the vertices plus 8 points per instance. NaN (from a matrix
+/// that overflows) counts as infinite.
+pub fn max_world_coordinate(scene: &LoadedScene) -> Option<(f64, String)> {
+    let boxes: Vec<Option<([f32; 3], [f32; 3])>> = scene
+        .meshes
+        .iter()
+        .map(|m| {
+            let mut it = m.primitives.iter().flat_map(|p| p.positions.iter());
+            let first = *it.next()?;
+            Some(it.fold((first, first), |(lo, hi), p| (std::array::from_fn(|k| lo[k].min(p[k])), std::array::from_fn(|k| hi[k].max(p[k])))))
+        })
+        .collect();
+    let mut worst: Option<(f64, String)> = None;
+    let mut note = |v: f64, name: &str| {
+        if worst.as_ref().is_none_or(|(w, _)| v > *w) {
+            worst = Some((v, name.to_string()));
+        }
+    };
+    // NaN (a matrix that overflows) counts as infinitely far.
+    let magnitude = |p: [f64; 3]| p.iter().fold(0.0f64, |m, v| if v.is_nan() { f64::INFINITY } else { m.max(v.abs()) });
+    for inst in &scene.instances {
+        let (Some(mesh), Some(Some((lo, hi)))) = (scene.meshes.get(inst.mesh), boxes.get(inst.mesh)) else { continue };
+        for c in 0..8 {
+            let corner = std::array::from_fn(|k| if c >> k & 1 == 0 { lo[k] } else { hi[k] });
+            let w = transform_point(&inst.transform, corner);
+            note(magnitude(w), &mesh.name);
+        }
+    }
+    if let Some(pc) = &scene.points {
+        for p in &pc.positions {
+            note(magnitude(p.map(f64::from)), "points");
+        }
+    }
+    worst
+}
+
 /// Applies an affine matrix to a point.
 pub fn transform_point(m: &Mat4, p: [f32; 3]) -> [f64; 3] {
     let [x, y, z] = p.map(f64::from);

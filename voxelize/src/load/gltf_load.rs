@@ -1,7 +1,7 @@
 //! glTF 2.0 (.gltf with external or data-URI resources, .glb) via the gltf crate.
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use gltf::accessor::{DataType, Dimensions};
 use gltf::mesh::Mode;
@@ -77,7 +77,9 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
     let base = path.parent().unwrap_or_else(|| Path::new("."));
     let mut scene = LoadedScene { declares_sides: true, ..Default::default() };
 
-    // Buffers: a missing one is fatal (the geometry is in it).
+    // Buffers: a missing one is fatal (the geometry is in it). External files are read here,
+    // not by the gltf crate, so that they are regular files inside the model's directory,
+    // read with a bound (see `external`).
     let mut buffers: Vec<gltf::buffer::Data> = Vec::new();
     for b in document.buffers() {
         let what = match b.source() {
@@ -85,15 +87,25 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
             gltf::buffer::Source::Uri(u) if u.starts_with("data:") => "data URI".to_string(),
             gltf::buffer::Source::Uri(u) => format!("file {u:?}"),
         };
-        let data = gltf::buffer::Data::from_source_and_blob(b.source(), Some(base), &mut blob)
-            .map_err(|e| perr(&format!("buffer {}", b.index()), format!("cannot load {what}: {e}")))?;
+        let data = match b.source() {
+            gltf::buffer::Source::Uri(uri) if !uri.starts_with("data:") => {
+                let file = external(path, base, uri, &format!("buffer {}", b.index()), opts)?;
+                // A missing or unreadable buffer is the model's fault: a parse error naming
+                // the model and the buffer. Refusals by type or size keep their own errors.
+                let mut bytes = super::read_file(&file, opts.max_file_bytes).map_err(|e| match e {
+                    LoadError::Io { path: f, source } => perr(&format!("buffer {}", b.index()), format!("cannot load {what} ({}): {source}", f.display())),
+                    other => other,
+                })?;
+                // As the gltf crate does: buffers are padded to a multiple of 4 bytes.
+                bytes.resize(bytes.len().next_multiple_of(4), 0);
+                scene.files.push(file);
+                gltf::buffer::Data(bytes)
+            }
+            _ => gltf::buffer::Data::from_source_and_blob(b.source(), Some(base), &mut blob)
+                .map_err(|e| perr(&format!("buffer {}", b.index()), format!("cannot load {what}: {e}")))?,
+        };
         if data.len() < b.length() {
             return Err(perr(&format!("buffer {}", b.index()), format!("{what} has {} bytes, the file declares {}", data.len(), b.length())));
-        }
-        if let gltf::buffer::Source::Uri(u) = b.source() {
-            if !u.starts_with("data:") {
-                scene.files.push(base.join(u));
-            }
         }
         buffers.push(data);
     }
@@ -115,7 +127,19 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
             gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => uri.to_string(),
             _ => format!("embedded image {}", img.index()),
         };
-        match gltf::image::Data::from_source(img.source(), Some(base), &buffers) {
+        let decoded = match img.source() {
+            gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => {
+                // Like a missing texture, a refused one (outside the model's directory, not
+                // a regular file) is a warning: the base colour factor still applies.
+                external(path, base, uri, &format!("image {}", img.index()), opts)
+                    .and_then(|file| super::read_file(&file, opts.max_file_bytes))
+                    .map_err(|e| e.to_string())
+                    .and_then(|b| image::load_from_memory(&b).map_err(|e| e.to_string()))
+                    .map(gltf_image_data)
+            }
+            source => gltf::image::Data::from_source(source, Some(base), &buffers).map(Some).map_err(|e| e.to_string()),
+        };
+        match decoded.and_then(|d| d.ok_or_else(|| "unsupported pixel format".to_string())) {
             Ok(d) => match image_data_to_rgba(d, name.clone()) {
                 Some(i) => {
                     scene.images.push(i);
@@ -236,6 +260,108 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
         scene.warnings.push(format!("{}: the scene places no mesh", path.display()));
     }
     Ok(scene)
+}
+
+/// The file a non-`data:` buffer or image URI names: percent-decoded, a `file:` scheme
+/// stripped, relative paths taken from the model's directory `base`. Unless
+/// `opts.allow_outside_uris`, the file (symlinks followed) must lie inside `base`
+/// ([`LoadError::UriOutsideDirectory`]); a file that does not exist is left to the read,
+/// which names it.
+fn external(path: &Path, base: &Path, uri: &str, what: &str, opts: &LoadOptions) -> Result<PathBuf, LoadError> {
+    let perr = |msg: String| LoadError::parse(path, "glTF", what, msg);
+    let rest = match uri.strip_prefix("file://").or_else(|| uri.strip_prefix("file:")) {
+        Some(rest) => rest,
+        // Any other scheme (http:, …) is not read; the gltf crate refuses them the same way.
+        None if uri.contains(':') => return Err(perr(format!("unsupported URI scheme in {uri:?}"))),
+        None => uri,
+    };
+    let decoded = percent_decode(rest).ok_or_else(|| perr(format!("URI {uri:?} is not valid percent-encoded UTF-8")))?;
+    let file = base.join(&decoded);
+    if opts.allow_outside_uris {
+        return Ok(file);
+    }
+    let outside = |resolved: PathBuf| LoadError::UriOutsideDirectory {
+        path: path.to_path_buf(),
+        what: what.to_string(),
+        uri: uri.to_string(),
+        resolved,
+        dir: base.to_path_buf(),
+    };
+    let Ok(dir) = base.canonicalize() else {
+        return Err(outside(file));
+    };
+    match file.canonicalize() {
+        Ok(real) if real.starts_with(&dir) => Ok(file),
+        Ok(real) => Err(outside(real)),
+        // Not there (or unreadable): refuse what leads out lexically; otherwise the read
+        // reports the missing file by name.
+        Err(_) => {
+            let lexical = lexically_normal(&dir.join(&decoded));
+            if lexical.starts_with(&dir) {
+                Ok(file)
+            } else {
+                Err(outside(lexical))
+            }
+        }
+    }
+}
+
+/// `p` with `.` dropped and `..` applied to the components before it (no file system access).
+fn lexically_normal(p: &Path) -> PathBuf {
+    use std::path::Component;
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                out.pop();
+            }
+            other => out.push(other),
+        }
+    }
+    out
+}
+
+/// Decodes `%XX` escapes (RFC 3986); `None` for a malformed escape or non-UTF-8 result.
+fn percent_decode(s: &str) -> Option<String> {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' {
+            let hex = b.get(i + 1..i + 3)?;
+            let hex = std::str::from_utf8(hex).ok()?;
+            out.push(u8::from_str_radix(hex, 16).ok()?);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+/// A decoded image in the gltf crate's pixel layout (what its own importer produces for a
+/// file, so textures read here convert exactly as embedded ones do); `None` for layouts it
+/// has no format for.
+fn gltf_image_data(img: image::DynamicImage) -> Option<gltf::image::Data> {
+    use gltf::image::Format as F;
+    use image::DynamicImage as D;
+    let format = match img {
+        D::ImageLuma8(_) => F::R8,
+        D::ImageLumaA8(_) => F::R8G8,
+        D::ImageRgb8(_) => F::R8G8B8,
+        D::ImageRgba8(_) => F::R8G8B8A8,
+        D::ImageLuma16(_) => F::R16,
+        D::ImageLumaA16(_) => F::R16G16,
+        D::ImageRgb16(_) => F::R16G16B16,
+        D::ImageRgba16(_) => F::R16G16B16A16,
+        D::ImageRgb32F(_) => F::R32G32B32FLOAT,
+        D::ImageRgba32F(_) => F::R32G32B32A32FLOAT,
+        _ => return None,
+    };
+    let (width, height) = (img.width(), img.height());
+    Some(gltf::image::Data { pixels: img.into_bytes(), format, width, height })
 }
 
 fn node_matrix(node: &gltf::Node) -> Mat4 {

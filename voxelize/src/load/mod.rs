@@ -1,5 +1,7 @@
 //! Mesh loaders: OBJ/MTL (tobj), glTF/GLB (gltf), PLY (ply-rs-bw). Entry point [`load`].
+//! Every file is read through [`fsio`]: regular files only, reads bounded.
 
+pub mod fsio;
 mod gltf_load;
 mod obj;
 mod ply;
@@ -20,11 +22,28 @@ pub struct LoadOptions {
     /// Largest input file accepted, in bytes (a guard against reading a device or a
     /// runaway file into memory).
     pub max_file_bytes: u64,
+    /// Let glTF buffer and image URIs name files outside the model's directory (absolute
+    /// paths, `file:` URIs, `..`, symlinks leading out). Off by default: a downloaded model
+    /// should not make the tool read arbitrary files of the machine it runs on.
+    pub allow_outside_uris: bool,
+    /// Most corners one polygon (OBJ or PLY face) may have; a larger face is refused
+    /// ([`LoadError::Limit`]). Triangulation time grows with the corner count (see
+    /// [`crate::polygon`]), so one hostile face must not stall the load.
+    pub max_face_corners: usize,
 }
+
+/// Default of [`LoadOptions::max_face_corners`]: 1,048,576 corners.
+pub const DEFAULT_MAX_FACE_CORNERS: usize = 1 << 20;
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        LoadOptions { texture_override: None, load_textures: true, max_file_bytes: 8 << 30 }
+        LoadOptions {
+            texture_override: None,
+            load_textures: true,
+            max_file_bytes: 8 << 30,
+            allow_outside_uris: false,
+            max_face_corners: DEFAULT_MAX_FACE_CORNERS,
+        }
     }
 }
 
@@ -62,6 +81,19 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
     if let Some(tex) = &opts.texture_override {
         bind_texture_override(&mut scene, tex, opts)?;
     }
+    // Finite but huge coordinates (±3·10³⁸) make infinite areas downstream: refused here,
+    // naming the mesh, rather than written as samples no reader can use.
+    if let Some((m, mesh)) = crate::mesh::max_world_coordinate(&scene) {
+        if !(m <= crate::mesh::MAX_WORLD_COORDINATE) {
+            return Err(LoadError::Limit {
+                path: path.to_path_buf(),
+                what: format!(
+                    "mesh {mesh:?} reaches a world coordinate of {m:e}, beyond the limit of ±{:e} (areas and edge products would overflow f32)",
+                    crate::mesh::MAX_WORLD_COORDINATE
+                ),
+            });
+        }
+    }
     scene.files.insert(0, path.to_path_buf());
     Ok(scene)
 }
@@ -84,18 +116,7 @@ impl Kind {
 }
 
 pub(crate) fn read_file(path: &Path, max: u64) -> Result<Vec<u8>, LoadError> {
-    let io = |source| LoadError::Io { path: path.to_path_buf(), source };
-    let meta = std::fs::metadata(path).map_err(io)?;
-    if meta.is_dir() {
-        return Err(io(std::io::Error::new(std::io::ErrorKind::InvalidInput, "is a directory")));
-    }
-    if meta.len() > max {
-        return Err(LoadError::Limit {
-            path: path.to_path_buf(),
-            what: format!("file is {} bytes, more than the limit of {max}", meta.len()),
-        });
-    }
-    std::fs::read(path).map_err(io)
+    fsio::read_regular(path, max)
 }
 
 /// Decodes an image file to 8-bit RGBA (any format the `image` crate was built with).

@@ -180,8 +180,15 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
             mesh.face_arities.clone()
         };
         let mut start = 0usize;
-        for &ar in &arities {
+        for (fi, &ar) in arities.iter().enumerate() {
             let ar = ar as usize;
+            // Checked before the face's corners are gathered or triangulated.
+            if ar > opts.max_face_corners {
+                return Err(LoadError::Limit {
+                    path: path.to_path_buf(),
+                    what: format!("{what}: face {fi} has {ar} corners, more than the limit of {}", opts.max_face_corners),
+                });
+            }
             let end = start + ar;
             if end > mesh.indices.len() {
                 return Err(LoadError::parse(path, "OBJ", what.clone(), "face arity runs past the index list"));
