@@ -309,8 +309,9 @@ pub const FRAMING_CUT_NODES: usize = 16384;
 /// Most framing spheres over all tree uses: instances of many trees get coarser cuts.
 const FRAMING_BUDGET: usize = 1 << 16;
 /// Most graph nodes visited while collecting framing spheres; a group whose children would
-/// exceed it contributes its own tree's cut instead.
-const FRAMING_VISITS: usize = 1 << 16;
+/// exceed it contributes its own tree's cut instead. With `FRAMING_BUDGET` it keeps the
+/// spheres to about 2^17 however many instances a scene has.
+const FRAMING_VISITS: usize = 1 << 12;
 
 /// The first-level cut of a tree with at least `min_nodes` nodes (the whole tree when it
 /// has fewer), read from the index's level counts so only the levels above are decoded.
@@ -352,10 +353,8 @@ fn collect_uses(reader: &SctReader, node: u32, state: TraversalState, depth: u32
             }
         }
         Some(GraphNode::Instance { child, transform, attrs }) => {
-            let state = state.push_instance(transform, attrs);
-            if *visits < FRAMING_VISITS {
-                collect_uses(reader, *child, state, depth + 1, visits, out);
-            }
+            // Instances do not multiply the walk (groups do, and stop at the budget).
+            collect_uses(reader, *child, state.push_instance(transform, attrs), depth + 1, visits, out);
         }
         Some(GraphNode::Inline { bound, .. }) => out.push(FramingUse { what: Use::Bound(*bound), state }),
         None => {}

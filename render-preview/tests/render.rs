@@ -657,6 +657,11 @@ fn cli_exit_codes_and_json() {
     std::fs::write(&garbage, b"this is not an SCT file at all, not even close........").unwrap();
     let g = run(&[garbage.to_str().unwrap(), "-o", png.to_str().unwrap()]);
     assert_eq!(g.status.code(), Some(1), "{}", String::from_utf8_lossy(&g.stderr));
+    // Printed once: the cause used to be repeated after the message that already held it.
+    let msg = String::from_utf8_lossy(&g.stderr);
+    assert_eq!(msg.matches("not an SCT").count(), 1, "{msg}");
+    let msg = String::from_utf8_lossy(&run(&[missing.to_str().unwrap(), "-o", png.to_str().unwrap()]).stderr).into_owned();
+    assert_eq!(msg.matches("No such file").count(), 1, "{msg}");
     assert_eq!(run(&[path.to_str().unwrap(), "-o", png.to_str().unwrap(), "--view", "sideways"]).status.code(), Some(2));
     // Degenerate camera: invalid input, one clear message.
     let d = run(&[path.to_str().unwrap(), "-o", png.to_str().unwrap(), "--eye", "0,0,0", "--target", "0,0,0"]);
