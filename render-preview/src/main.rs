@@ -148,7 +148,7 @@ impl RenderArgs {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Render models over a series of --pixel-error values and chart time against PSNR
+    /// Render models over a series of --pixel-error values and chart time against foreground PSNR
     /// (OUTPUT.png, OUTPUT.svg, OUTPUT.json).
     Sweep {
         /// MODEL.sct=MESH pairs (the mesh is the accuracy reference); repeat per model.
