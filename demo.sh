@@ -23,6 +23,7 @@ echo "2/4 build     $out/fuze.sct" >&2
 echo "3/4 inspect   $out/report.txt" >&2
 "$bin/sct-inspect" "$out/fuze.sct" --validate --deep > "$out/report.txt"
 echo "4/4 render    $out/preview.png (and the mesh reference)" >&2
-"$bin/sct-render-preview" "$out/fuze.sct" -o "$out/preview.png" --reference "$model"
+# The fuze bottle is modelled Z-up and its OBJ does not say so.
+"$bin/sct-render-preview" "$out/fuze.sct" -o "$out/preview.png" --up z --reference "$model"
 
 echo "done: SCT file $out/fuze.sct, report $out/report.txt, preview $out/preview.png, accuracy $out/preview.metrics.json"

@@ -6,66 +6,7 @@ use crate::error::{Error, Result};
 /// Largest image side accepted (keeps buffers bounded).
 pub const MAX_SIDE: u32 = 16384;
 
-/// A named viewing direction for the default framing.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ViewPreset {
-    /// Looking down −Z (eye on +Z).
-    #[default]
-    Front,
-    /// Looking down +Z.
-    Back,
-    /// Eye on −X.
-    Left,
-    /// Eye on +X.
-    Right,
-    /// Eye on +Y looking down, −Z up on screen.
-    Top,
-    /// Eye along (1, 1, 1).
-    Iso,
-}
-
-/// Which world axis points up, for the view presets (which are named for a +Y-up world).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum UpAxis {
-    /// Decide from the file (see `SceneFiles::auto_up`).
-    #[default]
-    Auto,
-    /// +X up.
-    X,
-    /// +Y up (glTF, most scans).
-    Y,
-    /// +Z up (CAD, many OBJ exports): `front` looks along +Y from −Y.
-    Z,
-}
-
-impl UpAxis {
-    /// Maps a direction of the +Y-up preset frame to this axis' frame by a rotation that
-    /// takes +Y to the up axis (Z up: front looks along +Y, right stays +X).
-    pub fn rotate(self, v: [f64; 3]) -> [f64; 3] {
-        match self {
-            UpAxis::Auto | UpAxis::Y => v,
-            UpAxis::Z => [v[0], -v[2], v[1]],
-            UpAxis::X => [v[1], -v[0], v[2]],
-        }
-    }
-}
-
-impl ViewPreset {
-    /// (direction from target to eye, up) in a +Y-up world.
-    fn dirs(self) -> ([f64; 3], [f64; 3]) {
-        let s = 1.0 / 3f64.sqrt();
-        match self {
-            ViewPreset::Front => ([0.0, 0.0, 1.0], [0.0, 1.0, 0.0]),
-            ViewPreset::Back => ([0.0, 0.0, -1.0], [0.0, 1.0, 0.0]),
-            ViewPreset::Left => ([-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
-            ViewPreset::Right => ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
-            ViewPreset::Top => ([0.0, 1.0, 0.0], [0.0, 0.0, -1.0]),
-            ViewPreset::Iso => ([s, s, s], [0.0, 1.0, 0.0]),
-        }
-    }
-}
+pub use sct_format::view::{UpAxis, ViewPreset};
 
 /// A pinhole camera.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -85,27 +26,9 @@ pub struct Camera {
 }
 
 impl Camera {
-    /// A camera looking at a sphere from `preset` (for a world whose up axis is `up`), at
-    /// the distance where the sphere just fits the narrower field of view (with a 5 %
-    /// margin).
-    pub fn framing(center: [f64; 3], radius: f64, preset: ViewPreset, up: UpAxis, fov_y_deg: f64, width: u32, height: u32) -> Camera {
-        let (dir, vup) = preset.dirs();
-        let (dir, up) = (up.rotate(dir), up.rotate(vup));
-        let fy = fov_y_deg.to_radians();
-        let aspect = width.max(1) as f64 / height.max(1) as f64;
-        let fx = 2.0 * ((fy / 2.0).tan() * aspect).atan();
-        let half = (fy.min(fx) / 2.0).max(1e-6);
-        // A degenerate (zero) radius still gets a usable distance.
-        let r = if radius > 0.0 && radius.is_finite() { radius } else { 1.0 };
-        let d = 1.05 * r / half.sin();
-        Camera {
-            eye: [center[0] + d * dir[0], center[1] + d * dir[1], center[2] + d * dir[2]],
-            target: center,
-            up,
-            fov_y_deg,
-            width,
-            height,
-        }
+    /// The camera of a [`Framing`](sct_format::view::Framing) for a `width`×`height` image.
+    pub fn from_framing(f: &sct_format::view::Framing, fov_y_deg: f64, width: u32, height: u32) -> Camera {
+        Camera { eye: f.eye, target: f.target, up: f.up, fov_y_deg, width, height }
     }
 }
 

@@ -33,6 +33,21 @@ pub enum Error {
         #[source]
         kind: Box<sct_format::traverse::TraverseErrorKind>,
     },
+    /// Nothing was drawn (the reason says why); the binary accepts it with `--allow-empty`.
+    #[error("nothing was drawn: {0}")]
+    Empty(String),
+    /// A `--min-psnr` / `--min-iou` gate failed, or the comparison could not be scored.
+    #[error("check failed: {0}")]
+    Check(String),
+    /// The texture an SCT file was sampled with (its provenance) cannot be found for the
+    /// reference.
+    #[error("the SCT file was sampled with texture {recorded:?}, which is not found (tried {}); pass --reference-texture IMAGE", tried.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "))]
+    ReferenceTexture {
+        /// The path as recorded.
+        recorded: String,
+        /// Where it was looked for.
+        tried: Vec<PathBuf>,
+    },
     /// Some other invalid setting or input (bad inline path, scene too deep …).
     #[error("invalid input: {0}")]
     Invalid(String),
@@ -57,8 +72,8 @@ impl Error {
             Error::Sct { source, .. } => source.is_invalid_input(),
             Error::Mesh(e) => !matches!(e, voxelize::LoadError::Io { .. }),
             // A missing or unreadable inline target is the referring file's fault.
-            Error::Inline { .. } | Error::Camera(_) | Error::Invalid(_) => true,
-            Error::Output { .. } => false,
+            Error::Inline { .. } | Error::Camera(_) | Error::Invalid(_) | Error::Empty(_) | Error::Check(_) => true,
+            Error::Output { .. } | Error::ReferenceTexture { .. } => false,
         }
     }
 

@@ -21,6 +21,7 @@ pub mod camera;
 pub mod error;
 mod lod;
 pub mod metrics;
+pub mod provenance;
 pub mod raster;
 pub mod reference;
 pub mod scene;
@@ -38,6 +39,7 @@ pub use raster::{Frame, Splat};
 pub use scene::SceneFiles;
 pub use shade::Shading;
 
+use sct_format::view;
 use sct_format::Limits;
 
 /// Splat shape.
@@ -79,14 +81,19 @@ pub struct RenderOptions {
     pub view: ViewPreset,
     /// Vertical field of view, degrees.
     pub fov_y_deg: f64,
-    /// Explicit eye (otherwise the root sphere is framed from `view`).
+    /// Explicit eye (otherwise the model is framed from `view`, see [`sct_format::view`]).
     pub eye: Option<[f64; 3]>,
-    /// Explicit target (otherwise the root sphere's centre).
+    /// Explicit target (otherwise the framing's, or the model's centre when only the eye
+    /// is given).
     pub target: Option<[f64; 3]>,
-    /// Explicit up vector (otherwise the preset's).
+    /// Explicit camera up vector (otherwise the preset's); the presets then stay in the
+    /// +Y-up frame.
     pub up: Option<[f64; 3]>,
-    /// World up axis the view presets are turned to (`Auto`: from the file).
-    pub up_axis: UpAxis,
+    /// World up axis the view presets are turned to; `None`: the one recorded in the
+    /// file's provenance, else +Y.
+    pub up_axis: Option<UpAxis>,
+    /// Fraction of the frame (tighter dimension) the model's projected extent fills.
+    pub fill: f64,
     /// LOD threshold: a node is drawn once its projected size (see [`LodSize`]) is at most
     /// this many pixels.
     pub pixel_error: f32,
@@ -107,14 +114,15 @@ pub struct RenderOptions {
 impl Default for RenderOptions {
     fn default() -> Self {
         RenderOptions {
-            width: 1280,
-            height: 720,
+            width: view::DEFAULT_WIDTH,
+            height: view::DEFAULT_HEIGHT,
             view: ViewPreset::Front,
-            fov_y_deg: 40.0,
+            fov_y_deg: view::DEFAULT_FOV_Y_DEG,
             eye: None,
             target: None,
             up: None,
-            up_axis: UpAxis::Auto,
+            up_axis: None,
+            fill: view::DEFAULT_FILL,
             pixel_error: 1.0,
             shading: Shading::Lambert,
             splat: SplatShape::Ellipse,
@@ -128,30 +136,69 @@ impl Default for RenderOptions {
 
 impl RenderOptions {
     /// The frame the view presets are taken in: an explicit `up` vector keeps the presets
-    /// as documented (y-up frame) and only sets the camera's up; otherwise the axis, with
-    /// [`UpAxis::Auto`] replaced by `auto_up`.
-    fn up_frame(&self, auto_up: UpAxis) -> UpAxis {
+    /// as documented (+Y-up frame) and only sets the camera's up; otherwise the option's
+    /// axis, else `recorded` (the file's provenance), else +Y.
+    pub fn up_frame(&self, recorded: Option<UpAxis>) -> UpAxis {
         match (self.up, self.up_axis) {
             (Some(_), _) => UpAxis::Y,
-            (None, UpAxis::Auto) => auto_up,
-            (None, a) => a,
+            (None, Some(a)) => a,
+            (None, None) => recorded.unwrap_or_default(),
         }
     }
 
-    /// Whether framing needs the scene's guessed up axis (which reads part of the root
-    /// tree): only for [`UpAxis::Auto`] without an explicit up vector.
-    fn needs_auto_up(&self) -> bool {
-        self.up.is_none() && self.up_axis == UpAxis::Auto
+    /// The camera for a scene whose extent is given by world-space `spheres` (centre,
+    /// radius; none for an empty scene), seen from the preset in the `up` frame: the
+    /// spheres' extremes along the camera's axes are framed with
+    /// [`view::frame_points`], then the explicit eye, target and up replace the framing's.
+    pub fn camera(&self, spheres: &[([f64; 3], f64)], up: UpAxis) -> Camera {
+        let points = framing_points(spheres, self.view, up);
+        let f = view::frame_points(&points, self.view, up, self.fov_y_deg, self.width, self.height, self.fill);
+        let framed = Camera::from_framing(&f, self.fov_y_deg, self.width, self.height);
+        let back: [f64; 3] = std::array::from_fn(|k| f.eye[k] - f.target[k]);
+        let (eye, target) = match (self.eye, self.target) {
+            (None, None) => (framed.eye, framed.target),
+            // Same direction and distance as the framing, about the given target.
+            (None, Some(t)) => (std::array::from_fn(|k| t[k] + back[k]), t),
+            // Looking at the middle of the model.
+            (Some(e), None) => (e, bbox_center(&points).unwrap_or(f.target)),
+            (Some(e), Some(t)) => (e, t),
+        };
+        Camera { eye, target, up: self.up.unwrap_or(framed.up), ..framed }
     }
+}
 
-    /// The camera for a scene whose root sphere is `bound` (`None` for an empty scene);
-    /// `auto_up` replaces [`UpAxis::Auto`].
-    pub fn camera(&self, bound: Option<([f64; 3], f64)>, auto_up: UpAxis) -> Camera {
-        let (center, radius) = bound.unwrap_or(([0.0; 3], 1.0));
-        let up = self.up_frame(auto_up);
-        let framed = Camera::framing(self.target.unwrap_or(center), radius, self.view, up, self.fov_y_deg, self.width, self.height);
-        Camera { eye: self.eye.unwrap_or(framed.eye), up: self.up.unwrap_or(framed.up), ..framed }
+/// Points whose extent is the spheres': each centre ± radius along the camera axes of
+/// `preset` (turned to `up`), the sphere's extremes in the image plane and in depth.
+pub fn framing_points(spheres: &[([f64; 3], f64)], preset: ViewPreset, up: UpAxis) -> Vec<[f64; 3]> {
+    let (back, vup) = preset.directions();
+    let (back, vup) = (up.rotate(back), up.rotate(vup));
+    let right = [vup[1] * back[2] - vup[2] * back[1], vup[2] * back[0] - vup[0] * back[2], vup[0] * back[1] - vup[1] * back[0]];
+    let l = (right[0] * right[0] + right[1] * right[1] + right[2] * right[2]).sqrt();
+    // The presets' up is never parallel to their direction, so l > 0.
+    let right = right.map(|v| v / l);
+    let mut out = Vec::with_capacity(spheres.len() * 6);
+    for &(c, r) in spheres {
+        let r = if r.is_finite() && r > 0.0 { r } else { 0.0 };
+        for axis in [right, vup, back] {
+            for s in [-r, r] {
+                out.push(std::array::from_fn(|k| c[k] + s * axis[k]));
+            }
+        }
     }
+    out
+}
+
+/// Centre of the points' bounding box (`None` without finite points).
+fn bbox_center(points: &[[f64; 3]]) -> Option<[f64; 3]> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points.iter().filter(|p| p.iter().all(|v| v.is_finite())) {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    lo[0].is_finite().then(|| std::array::from_fn(|k| 0.5 * lo[k] + 0.5 * hi[k]))
 }
 
 /// Seconds spent per phase.
@@ -159,6 +206,8 @@ impl RenderOptions {
 pub struct Phases {
     /// Opening the file (index only).
     pub open: f64,
+    /// Choosing the camera (reading the framing cut; included in `traverse`).
+    pub frame: f64,
     /// Refinement, block decoding and splat setup.
     pub traverse: f64,
     /// Rasterization.
@@ -197,6 +246,37 @@ pub struct Rendered {
     pub stats: RenderStats,
     /// Near distance used (the reference renderer must use the same).
     pub near: f64,
+    /// The world up axis the view presets were turned to.
+    pub up_axis: UpAxis,
+    /// What the main file's provenance says (up axis, texture binding).
+    pub provenance: provenance::Provenance,
+}
+
+impl Rendered {
+    /// Why nothing was drawn, or `None` when some pixel is covered. Read from the
+    /// refinement counters: no nodes at all, every node outside the view frustum, the rest
+    /// culled as back-facing, or splats that cover no pixel centre.
+    pub fn empty_reason(&self) -> Option<String> {
+        if self.stats.covered_pixels > 0 {
+            return None;
+        }
+        let l = &self.stats.lod;
+        Some(if l.nodes_visited == 0 {
+            "the file has no geometry (no tree reached from the scene graph's root has nodes)".to_string()
+        } else if self.stats.splats > 0 {
+            format!("all {} splats fall outside the image or between pixel centres", self.stats.splats)
+        } else if l.backface_culled == 0 {
+            "every node lies outside the view frustum: the camera looks away from the model, or the model is behind it (check --eye and --target)"
+                .to_string()
+        } else if l.frustum_culled == 0 {
+            "back-face culling removed every node: the camera sees only the back of the surface, e.g. from inside a closed model (--no-backface-culling draws back faces)".to_string()
+        } else {
+            format!(
+                "{} nodes lie outside the view frustum and back-face culling removed the other {} (camera inside the model or looking at its back; --no-backface-culling draws back faces)",
+                l.frustum_culled, l.backface_culled
+            )
+        })
+    }
 }
 
 /// Bounding sphere of a scene as (centre, radius).
@@ -206,11 +286,14 @@ pub fn scene_bound(files: &SceneFiles) -> Option<([f64; 3], f64)> {
 
 /// The camera, near distance, view and refinement parameters of a render of `files` with
 /// `opts` (shared by [`render`] and [`collect_splats`]).
-fn setup(files: &SceneFiles, opts: &RenderOptions) -> Result<(Camera, f64, View, lod::LodParams)> {
-    let bound = scene_bound(files);
-    let auto_up = if opts.needs_auto_up() { files.auto_up() } else { UpAxis::Y };
-    let camera = opts.camera(bound, auto_up);
+fn setup(files: &SceneFiles, opts: &RenderOptions) -> Result<(Camera, f64, View, lod::LodParams, UpAxis, f64)> {
+    let t0 = Instant::now();
+    let up = opts.up_frame(files.provenance().up);
+    // Framing reads a few shallow levels; an explicit eye and target need none of it.
+    let spheres = if opts.eye.is_some() && opts.target.is_some() { Vec::new() } else { files.framing_spheres() };
+    let camera = opts.camera(&spheres, up);
     // Near distance scaled to the scene so that close-ups keep depth precision.
+    let bound = scene_bound(files);
     let near = bound.map_or(1e-6, |(_, r)| (r * 1e-5).max(1e-12));
     let view = View::new(&camera, near)?;
     let params = lod::LodParams {
@@ -222,7 +305,7 @@ fn setup(files: &SceneFiles, opts: &RenderOptions) -> Result<(Camera, f64, View,
         area_cover: AREA_COVER,
         lod_size: opts.lod_size,
     };
-    Ok((camera, near, view, params))
+    Ok((camera, near, view, params, up, t0.elapsed().as_secs_f64()))
 }
 
 /// Renders an open scene.
@@ -231,7 +314,10 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     if !(opts.pixel_error.is_finite() && opts.pixel_error > 0.0) {
         return Err(Error::Invalid(format!("pixel error {} must be a positive number", opts.pixel_error)));
     }
-    let (camera, near, view, params) = setup(files, opts)?;
+    if !(opts.fill.is_finite() && opts.fill > 0.0) {
+        return Err(Error::Invalid(format!("fill {} must be a positive number (0.9: the model fills 90 % of the frame)", opts.fill)));
+    }
+    let (camera, near, view, params, up_axis, frame_secs) = setup(files, opts)?;
     let (splats, lod) = files.collect(&view, &params)?;
     let t1 = Instant::now();
     let [r, g, b] = opts.background;
@@ -246,9 +332,9 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         file_size: files.file_len(),
         files: files.file_count(),
         covered_pixels: frame.covered() as u64,
-        seconds: Phases { open: 0.0, traverse: (t1 - t0).as_secs_f64(), raster: (t2 - t1).as_secs_f64(), total: (t2 - t0).as_secs_f64() },
+        seconds: Phases { open: 0.0, frame: frame_secs, traverse: (t1 - t0).as_secs_f64(), raster: (t2 - t1).as_secs_f64(), total: (t2 - t0).as_secs_f64() },
     };
-    Ok(Rendered { frame, camera, stats, near })
+    Ok(Rendered { frame, camera, stats, near, up_axis, provenance: files.provenance() })
 }
 
 /// Opens `path` and renders it; the open time is included in the timings.
@@ -279,7 +365,7 @@ pub fn write_rgb_png(path: &Path, img: &image::RgbImage) -> Result<()> {
 
 /// The splats a render would rasterize (for benchmarks and tests).
 pub fn collect_splats(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Vec<Splat>> {
-    let (_, _, view, params) = setup(files, opts)?;
+    let (_, _, view, params, _, _) = setup(files, opts)?;
     Ok(files.collect(&view, &params)?.0)
 }
 
@@ -287,22 +373,56 @@ pub fn collect_splats(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Ve
 mod tests {
     use super::*;
 
+    fn unit_cube() -> Vec<([f64; 3], f64)> {
+        view::box_corners([-1.0; 3], [1.0; 3]).into_iter().map(|c| (c, 0.0)).collect()
+    }
+
     /// Regression: an explicit up vector used to leave the preset rotated by the scene's
-    /// auto-detected axis, so `--view front --up 0,1,0` on a Z-tall model looked along the
-    /// up vector and failed ("up vector parallel").
+    /// up axis, so `--view front --up 0,1,0` on a Z-up model looked along the up vector and
+    /// failed ("up vector parallel").
     #[test]
     fn explicit_up_vector_keeps_the_presets_in_the_y_up_frame() {
-        let opts = RenderOptions { up: Some([0.0, 1.0, 0.0]), up_axis: UpAxis::Y, ..Default::default() };
-        assert!(!opts.needs_auto_up());
-        let cam = opts.camera(Some(([0.0; 3], 1.0)), UpAxis::Z);
+        let opts = RenderOptions { up: Some([0.0, 1.0, 0.0]), up_axis: Some(UpAxis::Z), ..Default::default() };
+        let up = opts.up_frame(Some(UpAxis::Z));
+        assert_eq!(up, UpAxis::Y);
+        let cam = opts.camera(&unit_cube(), up);
         assert!(cam.eye[2] > 1.0 && cam.eye[0].abs() < 1e-9 && cam.eye[1].abs() < 1e-9, "front view eye on +Z: {:?}", cam.eye);
         assert_eq!(cam.up, [0.0, 1.0, 0.0]);
-        // A library caller that leaves the axis on Auto gets the same.
-        let lib = RenderOptions { up: Some([0.0, 1.0, 0.0]), ..Default::default() };
-        assert_eq!(lib.camera(Some(([0.0; 3], 1.0)), UpAxis::Z).eye, cam.eye);
-        // Without a vector, Auto follows the detected axis (z-up: the eye is not on +Z).
-        let auto = RenderOptions::default();
-        assert!(auto.needs_auto_up());
-        assert!(auto.camera(Some(([0.0; 3], 1.0)), UpAxis::Z).eye[2].abs() < 1e-9);
+    }
+
+    #[test]
+    fn up_axis_is_the_option_then_the_provenance_then_y() {
+        let d = RenderOptions::default();
+        assert_eq!(d.up_frame(None), UpAxis::Y);
+        assert_eq!(d.up_frame(Some(UpAxis::Z)), UpAxis::Z);
+        let x = RenderOptions { up_axis: Some(UpAxis::X), ..Default::default() };
+        assert_eq!(x.up_frame(Some(UpAxis::Z)), UpAxis::X);
+        // Z up: the front view looks along +Y, upright.
+        let cam = d.camera(&unit_cube(), UpAxis::Z);
+        assert!(cam.eye[1] < -1.0 && cam.eye[0].abs() < 1e-9 && cam.eye[2].abs() < 1e-9, "{:?}", cam.eye);
+        assert_eq!(cam.up, [0.0, 0.0, 1.0]);
+    }
+
+    #[test]
+    fn explicit_eye_or_target_replace_the_framing() {
+        let d = RenderOptions::default();
+        let framed = d.camera(&unit_cube(), UpAxis::Y);
+        // Target only: same offset from it as the framing.
+        let t = RenderOptions { target: Some([5.0, 0.0, 0.0]), ..Default::default() }.camera(&unit_cube(), UpAxis::Y);
+        assert_eq!(t.target, [5.0, 0.0, 0.0]);
+        assert!((t.eye[0] - 5.0).abs() < 1e-9 && (t.eye[2] - framed.eye[2]).abs() < 1e-9, "{t:?}");
+        // Eye only: looks at the model's centre.
+        let e = RenderOptions { eye: Some([3.0, 4.0, 5.0]), ..Default::default() }.camera(&unit_cube(), UpAxis::Y);
+        assert_eq!((e.eye, e.target), ([3.0, 4.0, 5.0], [0.0; 3]));
+    }
+
+    #[test]
+    fn framing_points_are_the_spheres_extremes_on_the_camera_axes() {
+        let p = framing_points(&[([1.0, 2.0, 3.0], 0.5)], ViewPreset::Front, UpAxis::Y);
+        assert_eq!(p.len(), 6);
+        assert!(p.contains(&[0.5, 2.0, 3.0]) && p.contains(&[1.5, 2.0, 3.0]) && p.contains(&[1.0, 2.0, 3.5]));
+        // A degenerate radius keeps the centre.
+        let p = framing_points(&[([0.0; 3], f64::NAN)], ViewPreset::Iso, UpAxis::Z);
+        assert!(p.iter().all(|q| *q == [0.0; 3]));
     }
 }

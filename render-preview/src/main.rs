@@ -4,8 +4,10 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
+use clap::builder::TypedValueParser;
 use clap::{Args, Parser, Subcommand};
-use render_preview::{metrics, reference, sweep, synth, LodSize, RenderOptions, Shading, SplatShape, UpAxis, ViewPreset};
+use render_preview::{metrics, reference, sweep, synth, Error, LodSize, RenderOptions, Shading, SplatShape, UpAxis, ViewPreset};
+use sct_format::view;
 
 const EXAMPLES: &str = "\
 Examples:
@@ -13,10 +15,17 @@ Examples:
   sct-render-preview bunny.sct -o iso.png --view iso --width 640 --height 480 --pixel-error 2
   sct-render-preview scene.sct -o close.png --eye 0.1,0.2,0.3 --target 0,0.1,0 --fov 30
   sct-render-preview bunny.sct -o b.png --reference bun_zipper.ply --json
+  sct-render-preview spot.sct -o s.png --reference spot_triangulated.obj --min-psnr 30 --min-iou 0.97
+  sct-render-preview scan.sct -o scan.png --up z --view iso
   sct-render-preview sweep --model bunny.sct=bun_zipper.ply --pixel-errors 0.5,1,2,4,8 -o chart
   sct-render-preview synth bun_zipper.ply -o bunny.sct --spacing 0.0005
 
-Exit status: 0 success, 1 invalid input (malformed file, degenerate camera), 2 usage or I/O error.";
+The default camera looks at the model's front (+Z; with --up z, from -Y), upright, at the
+distance where its projected extent fills 90 % of the frame (sct_format::view).
+
+Exit status: 0 success; 1 invalid input (malformed file, degenerate camera), nothing drawn
+(unless --allow-empty), an empty reference, or a --min-psnr / --min-iou check failed; 2 usage
+or I/O error.";
 
 #[derive(Parser, Debug)]
 #[command(name = "sct-render-preview", version, about = "Render a preview image of an SCT scene file on the CPU (LOD splatting).", after_help = EXAMPLES, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
@@ -31,12 +40,27 @@ struct Cli {
     output: Option<PathBuf>,
     #[command(flatten)]
     render: RenderArgs,
-    /// Also render this mesh (OBJ, glTF, PLY) as a reference and write metrics JSON and a
-    /// difference image next to the output (OUTPUT.metrics.json, OUTPUT.diff.png,
-    /// OUTPUT.reference.png).
+    /// Also render this mesh (OBJ, glTF, PLY; a point cloud is drawn as discs) as a
+    /// reference and write metrics JSON and a difference image next to the output
+    /// (OUTPUT.metrics.json, OUTPUT.diff.png, OUTPUT.reference.png). Textures are bound as
+    /// the SCT file's provenance records they were when it was sampled.
     #[arg(long, value_name = "MESH")]
     reference: Option<PathBuf>,
-    /// Print a JSON summary (splats, nodes, bytes read, file size, seconds per phase).
+    /// Bind this image as every material's base-colour texture in the reference (overrides
+    /// the texture recorded in the SCT file's provenance).
+    #[arg(long, value_name = "IMAGE", requires = "reference")]
+    reference_texture: Option<PathBuf>,
+    /// Fail (exit 1) when the foreground PSNR against the reference is below DB.
+    #[arg(long, value_name = "DB", requires = "reference")]
+    min_psnr: Option<f64>,
+    /// Fail (exit 1) when the silhouette IoU against the reference is below X.
+    #[arg(long, value_name = "X", requires = "reference")]
+    min_iou: Option<f64>,
+    /// Accept an image in which nothing was drawn (and an empty reference) instead of
+    /// exiting 1.
+    #[arg(long)]
+    allow_empty: bool,
+    /// Print a JSON summary on stdout (spec/render-preview-json.md).
     #[arg(long)]
     json: bool,
 }
@@ -44,28 +68,33 @@ struct Cli {
 #[derive(Args, Debug, Clone)]
 struct RenderArgs {
     /// Image width.
-    #[arg(long, default_value_t = 1280)]
+    #[arg(long, default_value_t = view::DEFAULT_WIDTH)]
     width: u32,
     /// Image height.
-    #[arg(long, default_value_t = 720)]
+    #[arg(long, default_value_t = view::DEFAULT_HEIGHT)]
     height: u32,
-    /// Viewing direction when no --eye is given (the root sphere is framed).
-    #[arg(long, value_enum, default_value_t = ViewPreset::Front)]
+    /// Viewing direction when no --eye is given: front (eye on +Z), back, left (eye on
+    /// -X), right, top (eye on +Y) or iso (eye along +X+Y+Z), named for a +Y-up world and
+    /// turned to the --up axis.
+    #[arg(long, default_value = "front", value_parser = clap::builder::PossibleValuesParser::new(ViewPreset::NAMES).try_map(|s| s.parse::<ViewPreset>()))]
     view: ViewPreset,
     /// Eye position x,y,z.
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     eye: Option<[f64; 3]>,
-    /// Target x,y,z (default: centre of the root sphere).
+    /// Target x,y,z (default: the framing's; with --eye, the middle of the model).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     target: Option<[f64; 3]>,
-    /// World up for the --view presets: auto, x, y or z, or an explicit camera up vector
-    /// x,y,z. auto picks y for glTF sources (the format is +Y up), z when the model is
-    /// at least 1.5x taller along Z than it is wide along X and Y (a standing object
-    /// modelled Z-up), y otherwise; with z up, front looks along +Y.
-    #[arg(long, default_value = "auto", value_parser = parse_up, allow_hyphen_values = true)]
-    up: Up,
+    /// World up axis for the --view presets: x, y or z, or an explicit camera up vector
+    /// x,y,z (the presets then stay in the +Y-up frame). Default: the up axis recorded in
+    /// the file's provenance, else y (glTF is +Y up; so are OBJ and PLY unless they say
+    /// otherwise). With z up, front looks along +Y.
+    #[arg(long, value_parser = parse_up, allow_hyphen_values = true)]
+    up: Option<Up>,
+    /// Fraction of the frame (its tighter dimension) the model's projected extent fills.
+    #[arg(long, default_value_t = view::DEFAULT_FILL)]
+    fill: f64,
     /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 40.0)]
+    #[arg(long, default_value_t = view::DEFAULT_FOV_Y_DEG)]
     fov: f64,
     /// LOD threshold: largest projected splat radius in pixels (see --lod-size).
     #[arg(long, default_value_t = 1.0)]
@@ -98,14 +127,14 @@ impl RenderArgs {
             eye: self.eye,
             target: self.target,
             up: match self.up {
-                Up::Vector(v) => Some(v),
-                Up::Axis(_) => None,
+                Some(Up::Vector(v)) => Some(v),
+                _ => None,
             },
             up_axis: match self.up {
-                Up::Axis(a) => a,
-                // The explicit vector is the camera's up; presets stay in the y-up frame.
-                Up::Vector(_) => UpAxis::Y,
+                Some(Up::Axis(a)) => Some(a),
+                _ => None,
             },
+            fill: self.fill,
             pixel_error: self.pixel_error,
             shading: self.shading,
             splat: self.splat,
@@ -119,7 +148,7 @@ impl RenderArgs {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Render models over a series of --pixel-error values and chart time against PSNR
+    /// Render models over a series of --pixel-error values and chart time against foreground PSNR
     /// (OUTPUT.png, OUTPUT.svg, OUTPUT.json).
     Sweep {
         /// MODEL.sct=MESH pairs (the mesh is the accuracy reference); repeat per model.
@@ -170,13 +199,10 @@ enum Up {
 }
 
 fn parse_up(s: &str) -> Result<Up, String> {
-    Ok(match s.trim().to_ascii_lowercase().as_str() {
-        "auto" => Up::Axis(UpAxis::Auto),
-        "x" => Up::Axis(UpAxis::X),
-        "y" => Up::Axis(UpAxis::Y),
-        "z" => Up::Axis(UpAxis::Z),
-        _ => Up::Vector(parse_vec3(s).map_err(|e| format!("expected auto, x, y, z or x,y,z: {e}"))?),
-    })
+    match s.parse::<UpAxis>() {
+        Ok(a) => Ok(Up::Axis(a)),
+        Err(_) => Ok(Up::Vector(parse_vec3(s).map_err(|e| format!("expected x, y, z or a vector x,y,z: {e}"))?)),
+    }
 }
 
 fn parse_hex(s: &str) -> Result<[u8; 3], String> {
@@ -198,8 +224,8 @@ fn sibling(out: &Path, suffix: &str) -> PathBuf {
     out.with_file_name(format!("{stem}.{suffix}"))
 }
 
-fn run(cli: Cli) -> anyhow::Result<()> {
-    match cli.command {
+fn run(mut cli: Cli) -> anyhow::Result<()> {
+    match cli.command.take() {
         Some(Command::Sweep { models, pixel_errors, repeat, output, render }) => {
             let result = sweep::run(&models, &pixel_errors, repeat.max(1), &render.options())?;
             sweep::write_outputs(&result, &output)?;
@@ -226,53 +252,131 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         None => {
-            let (Some(file), Some(output)) = (cli.file, cli.output) else {
+            let (Some(file), Some(output)) = (cli.file.clone(), cli.output.clone()) else {
                 anyhow::bail!("usage: sct-render-preview FILE -o OUTPUT.png (see --help)");
             };
-            let opts = cli.render.options();
-            let out = render_preview::render_file(&file, &opts)?;
-            render_preview::write_png(&output, &out.frame)?;
-            let mut summary = serde_json::json!({
-                "file": file,
-                "output": output,
-                "camera": out.camera,
-                "width": opts.width,
-                "height": opts.height,
-                "pixel_error": opts.pixel_error,
-                "splats": out.stats.splats,
-                "nodes_visited": out.stats.lod.nodes_visited,
-                "lod": out.stats.lod,
-                "bytes_read": out.stats.bytes_read,
-                "file_size": out.stats.file_size,
-                "files_opened": out.stats.files,
-                "covered_pixels": out.stats.covered_pixels,
-                "seconds": out.stats.seconds,
-            });
-            if let Some(mesh_path) = &cli.reference {
-                let mesh = reference::WorldMesh::load(mesh_path)?;
-                let view = render_preview::View::new(&out.camera, out.near)?;
-                let t = std::time::Instant::now();
-                let refr = reference::render_reference(&mesh, &view, opts.shading, opts.background);
-                let ref_secs = t.elapsed().as_secs_f64();
-                let m = metrics::compare(&out.frame, &refr);
-                let (mj, dp, rp) = (sibling(&output, "metrics.json"), sibling(&output, "diff.png"), sibling(&output, "reference.png"));
-                render_preview::write_png(&rp, &refr)?;
-                render_preview::write_rgb_png(&dp, &metrics::difference_image(&out.frame, &refr))?;
-                let doc = serde_json::json!({ "file": file, "reference": mesh_path, "pixel_error": opts.pixel_error, "metrics": m, "reference_seconds": ref_secs, "difference_image": dp, "reference_image": rp });
-                let text = serde_json::to_vec_pretty(&doc)?;
-                sct_format::atomic::write_atomic(&mj, |w| {
-                    use std::io::Write;
-                    w.write_all(&text).map_err(sct_format::Error::from)
-                })?;
-                summary["metrics"] = serde_json::to_value(m)?;
-                summary["metrics_file"] = serde_json::to_value(&mj)?;
-            }
-            if cli.json {
-                println!("{}", serde_json::to_string_pretty(&summary)?);
-            }
-            Ok(())
+            preview(&cli, &file, &output)
         }
     }
+}
+
+/// Schema of the `--json` summary and of OUTPUT.metrics.json.
+const SCHEMA: &str = "sct-render-preview/2";
+
+/// Renders `file` to `output`, with the reference comparison and checks when asked.
+fn preview(cli: &Cli, file: &Path, output: &Path) -> anyhow::Result<()> {
+    let opts = cli.render.options();
+    let out = render_preview::render_file(file, &opts)?;
+    render_preview::write_png(output, &out.frame)?;
+    let empty = out.empty_reason();
+    let extent = out.frame.covered_box().map(|[x0, y0, x1, y1]| {
+        [(x1 + 1 - x0) as f64 / opts.width.max(1) as f64, (y1 + 1 - y0) as f64 / opts.height.max(1) as f64]
+    });
+    let mut summary = serde_json::json!({
+        "schema": SCHEMA,
+        "file": file,
+        "output": output,
+        "camera": out.camera,
+        "up_axis": out.up_axis,
+        "width": opts.width,
+        "height": opts.height,
+        "pixel_error": opts.pixel_error,
+        "splats": out.stats.splats,
+        "nodes_visited": out.stats.lod.nodes_visited,
+        "lod": out.stats.lod,
+        "bytes_read": out.stats.bytes_read,
+        "file_size": out.stats.file_size,
+        "files_opened": out.stats.files,
+        "covered_pixels": out.stats.covered_pixels,
+        "extent": extent,
+        "empty": empty,
+        "seconds": out.stats.seconds,
+    });
+    // The first failed check, reported after the outputs are written.
+    let mut failure: Option<Error> = None;
+    if let (Some(reason), false) = (&empty, cli.allow_empty) {
+        failure = Some(Error::Empty(reason.clone()));
+    }
+    if let Some(mesh_path) = &cli.reference {
+        let (mesh, load) = reference::load_for(file, mesh_path, &out.provenance, cli.reference_texture.as_deref())?;
+        if mesh.is_empty() {
+            return Err(Error::Invalid(format!("{}: the reference has no triangles and no points to draw", mesh_path.display())).into());
+        }
+        let view = render_preview::View::new(&out.camera, out.near)?;
+        let t = std::time::Instant::now();
+        let refr = reference::render_reference(&mesh, &view, opts.shading, opts.background);
+        let ref_secs = t.elapsed().as_secs_f64();
+        let m = metrics::compare(&out.frame, &refr);
+        let (mj, dp, rp) = (sibling(output, "metrics.json"), sibling(output, "diff.png"), sibling(output, "reference.png"));
+        render_preview::write_png(&rp, &refr)?;
+        render_preview::write_rgb_png(&dp, &metrics::difference_image(&out.frame, &refr))?;
+        let doc = serde_json::json!({
+            "schema": SCHEMA,
+            "file": file,
+            "reference": mesh_path,
+            "reference_load": load,
+            "pixel_error": opts.pixel_error,
+            "metrics": m,
+            "reference_seconds": ref_secs,
+            "difference_image": dp,
+            "reference_image": rp,
+        });
+        let text = serde_json::to_vec_pretty(&doc)?;
+        sct_format::atomic::write_atomic(&mj, |w| {
+            use std::io::Write;
+            w.write_all(&text).map_err(sct_format::Error::from)
+        })?;
+        summary["metrics"] = serde_json::to_value(m)?;
+        summary["reference_load"] = serde_json::to_value(&load)?;
+        summary["metrics_file"] = serde_json::to_value(&mj)?;
+        if failure.is_none() {
+            failure = check(&m, cli.min_psnr, cli.min_iou, cli.allow_empty);
+        }
+    }
+    if cli.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    }
+    match failure {
+        Some(e) => Err(e.into()),
+        None => Ok(()),
+    }
+}
+
+/// The `--min-psnr` / `--min-iou` gates and the empty-reference rule: the first failure,
+/// as a one-line reason.
+fn check(m: &metrics::Metrics, min_psnr: Option<f64>, min_iou: Option<f64>, allow_empty: bool) -> Option<Error> {
+    if m.empty == Some(metrics::Empty::Reference) && !allow_empty {
+        return Some(Error::Empty("the reference render is empty (the mesh is outside the view or culled)".into()));
+    }
+    if let Some(min) = min_psnr {
+        match m.fg_psnr_db {
+            None => return Some(Error::Check(format!("foreground PSNR is not scored (an image is empty), --min-psnr {min} not met"))),
+            Some(db) if db < min => return Some(Error::Check(format!("foreground PSNR {db:.2} dB is below --min-psnr {min}"))),
+            _ => {}
+        }
+    }
+    if let Some(min) = min_iou {
+        if m.empty.is_some() || m.silhouette_iou < min {
+            return Some(Error::Check(format!("silhouette IoU {:.4} is below --min-iou {min}", m.silhouette_iou)));
+        }
+    }
+    None
+}
+
+/// The error and its causes on one line, each cause once: most errors here already name
+/// their source in their own message, and some parsers' messages span lines.
+fn one_line(e: &anyhow::Error) -> String {
+    let mut msg = String::new();
+    for cause in e.chain() {
+        let s = cause.to_string();
+        if !msg.contains(&s) {
+            if !msg.is_empty() {
+                msg.push_str(": ");
+            }
+            msg.push_str(&s);
+        }
+    }
+    msg.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
 fn main() -> ExitCode {
@@ -280,7 +384,7 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("sct-render-preview: error: {e:#}");
+            eprintln!("sct-render-preview: error: {}", one_line(&e));
             let invalid = e.chain().any(|c| {
                 c.downcast_ref::<render_preview::Error>().is_some_and(|e| e.is_invalid_input())
                     || c.downcast_ref::<sct_format::Error>().is_some_and(|e| e.is_invalid_input())

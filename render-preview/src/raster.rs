@@ -110,6 +110,22 @@ impl Frame {
         self.depth.iter().filter(|d| d.is_finite()).count()
     }
 
+    /// Inclusive pixel box `[x0, y0, x1, y1]` of the covered pixels (`None` when empty).
+    pub fn covered_box(&self) -> Option<[usize; 4]> {
+        let w = self.width.max(1);
+        let mut b: Option<[usize; 4]> = None;
+        for (y, row) in self.depth.chunks(w).enumerate() {
+            let (Some(x0), Some(x1)) = (row.iter().position(|d| d.is_finite()), row.iter().rposition(|d| d.is_finite())) else {
+                continue;
+            };
+            b = Some(match b {
+                None => [x0, y, x1, y],
+                Some([a0, b0, a1, _]) => [a0.min(x0), b0, a1.max(x1), y],
+            });
+        }
+        b
+    }
+
     /// The colour image as an `image` buffer (alpha forced opaque).
     pub fn to_rgb_image(&self) -> image::RgbImage {
         let mut buf = Vec::with_capacity(self.width * self.height * 3);

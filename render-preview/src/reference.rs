@@ -1,14 +1,22 @@
 //! The accuracy reference: the source mesh rendered with a plain triangle rasterizer under
 //! the same camera, headlight shading, textures and alpha handling as the splat renderer
 //! (perspective-correct attributes, near-plane clipping, depth test on view-axis depth,
-//! back faces culled unless the material is double sided, screen-door alpha).
+//! back faces culled only on one-sided meshes, screen-door alpha). Point clouds are drawn
+//! as discs.
+//!
+//! Which faces are culled is decided per triangle by [`culled`] from a `two_sided` flag
+//! per mesh: set by a double-sided material (glTF `doubleSided`) or, since the loader does
+//! not say whether a surface is closed, by [`closed_and_oriented`] failing (open or
+//! inconsistently oriented meshes are seen from both sides, as viewers show them).
 
+use std::collections::HashMap;
 use std::path::Path;
 
-use voxelize::mesh::{AlphaMode, LoadedScene, Material, TextureRef};
+use voxelize::mesh::{AlphaMode, LoadedScene, Material, Mesh, TextureRef};
 
 use crate::camera::View;
-use crate::error::Result;
+use crate::error::{Error, Result};
+use crate::provenance::Provenance;
 use crate::raster::{alpha_passes, Frame};
 use crate::shade::{self, Shading};
 
@@ -30,7 +38,27 @@ pub struct Tri {
     pub uv_alpha: [[f32; 2]; 3],
     /// Material index into [`WorldMesh::materials`].
     pub material: u32,
+    /// Drawn from both sides (see [`culled`]).
+    pub two_sided: bool,
 }
+
+/// A point of a point cloud, drawn as a screen-facing disc.
+#[derive(Clone, Copy, Debug)]
+pub struct Point {
+    /// Centre, world space.
+    pub p: [f32; 3],
+    /// Disc radius, world units.
+    pub radius: f32,
+    /// Unit normal (for shading).
+    pub n: [f32; 3],
+    /// sRGB colour.
+    pub color: [u8; 4],
+}
+
+/// A point's disc radius as a multiple of the mean distance to its 4 nearest neighbours:
+/// the smallest that closes a square grid of that spacing (1/√2), so a sampled surface
+/// has no gaps and no more growth than half a spacing at its outline.
+pub const POINT_RADIUS: f32 = std::f32::consts::FRAC_1_SQRT_2;
 
 /// A loaded mesh flattened to world-space triangles.
 #[derive(Debug)]
@@ -39,6 +67,8 @@ pub struct WorldMesh {
     pub tris: Vec<Tri>,
     /// Materials (index 0 is the default material).
     pub materials: Vec<Material>,
+    /// Points of a point cloud (a file without faces).
+    pub points: Vec<Point>,
     /// The scene (for its images).
     pub scene: LoadedScene,
 }
@@ -53,10 +83,20 @@ fn normalize(v: [f64; 3]) -> [f32; 3] {
 }
 
 impl WorldMesh {
-    /// Loads a mesh file with the voxelizer's loader.
+    /// Loads a mesh file with the voxelizer's loader and default options.
     pub fn load(path: &Path) -> Result<WorldMesh> {
-        let scene = voxelize::load(path, &voxelize::LoadOptions::default())?;
+        WorldMesh::load_with(path, &voxelize::LoadOptions::default())
+    }
+
+    /// Loads a mesh file with the voxelizer's loader (texture binding as `opts`).
+    pub fn load_with(path: &Path, opts: &voxelize::LoadOptions) -> Result<WorldMesh> {
+        let scene = voxelize::load(path, opts)?;
         Ok(WorldMesh::from_scene(scene))
+    }
+
+    /// Whether nothing can be drawn: no triangles and no points.
+    pub fn is_empty(&self) -> bool {
+        self.tris.is_empty() && self.points.is_empty()
     }
 
     /// Flattens a loaded scene.
@@ -64,12 +104,18 @@ impl WorldMesh {
         let mut materials = vec![Material::default()];
         materials.extend(scene.materials.iter().cloned());
         let mut tris = Vec::new();
+        // Per mesh, computed on first use: only meshes with a one-sided material need it.
+        let mut closed: HashMap<usize, bool> = HashMap::new();
         for inst in &scene.instances {
             let Some(mesh) = scene.meshes.get(inst.mesh) else { continue };
             let m = &inst.transform;
+            // A mirroring transform turns counter-clockwise triangles clockwise: swapping two
+            // corners keeps the winding's front where the surface's front is.
+            let mirrored = det3(m) < 0.0;
             for prim in &mesh.primitives {
                 let mat_idx = prim.material.filter(|&i| i < scene.materials.len()).map_or(0, |i| i + 1);
                 let mat = &materials[mat_idx];
+                let two_sided = mat.double_sided || !*closed.entry(inst.mesh).or_insert_with(|| closed_and_oriented(mesh));
                 let computed =
                     if prim.normals.is_none() { Some(voxelize::mesh::corner_normals(prim, CREASE_DEG)) } else { None };
                 let uv_set = |t: &Option<TextureRef>| t.as_ref().and_then(|t| prim.uvs.get(t.tex_coord as usize));
@@ -95,11 +141,25 @@ impl WorldMesh {
                     let get_uv = |set: Option<&Vec<[f32; 2]>>| -> [[f32; 2]; 3] {
                         std::array::from_fn(|k| set.and_then(|s| s.get(idx[k]).copied()).unwrap_or([0.0; 2]))
                     };
-                    tris.push(Tri { p, n, c, uv: get_uv(uvs), uv_alpha: get_uv(uvs_a), material: mat_idx as u32 });
+                    let mut tri = Tri { p, n, c, uv: get_uv(uvs), uv_alpha: get_uv(uvs_a), material: mat_idx as u32, two_sided };
+                    if mirrored {
+                        tri.p.swap(1, 2);
+                        tri.n.swap(1, 2);
+                        tri.c.swap(1, 2);
+                        tri.uv.swap(1, 2);
+                        tri.uv_alpha.swap(1, 2);
+                    }
+                    tris.push(tri);
                 }
             }
         }
-        WorldMesh { tris, materials, scene }
+        let points = scene.points.as_ref().map_or_else(Vec::new, |pc| {
+            voxelize::sample::sample_points(pc)
+                .into_iter()
+                .map(|n| Point { p: n.center, radius: n.radius * POINT_RADIUS, n: n.normal, color: n.color })
+                .collect()
+        });
+        WorldMesh { tris, materials, points, scene }
     }
 
     /// Linear RGBA of triangle `t` at barycentric `b`, after the material's alpha mode
@@ -142,25 +202,52 @@ impl WorldMesh {
         normalize(v)
     }
 
-    /// World bounding sphere (centre of the box, half diagonal).
+    /// World bounding sphere (centre of the box, half diagonal) of the triangles and points.
     pub fn bound(&self) -> Option<([f64; 3], f64)> {
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];
-        for t in &self.tris {
-            for p in &t.p {
-                for k in 0..3 {
-                    lo[k] = lo[k].min(p[k] as f64);
-                    hi[k] = hi[k].max(p[k] as f64);
-                }
+        for p in self.tris.iter().flat_map(|t| &t.p).chain(self.points.iter().map(|p| &p.p)) {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k] as f64);
+                hi[k] = hi[k].max(p[k] as f64);
             }
         }
-        if self.tris.is_empty() {
+        if self.is_empty() {
             return None;
         }
         let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, (lo[2] + hi[2]) / 2.0];
         let r = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt() / 2.0;
         Some((c, r))
     }
+}
+
+/// How the reference mesh was loaded (reported beside the metrics).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct ReferenceLoad {
+    /// The image bound as every material's base-colour texture, if any.
+    pub texture: Option<std::path::PathBuf>,
+    /// Where `texture` came from: `"option"` (`--reference-texture`), `"provenance"` (the
+    /// SCT file's sampling record) or null.
+    pub texture_from: Option<&'static str>,
+    /// Whether textures were decoded.
+    pub textures: bool,
+}
+
+/// Loads the reference mesh of the SCT file `sct` with the texture binding it was sampled
+/// with (its provenance), or `texture` when given. A texture the provenance names but that
+/// cannot be found is an error rather than a silently untextured reference.
+pub fn load_for(sct: &Path, mesh: &Path, provenance: &Provenance, texture: Option<&Path>) -> Result<(WorldMesh, ReferenceLoad)> {
+    let (texture, texture_from) = match (texture, provenance.locate_texture(mesh, sct)) {
+        (Some(t), _) => (Some(t.to_path_buf()), Some("option")),
+        (None, Some(Ok(t))) => (Some(t), Some("provenance")),
+        (None, Some(Err(tried))) => {
+            return Err(Error::ReferenceTexture { recorded: provenance.texture.clone().unwrap_or_default(), tried });
+        }
+        (None, None) => (None, None),
+    };
+    let textures = provenance.textures.unwrap_or(true);
+    let opts = voxelize::LoadOptions { texture_override: texture.clone(), load_textures: textures, ..Default::default() };
+    Ok((WorldMesh::load_with(mesh, &opts)?, ReferenceLoad { texture, texture_from, textures }))
 }
 
 /// A camera-space vertex during clipping: position and barycentric weights in the
@@ -182,16 +269,8 @@ pub fn render_reference(mesh: &WorldMesh, view: &View, shading: Shading, backgro
     let mut frame = Frame::new(w, h, [r, g, b, 255]);
     let eye = view.eye;
     for t in &mesh.tris {
-        let mat = &mesh.materials[t.material as usize];
-        // Back faces (by winding) are culled like back-facing normal cones.
-        if !mat.double_sided {
-            let e1: [f64; 3] = std::array::from_fn(|k| (t.p[1][k] - t.p[0][k]) as f64);
-            let e2: [f64; 3] = std::array::from_fn(|k| (t.p[2][k] - t.p[0][k]) as f64);
-            let nf = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
-            let to_eye: [f64; 3] = std::array::from_fn(|k| eye[k] - t.p[0][k] as f64);
-            if nf[0] * to_eye[0] + nf[1] * to_eye[1] + nf[2] * to_eye[2] < 0.0 {
-                continue;
-            }
+        if culled(t.two_sided, &t.p, eye) {
+            continue;
         }
         let cv: [CV; 3] = std::array::from_fn(|k| {
             let mut bb = [0.0; 3];
@@ -215,7 +294,87 @@ pub fn render_reference(mesh: &WorldMesh, view: &View, shading: Shading, backgro
             raster_tri(mesh, t, [poly[0], poly[k], poly[k + 1]], view, shading, &mut frame);
         }
     }
+    if !mesh.points.is_empty() {
+        crate::raster::rasterize(&mut frame, &point_splats(&mesh.points, view, shading));
+    }
     frame
+}
+
+/// Whether a triangle (world-space corners, counter-clockwise from its front) is culled
+/// when seen from `eye`: only one-sided triangles whose front faces away are.
+pub fn culled(two_sided: bool, p: &[[f32; 3]; 3], eye: [f64; 3]) -> bool {
+    if two_sided {
+        return false;
+    }
+    let e1: [f64; 3] = std::array::from_fn(|k| (p[1][k] - p[0][k]) as f64);
+    let e2: [f64; 3] = std::array::from_fn(|k| (p[2][k] - p[0][k]) as f64);
+    let nf = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
+    let to_eye: [f64; 3] = std::array::from_fn(|k| eye[k] - p[0][k] as f64);
+    nf[0] * to_eye[0] + nf[1] * to_eye[1] + nf[2] * to_eye[2] < 0.0
+}
+
+/// Whether a mesh is a closed, consistently oriented surface: with vertices welded by
+/// exact position over all its primitives, every undirected edge is used by exactly two
+/// triangles, in opposite directions. Such a surface shows only its front faces from
+/// outside, so back faces can be culled; any other mesh is drawn two-sided.
+pub fn closed_and_oriented(mesh: &Mesh) -> bool {
+    let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
+    let mut edges: HashMap<(u32, u32), u32> = HashMap::new();
+    for prim in &mesh.primitives {
+        let welded: Vec<u32> = prim
+            .positions
+            .iter()
+            .map(|p| {
+                // +0.0 and -0.0 are one position.
+                let key = p.map(|v| if v == 0.0 { 0 } else { v.to_bits() });
+                let next = ids.len() as u32;
+                *ids.entry(key).or_insert(next)
+            })
+            .collect();
+        for t in &prim.triangles {
+            let Some(v) = t.iter().map(|&i| welded.get(i as usize).copied()).collect::<Option<Vec<u32>>>() else {
+                return false;
+            };
+            for k in 0..3 {
+                let (a, b) = (v[k], v[(k + 1) % 3]);
+                if a == b {
+                    // Welding collapsed the triangle: not a clean surface.
+                    return false;
+                }
+                *edges.entry((a, b)).or_insert(0) += 1;
+            }
+        }
+    }
+    !edges.is_empty() && edges.iter().all(|(&(a, b), &n)| n == 1 && edges.get(&(b, a)) == Some(&1))
+}
+
+/// Determinant of the linear part of a column-major affine matrix.
+fn det3(m: &voxelize::mesh::Mat4) -> f64 {
+    m[0][0] * (m[1][1] * m[2][2] - m[2][1] * m[1][2]) - m[1][0] * (m[0][1] * m[2][2] - m[2][1] * m[0][2])
+        + m[2][0] * (m[0][1] * m[1][2] - m[1][1] * m[0][2])
+}
+
+/// Screen-facing discs for the points (no back-face culling: a point has no back).
+fn point_splats(points: &[Point], view: &View, shading: Shading) -> Vec<crate::raster::Splat> {
+    points
+        .iter()
+        .filter_map(|pt| {
+            let c = view.to_camera(pt.p.map(f64::from));
+            if view.outside(c, pt.radius) || c[2] <= view.near {
+                return None;
+            }
+            let s = view.projected_radius(c, pt.radius);
+            let color = if shading == Shading::Lambert {
+                let n = view.dir_to_camera(pt.n.map(f64::from)).map(|v| v as f32);
+                let d = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt().max(1e-30);
+                shade::apply(pt.color, shade::lambert(n, [-c[0] / d, -c[1] / d, -c[2] / d]))
+            } else {
+                pt.color
+            };
+            let [x, y] = view.project(c);
+            Some(crate::raster::Splat::disc(x, y, c[2], s.min(2.0 * view.width.max(view.height) as f32), color))
+        })
+        .collect()
 }
 
 fn raster_tri(mesh: &WorldMesh, t: &Tri, v: [CV; 3], view: &View, shading: Shading, frame: &mut Frame) {
@@ -280,5 +439,67 @@ fn raster_tri(mesh: &WorldMesh, t: &Tri, v: [CV; 3], view: &View, shading: Shadi
                 255,
             ];
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use voxelize::mesh::Primitive;
+
+    fn mesh(prims: Vec<Primitive>) -> Mesh {
+        Mesh { name: "m".into(), primitives: prims }
+    }
+
+    /// A tetrahedron, counter-clockwise from outside.
+    fn tetra() -> Primitive {
+        Primitive {
+            positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn closed_consistent_meshes_are_one_sided() {
+        assert!(closed_and_oriented(&mesh(vec![tetra()])));
+        assert!(closed_and_oriented(&crate::synth::uv_sphere([0.0; 3], 1.0, 12, [1.0; 4]).scene.meshes[0]));
+        // Split over two primitives with duplicated vertices: welded by position.
+        let t = tetra();
+        let a = Primitive { triangles: t.triangles[..2].to_vec(), ..t.clone() };
+        let b = Primitive { triangles: t.triangles[2..].to_vec(), ..t.clone() };
+        assert!(closed_and_oriented(&mesh(vec![a, b])));
+    }
+
+    #[test]
+    fn open_or_inconsistent_meshes_are_two_sided() {
+        let mut open = tetra();
+        open.triangles.pop();
+        assert!(!closed_and_oriented(&mesh(vec![open])));
+        let mut flipped = tetra();
+        flipped.triangles[3] = [1, 3, 2];
+        assert!(!closed_and_oriented(&mesh(vec![flipped])));
+        // An edge shared by three triangles (a fin on the tetrahedron).
+        let mut fin = tetra();
+        fin.positions.push([1.0, 1.0, 1.0]);
+        fin.triangles.push([0, 1, 4]);
+        assert!(!closed_and_oriented(&mesh(vec![fin])));
+        assert!(!closed_and_oriented(&mesh(vec![])));
+    }
+
+    #[test]
+    fn culling_follows_the_winding_unless_two_sided() {
+        let p = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]; // front faces +Z
+        assert!(!culled(false, &p, [0.0, 0.0, 5.0]));
+        assert!(culled(false, &p, [0.0, 0.0, -5.0]));
+        assert!(!culled(true, &p, [0.0, 0.0, -5.0]));
+    }
+
+    #[test]
+    fn mirrored_determinant() {
+        let mut m = voxelize::mesh::IDENTITY;
+        assert!(det3(&m) > 0.0);
+        m[1][1] = -2.0;
+        assert!(det3(&m) < 0.0);
     }
 }

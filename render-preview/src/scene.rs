@@ -16,7 +16,7 @@ use std::rc::Rc;
 use sct_format::traverse::{hex, TraversalState, TraverseErrorKind};
 use sct_format::{GraphNode, Limits, Node, SctReader};
 
-use crate::camera::{UpAxis, View};
+use crate::camera::View;
 use crate::error::{Error, Result};
 use crate::lod::{self, Decision, LodParams, LodStats, Placement, TreeCache, TreeOut};
 use crate::raster::Splat;
@@ -159,33 +159,40 @@ impl SceneFiles {
         self.bound(0, f.reader.graph().root, 0)
     }
 
-    /// The world up axis for [`UpAxis::Auto`] (see [`auto_up`]), from the main file's
-    /// provenance and the world box of the tree its root reaches (through instances).
-    pub fn auto_up(&self) -> UpAxis {
+    /// The main file's provenance (GENR parameters) as far as previews use it.
+    pub fn provenance(&self) -> crate::provenance::Provenance {
+        self.files.first().map(|f| crate::provenance::Provenance::from_generator(f.reader.generator())).unwrap_or_default()
+    }
+
+    /// World-space spheres (centre, radius) whose extent is the scene's, for framing the
+    /// default camera: every tree the main file's graph reaches (through instances and
+    /// groups) contributes the nodes of a shallow level cut, placed by its instances'
+    /// transforms; an inline contributes its stored bound (it is not opened). The cut is
+    /// the first level with at least [`FRAMING_CUT_NODES`] nodes (the leaves above it
+    /// included), made coarser when many instances share the budget, so that the spheres
+    /// hug the surface to within a few percent of the model's size.
+    pub fn framing_spheres(&self) -> Vec<([f64; 3], f64)> {
         let Some(f) = self.files.first() else {
-            return UpAxis::Y;
+            return Vec::new();
         };
-        let g = f.reader.graph();
-        let mut state = TraversalState::IDENTITY;
-        let mut at = g.root;
-        let mut world_box = None;
-        // Instance chains point backwards, so this ends within `nodes` steps.
-        for _ in 0..=g.nodes.len() {
-            match g.nodes.get(at as usize) {
-                Some(GraphNode::Instance { child, transform, attrs }) => {
-                    state = state.push_instance(transform, attrs);
-                    at = *child;
-                }
-                Some(GraphNode::Tree { tree } | GraphNode::Group { tree, .. }) => {
-                    // Map the cut's spheres (not the box corners) so rotations stay tight.
-                    world_box =
-                        cut_nodes(&f.reader, *tree as usize).map(|c| sphere_box(&c.iter().map(|n| state.apply(n)).collect::<Vec<_>>()));
-                    break;
-                }
-                _ => break,
+        let mut uses = Vec::new();
+        let mut visits = 0usize;
+        collect_uses(&f.reader, f.reader.graph().root, TraversalState::IDENTITY, 0, &mut visits, &mut uses);
+        let trees = uses.iter().filter(|u| matches!(u.what, Use::Tree(_))).count().max(1);
+        let per_tree = (FRAMING_BUDGET / trees).clamp(8, FRAMING_CUT_NODES);
+        let mut cuts: HashMap<usize, Vec<Node>> = HashMap::new();
+        let mut out = Vec::new();
+        for u in &uses {
+            let nodes: &[Node] = match &u.what {
+                Use::Tree(t) => cuts.entry(*t).or_insert_with(|| shallow_cut(&f.reader, *t, per_tree).unwrap_or_default()),
+                Use::Bound(n) => std::slice::from_ref(n),
+            };
+            for n in nodes {
+                let w = u.state.apply(n);
+                out.push((w.center.map(f64::from), w.radius as f64));
             }
         }
-        auto_up(&f.reader, world_box)
+        out
     }
 
     fn bound(&self, file: usize, node: u32, depth: u32) -> Option<Node> {
@@ -286,11 +293,72 @@ impl SceneFiles {
 /// The cut at level 9 of a tree (the leaves above it included): its nodes, for bounds
 /// that are much tighter than the root sphere.
 fn cut_nodes(reader: &SctReader, tree: usize) -> Option<Vec<Node>> {
-    const LEVELS: usize = 10;
-    let t = reader.read_tree_levels(tree, LEVELS).ok()?;
+    cut_at(reader, tree, 9)
+}
+
+/// The nodes of level `level` (or the last level) of a tree plus the leaves above it.
+fn cut_at(reader: &SctReader, tree: usize, level: usize) -> Option<Vec<Node>> {
+    let t = reader.read_tree_levels(tree, level.saturating_add(1)).ok()?;
     let last = t.level_count().checked_sub(1)?;
     let start = t.level(last).start;
     Some(t.nodes().iter().enumerate().filter(|&(i, _)| !(t.is_internal(i) && i < start)).map(|(_, n)| *n).collect())
+}
+
+/// Nodes per tree of the framing cut (see [`SceneFiles::framing_spheres`]).
+pub const FRAMING_CUT_NODES: usize = 16384;
+/// Most framing spheres over all tree uses: instances of many trees get coarser cuts.
+const FRAMING_BUDGET: usize = 1 << 16;
+/// Most graph nodes visited while collecting framing spheres; a group whose children would
+/// exceed it contributes its own tree's cut instead. With `FRAMING_BUDGET` it keeps the
+/// spheres to about 2^17 however many instances a scene has.
+const FRAMING_VISITS: usize = 1 << 12;
+
+/// The first-level cut of a tree with at least `min_nodes` nodes (the whole tree when it
+/// has fewer), read from the index's level counts so only the levels above are decoded.
+fn shallow_cut(reader: &SctReader, tree: usize, min_nodes: usize) -> Option<Vec<Node>> {
+    let levels = &reader.trees().get(tree)?.levels;
+    let level = levels.iter().position(|l| l.node_count as usize >= min_nodes).unwrap_or(levels.len().saturating_sub(1));
+    cut_at(reader, tree, level)
+}
+
+/// What one use of a graph node contributes to the framing spheres.
+enum Use {
+    /// A tree's shallow cut.
+    Tree(usize),
+    /// One sphere (an inline's stored bound).
+    Bound(Node),
+}
+
+struct FramingUse {
+    what: Use,
+    state: TraversalState,
+}
+
+/// Walks the graph from `node`, recording the trees and bounds it reaches with their
+/// instance state. Groups descend into their children while the visit budget allows.
+fn collect_uses(reader: &SctReader, node: u32, state: TraversalState, depth: u32, visits: &mut usize, out: &mut Vec<FramingUse>) {
+    *visits += 1;
+    if depth > 1024 {
+        return;
+    }
+    match reader.graph().nodes.get(node as usize) {
+        Some(GraphNode::Tree { tree }) => out.push(FramingUse { what: Use::Tree(*tree as usize), state }),
+        Some(GraphNode::Group { tree, children }) => {
+            if *visits + children.len() > FRAMING_VISITS {
+                out.push(FramingUse { what: Use::Tree(*tree as usize), state });
+            } else {
+                for &c in children {
+                    collect_uses(reader, c, state, depth + 1, visits, out);
+                }
+            }
+        }
+        Some(GraphNode::Instance { child, transform, attrs }) => {
+            // Instances do not multiply the walk (groups do, and stop at the budget).
+            collect_uses(reader, *child, state.push_instance(transform, attrs), depth + 1, visits, out);
+        }
+        Some(GraphNode::Inline { bound, .. }) => out.push(FramingUse { what: Use::Bound(*bound), state }),
+        None => {}
+    }
 }
 
 /// Axis-aligned box around spheres.
@@ -318,38 +386,6 @@ fn tighter_bound(reader: &SctReader, tree: usize) -> Option<Node> {
         radius = radius.max(d + n.radius);
     }
     (radius.is_finite() && radius > 0.0).then_some(Node { center, radius, ..Node::default() })
-}
-
-/// The up axis `--up auto` picks: +Y for glTF sources (the format fixes +Y up), +Z for a
-/// scene whose world box is at least `TALL` times taller in Z than it is wide in X and Y
-/// (a standing object modelled Z-up, like the demo's bottle), +Y otherwise (the common
-/// convention of scans and most OBJ/PLY files). A heuristic: `--up z` overrides it.
-pub(crate) fn auto_up(reader: &SctReader, world_box: Option<([f32; 3], [f32; 3])>) -> UpAxis {
-    const TALL: f32 = 1.5;
-    let is_gltf = |p: &str| {
-        let p = p.to_ascii_lowercase();
-        p.ends_with(".gltf") || p.ends_with(".glb")
-    };
-    let g = reader.generator();
-    // A two-step build's sources are its samples file; the meshes are in the sampling
-    // step's record (`parameters.sampling.sources`).
-    let upstream = g.parameters.get("sampling").and_then(|s| s.get("sources")).and_then(|s| s.as_array());
-    let gltf = g.sources.iter().any(|s| is_gltf(&s.path))
-        || upstream.is_some_and(|v| v.iter().filter_map(|s| s.get("path")?.as_str()).any(is_gltf));
-    if gltf {
-        return UpAxis::Y;
-    }
-    match world_box {
-        Some((lo, hi)) => {
-            let e: [f32; 3] = std::array::from_fn(|k| hi[k] - lo[k]);
-            if e.iter().all(|v| v.is_finite()) && e[2] >= TALL * e[0].max(e[1]) && e[2] > 0.0 {
-                UpAxis::Z
-            } else {
-                UpAxis::Y
-            }
-        }
-        None => UpAxis::Y,
-    }
 }
 
 /// Camera-space placement of a world-space transform and tint.

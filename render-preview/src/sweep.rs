@@ -1,6 +1,6 @@
 //! Speed–accuracy sweep: each model rendered over a series of `--pixel-error` values,
 //! timed (open + refine + rasterize, best of N) and compared with its mesh reference;
-//! charted with plotters as time against PSNR, one line per model (PNG and SVG).
+//! charted with plotters as time against foreground PSNR, one line per model (PNG and SVG).
 
 use std::path::{Path, PathBuf};
 
@@ -46,7 +46,7 @@ pub struct SweepModel {
 pub fn run(models: &[(PathBuf, PathBuf)], pixel_errors: &[f32], repeat: u32, base: &RenderOptions) -> Result<Vec<SweepModel>> {
     let mut out = Vec::new();
     for (model, mesh_path) in models {
-        let mesh = WorldMesh::load(mesh_path)?;
+        let mut mesh = None::<WorldMesh>;
         let mut reference = None;
         let mut points = Vec::new();
         let mut file_size = 0;
@@ -64,8 +64,14 @@ pub fn run(models: &[(PathBuf, PathBuf)], pixel_errors: &[f32], repeat: u32, bas
             let refr = match &reference {
                 Some(f) => f,
                 None => {
+                    // Loaded after the first render, whose file's provenance says how the
+                    // textures were bound when it was sampled.
+                    let m = match &mesh {
+                        Some(m) => m,
+                        None => mesh.insert(crate::reference::load_for(model, mesh_path, &r.provenance, None)?.0),
+                    };
                     let view = View::new(&r.camera, r.near)?;
-                    reference.insert(render_reference(&mesh, &view, opts.shading, opts.background))
+                    reference.insert(render_reference(m, &view, opts.shading, opts.background))
                 }
             };
             points.push(SweepPoint {
@@ -121,10 +127,13 @@ fn chart<DB: DrawingBackend>(result: &[SweepModel], backend: DB) -> std::result:
     for p in pts {
         t0 = t0.min(p.seconds * 1e3);
         t1 = t1.max(p.seconds * 1e3);
-        p0 = p0.min(p.metrics.psnr_db);
-        p1 = p1.max(p.metrics.psnr_db);
+        // Unscored points (an empty image) are left off the chart.
+        if let Some(db) = p.metrics.fg_psnr_db {
+            p0 = p0.min(db);
+            p1 = p1.max(db);
+        }
     }
-    if !t0.is_finite() {
+    if !t0.is_finite() || !p0.is_finite() {
         (t0, t1, p0, p1) = (1.0, 10.0, 0.0, 40.0);
     }
     let (t0, t1) = ((t0 * 0.8).max(1e-3), (t1 * 1.25).max(t0 * 2.0));
@@ -138,19 +147,20 @@ fn chart<DB: DrawingBackend>(result: &[SweepModel], backend: DB) -> std::result:
         .map_err(e)?;
     c.configure_mesh()
         .x_desc("wall time per frame, ms (open + refine + raster, log scale)")
-        .y_desc("PSNR vs mesh reference, dB")
+        .y_desc("foreground PSNR vs mesh reference, dB")
         .label_style(("sans-serif", 14))
         .draw()
         .map_err(e)?;
     for (i, m) in result.iter().enumerate() {
         let color = Palette99::pick(i).to_rgba();
         let name = m.model.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-        let line: Vec<(f64, f64)> = m.points.iter().map(|p| (p.seconds * 1e3, p.metrics.psnr_db)).collect();
+        let scored: Vec<&SweepPoint> = m.points.iter().filter(|p| p.metrics.fg_psnr_db.is_some()).collect();
+        let line: Vec<(f64, f64)> = scored.iter().map(|p| (p.seconds * 1e3, p.metrics.fg_psnr_db.unwrap_or(0.0))).collect();
         c.draw_series(LineSeries::new(line.clone(), color.stroke_width(2)))
             .map_err(e)?
             .label(name)
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
-        c.draw_series(line.iter().zip(&m.points).map(|(&(x, y), p)| {
+        c.draw_series(line.iter().zip(&scored).map(|(&(x, y), p)| {
             EmptyElement::at((x, y))
                 + Circle::new((0, 0), 4, color.filled())
                 + Text::new(format!("{}", p.pixel_error), (6, -14), ("sans-serif", 12))

@@ -224,11 +224,15 @@ pub fn uv_sphere(center: [f32; 3], radius: f32, seg: usize, color: [f32; 4]) -> 
     let seg = seg.max(3);
     let mut positions = Vec::new();
     let mut normals = Vec::new();
+    // Poles and the seam use exact values so that coincident vertices are bit-identical
+    // and the mesh is a closed surface (see `reference::closed_and_oriented`).
     for i in 0..=seg {
         let th = std::f32::consts::PI * i as f32 / seg as f32;
+        let (st, ct) = if i == 0 { (0.0, 1.0) } else if i == seg { (0.0, -1.0) } else { th.sin_cos() };
         for j in 0..=2 * seg {
             let ph = std::f32::consts::PI * j as f32 / seg as f32;
-            let n = [th.sin() * ph.cos(), th.cos(), -th.sin() * ph.sin()];
+            let (sp, cp) = if j == 0 || j == 2 * seg { (0.0, 1.0) } else { ph.sin_cos() };
+            let n = [st * cp, ct, -st * sp];
             normals.push(n);
             positions.push([center[0] + radius * n[0], center[1] + radius * n[1], center[2] + radius * n[2]]);
         }

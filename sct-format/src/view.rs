@@ -296,32 +296,45 @@ fn tight_apex(a: &[f64], z: &[f64], t: f64) -> (f64, f64) {
 }
 
 /// The lateral offset that centres the points' projections for an eye at depth `ez` (all
-/// points in front of it): the root of `max (a−x)/w − max (x−a)/w`, which decreases in x.
+/// points in front of it, at distances `w = z − ez`): the apex of the narrowest wedge
+/// `|a − x| ≤ t·w` containing them. With `U(t) = max (a − t·w)` and `V(t) = min (a + t·w)`,
+/// the least `t` with `U(t) ≤ V(t)` is the root of the convex, decreasing, piecewise-linear
+/// `U − V`, which Newton's method reaches from `t = 0` without overshooting, exactly after a
+/// few passes (each step adopts a new pair of active points); then `x = U(t) = V(t)`.
 fn centred(a: &[f64], z: &[f64], ez: f64) -> f64 {
-    let (mut lo, mut hi) = a.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
+    let (lo, hi) = a.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
     // No spread (or no points): nothing to centre.
     if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
         return if lo.is_finite() { lo } else { 0.0 };
     }
     let w: Vec<f64> = z.iter().map(|z| (z - ez).max(1e-300)).collect();
-    let g = |x: f64| {
-        let (mut right, mut left) = (f64::NEG_INFINITY, f64::NEG_INFINITY);
+    let eval = |t: f64| {
+        let (mut u, mut v, mut wu, mut wv) = (f64::NEG_INFINITY, f64::INFINITY, 0.0, 0.0);
         for (a, w) in a.iter().zip(&w) {
-            right = right.max((a - x) / w);
-            left = left.max((x - a) / w);
+            let (p, q) = (a - t * w, a + t * w);
+            if p > u {
+                (u, wu) = (p, *w);
+            }
+            if q < v {
+                (v, wv) = (q, *w);
+            }
         }
-        right - left
+        (u, v, wu + wv)
     };
-    // 80 halvings take the bracket below f64 resolution of any realistic extent.
-    for _ in 0..80 {
-        let mid = 0.5 * (lo + hi);
-        if g(mid) > 0.0 {
-            lo = mid;
-        } else {
-            hi = mid;
+    let mut t = 0.0;
+    let (mut u, mut v, mut slope) = eval(t);
+    for _ in 0..100 {
+        if u <= v || slope <= 0.0 {
+            break;
         }
+        let next = t + (u - v) / slope;
+        if next <= t {
+            break;
+        }
+        t = next;
+        (u, v, slope) = eval(t);
     }
-    0.5 * (lo + hi)
+    0.5 * (u + v)
 }
 
 #[cfg(test)]
@@ -395,6 +408,21 @@ mod tests {
                 assert!(x1 - x0 <= DEFAULT_FILL * DEFAULT_WIDTH as f64 && y1 - y0 <= DEFAULT_FILL * DEFAULT_HEIGHT as f64);
                 assert!(((x0 + x1) / 2.0 - 640.0).abs() < 0.5 && ((y0 + y1) / 2.0 - 360.0).abs() < 0.5, "{preset:?}");
             }
+        }
+    }
+
+    #[test]
+    fn a_random_cloud_fills_the_frame() {
+        // A deterministic cloud in a skewed blob (LCG), so that many points compete for
+        // each extreme.
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let cloud: Vec<[f64; 3]> = (0..20_000).map(|_| [3.0 * next() + 7.0, next() * next() * 4.0, 2.0 * next()]).collect();
+        for preset in ViewPreset::ALL {
+            check_fill(&cloud, preset, UpAxis::Y, DEFAULT_WIDTH, DEFAULT_HEIGHT);
         }
     }
 
