@@ -172,8 +172,9 @@ pub struct Composer<'a> {
     /// Bound of every graph node in its own frame (what a parent group's leaf must be).
     bounds: Vec<Node>,
     /// Whether a graph node holds two-sided surfaces (spec §6.2): a group tree over such a
-    /// child is flagged two-sided too, so its coarse nodes are lit from the eye's side.
+    /// child is two-sided too, so no group node above it is culled by its cone.
     two_sided: Vec<bool>,
+
     trees: Vec<SceneTree>,
     mesh_node: HashMap<u32, u32>,
     def_node: HashMap<String, Option<u32>>,
@@ -226,9 +227,8 @@ impl<'a> Composer<'a> {
         let two_sided = match &n {
             GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => self.trees.get(*tree as usize).is_some_and(SceneTree::is_two_sided),
             GraphNode::Instance { child, .. } => self.two_sided.get(*child as usize).copied().unwrap_or(false),
-            // An inline's sidedness lives in its own file; its leaves' cones already keep
-            // culling right, and its nodes are lit by that file's flags.
-            _ => false,
+            // Set by `inline`, which has the file open.
+            GraphNode::Inline { .. } => false,
         };
         self.two_sided.push(two_sided);
         self.nodes.push(n);
@@ -322,14 +322,8 @@ impl<'a> Composer<'a> {
             return Err(BuildError::Input(format!("instance refers to mesh {m}, the file has {}", self.samples.meshes.len())));
         }
         let two_sided = self.samples.meshes[m as usize].two_sided;
-        let mut samples = self.take_mesh_samples(m as usize);
-        if two_sided {
-            // A two-sided surface element faces both ways: its normal cone is every
-            // direction, so normal-cone culling (here and in group trees above) keeps it.
-            samples.iter_mut().for_each(|s| s.cone = std::f32::consts::PI);
-        }
-        let (mut tree, stats) =
-            build_tree_owned(samples, &self.opts).map_err(|e| prefix(e, &format!("mesh {m} ({:?})", self.samples.meshes[m as usize].name)))?;
+        let (mut tree, stats) = build_tree_owned(self.take_mesh_samples(m as usize), &self.opts)
+            .map_err(|e| prefix(e, &format!("mesh {m} ({:?})", self.samples.meshes[m as usize].name)))?;
         tree.set_two_sided(two_sided);
         let root = tree.nodes()[0];
         self.trees.push(tree);
@@ -417,7 +411,10 @@ impl<'a> Composer<'a> {
             .ok_or_else(|| BuildError::Input(format!("inline {path:?}: the file's scene has no bound")))?;
         let hash = *blake3::hash(reader.bytes()).as_bytes();
         self.out.inlines.push((full.display().to_string(), sct_format::traverse::hex(&hash)));
-        Ok(self.push(GraphNode::Inline { path: path.to_string(), hash, bound }, bound))
+        let id = self.push(GraphNode::Inline { path: path.to_string(), hash, bound }, bound);
+        // Conservative: any two-sided tree in the file makes the inline two-sided.
+        self.two_sided[id as usize] = reader.trees().iter().any(|t| t.two_sided());
+        Ok(id)
     }
 
     fn grid(&mut self, g: &GridSpec) -> Result<u32, BuildError> {

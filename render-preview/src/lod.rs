@@ -344,6 +344,16 @@ pub(crate) fn traverse(
     if cache.root().is_none() {
         return Ok(());
     }
+    // A two-sided tree's surfaces are seen from both sides (spec §6.2): its cones bound the
+    // normals up to sign, so none of its nodes is culled as back-facing.
+    let two_sided = reader.trees().get(cache.tree).is_some_and(|t| t.two_sided());
+    let one_sided;
+    let p = if two_sided && p.backface {
+        one_sided = LodParams { backface: false, ..*p };
+        &one_sided
+    } else {
+        p
+    };
     let mut frontier: Vec<u64> = vec![0];
     let mut d = 0usize;
     while !frontier.is_empty() {

@@ -4,15 +4,15 @@
 //! back faces culled only on one-sided meshes, screen-door alpha). Point clouds are drawn
 //! as discs.
 //!
-//! Which faces are culled is decided per triangle by [`culled`] from a `two_sided` flag
-//! per mesh: set by a double-sided material (glTF `doubleSided`) or, since the loader does
-//! not say whether a surface is closed, by [`closed_and_oriented`] failing (open or
-//! inconsistently oriented meshes are seen from both sides, as viewers show them).
+//! Which faces are culled is decided per triangle by [`culled`] from the mesh's `two_sided`
+//! flag, by the voxelizer's own rule ([`LoadedScene::mesh_two_sided`]: glTF `doubleSided`
+//! materials; OBJ and PLY meshes that are open or inconsistently oriented), so the
+//! reference culls exactly what the SCT file's two-sided trees leave uncut.
 
 use std::collections::HashMap;
 use std::path::Path;
 
-use voxelize::mesh::{AlphaMode, LoadedScene, Material, Mesh, TextureRef};
+use voxelize::mesh::{AlphaMode, LoadedScene, Material, TextureRef};
 
 use crate::camera::View;
 use crate::error::{Error, Result};
@@ -104,8 +104,8 @@ impl WorldMesh {
         let mut materials = vec![Material::default()];
         materials.extend(scene.materials.iter().cloned());
         let mut tris = Vec::new();
-        // Per mesh, computed on first use: only meshes with a one-sided material need it.
-        let mut closed: HashMap<usize, bool> = HashMap::new();
+        // Per mesh, computed on first use (a topology check for OBJ and PLY meshes).
+        let mut two_sided_mesh: HashMap<usize, bool> = HashMap::new();
         for inst in &scene.instances {
             let Some(mesh) = scene.meshes.get(inst.mesh) else { continue };
             let m = &inst.transform;
@@ -115,7 +115,7 @@ impl WorldMesh {
             for prim in &mesh.primitives {
                 let mat_idx = prim.material.filter(|&i| i < scene.materials.len()).map_or(0, |i| i + 1);
                 let mat = &materials[mat_idx];
-                let two_sided = mat.double_sided || !*closed.entry(inst.mesh).or_insert_with(|| closed_and_oriented(mesh));
+                let two_sided = *two_sided_mesh.entry(inst.mesh).or_insert_with(|| scene.mesh_two_sided(inst.mesh));
                 let computed =
                     if prim.normals.is_none() { Some(voxelize::mesh::corner_normals(prim, CREASE_DEG)) } else { None };
                 let uv_set = |t: &Option<TextureRef>| t.as_ref().and_then(|t| prim.uvs.get(t.tex_coord as usize));
@@ -313,41 +313,6 @@ pub fn culled(two_sided: bool, p: &[[f32; 3]; 3], eye: [f64; 3]) -> bool {
     nf[0] * to_eye[0] + nf[1] * to_eye[1] + nf[2] * to_eye[2] < 0.0
 }
 
-/// Whether a mesh is a closed, consistently oriented surface: with vertices welded by
-/// exact position over all its primitives, every undirected edge is used by exactly two
-/// triangles, in opposite directions. Such a surface shows only its front faces from
-/// outside, so back faces can be culled; any other mesh is drawn two-sided.
-pub fn closed_and_oriented(mesh: &Mesh) -> bool {
-    let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
-    let mut edges: HashMap<(u32, u32), u32> = HashMap::new();
-    for prim in &mesh.primitives {
-        let welded: Vec<u32> = prim
-            .positions
-            .iter()
-            .map(|p| {
-                // +0.0 and -0.0 are one position.
-                let key = p.map(|v| if v == 0.0 { 0 } else { v.to_bits() });
-                let next = ids.len() as u32;
-                *ids.entry(key).or_insert(next)
-            })
-            .collect();
-        for t in &prim.triangles {
-            let Some(v) = t.iter().map(|&i| welded.get(i as usize).copied()).collect::<Option<Vec<u32>>>() else {
-                return false;
-            };
-            for k in 0..3 {
-                let (a, b) = (v[k], v[(k + 1) % 3]);
-                if a == b {
-                    // Welding collapsed the triangle: not a clean surface.
-                    return false;
-                }
-                *edges.entry((a, b)).or_insert(0) += 1;
-            }
-        }
-    }
-    !edges.is_empty() && edges.iter().all(|(&(a, b), &n)| n == 1 && edges.get(&(b, a)) == Some(&1))
-}
-
 /// Determinant of the linear part of a column-major affine matrix.
 fn det3(m: &voxelize::mesh::Mat4) -> f64 {
     m[0][0] * (m[1][1] * m[2][2] - m[2][1] * m[1][2]) - m[1][0] * (m[0][1] * m[2][2] - m[2][1] * m[0][2])
@@ -445,47 +410,6 @@ fn raster_tri(mesh: &WorldMesh, t: &Tri, v: [CV; 3], view: &View, shading: Shadi
 #[cfg(test)]
 mod tests {
     use super::*;
-    use voxelize::mesh::Primitive;
-
-    fn mesh(prims: Vec<Primitive>) -> Mesh {
-        Mesh { name: "m".into(), primitives: prims }
-    }
-
-    /// A tetrahedron, counter-clockwise from outside.
-    fn tetra() -> Primitive {
-        Primitive {
-            positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
-            ..Default::default()
-        }
-    }
-
-    #[test]
-    fn closed_consistent_meshes_are_one_sided() {
-        assert!(closed_and_oriented(&mesh(vec![tetra()])));
-        assert!(closed_and_oriented(&crate::synth::uv_sphere([0.0; 3], 1.0, 12, [1.0; 4]).scene.meshes[0]));
-        // Split over two primitives with duplicated vertices: welded by position.
-        let t = tetra();
-        let a = Primitive { triangles: t.triangles[..2].to_vec(), ..t.clone() };
-        let b = Primitive { triangles: t.triangles[2..].to_vec(), ..t.clone() };
-        assert!(closed_and_oriented(&mesh(vec![a, b])));
-    }
-
-    #[test]
-    fn open_or_inconsistent_meshes_are_two_sided() {
-        let mut open = tetra();
-        open.triangles.pop();
-        assert!(!closed_and_oriented(&mesh(vec![open])));
-        let mut flipped = tetra();
-        flipped.triangles[3] = [1, 3, 2];
-        assert!(!closed_and_oriented(&mesh(vec![flipped])));
-        // An edge shared by three triangles (a fin on the tetrahedron).
-        let mut fin = tetra();
-        fin.positions.push([1.0, 1.0, 1.0]);
-        fin.triangles.push([0, 1, 4]);
-        assert!(!closed_and_oriented(&mesh(vec![fin])));
-        assert!(!closed_and_oriented(&mesh(vec![])));
-    }
 
     #[test]
     fn culling_follows_the_winding_unless_two_sided() {

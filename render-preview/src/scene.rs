@@ -264,10 +264,13 @@ impl SceneFiles {
                     queue.push_back(Visit { chain: v.chain, node: child, state });
                 }
                 GraphNode::Inline { path, bound, hash } => {
-                    // The stored bound lets us cull or draw the inline without opening it.
+                    // The stored bound lets us cull or draw the inline without opening it, but
+                    // not by its cone: the inlined file may hold two-sided surfaces, whose
+                    // cones bound their normals only up to sign (spec §6.2).
                     let pl = placement(view, &v.state);
                     let mut st = LodStats::default();
-                    match lod::decide(&bound, true, true, &pl, view, p, &mut st) {
+                    let by_bound = lod::LodParams { backface: false, ..*p };
+                    match lod::decide(&bound, true, true, &pl, view, &by_bound, &mut st) {
                         Decision::Cull | Decision::Refine => {}
                         Decision::Draw(s) => splats.push(s),
                         Decision::Descend => {

@@ -225,7 +225,7 @@ pub fn uv_sphere(center: [f32; 3], radius: f32, seg: usize, color: [f32; 4]) -> 
     let mut positions = Vec::new();
     let mut normals = Vec::new();
     // Poles and the seam use exact values so that coincident vertices are bit-identical
-    // and the mesh is a closed surface (see `reference::closed_and_oriented`).
+    // and the mesh is a closed surface (see `voxelize::sides::closed_and_oriented`).
     for i in 0..=seg {
         let th = std::f32::consts::PI * i as f32 / seg as f32;
         let (st, ct) = if i == 0 { (0.0, 1.0) } else if i == seg { (0.0, -1.0) } else { th.sin_cos() };

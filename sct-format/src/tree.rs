@@ -116,16 +116,15 @@ impl SceneTree {
         Some(2 * k + 1)
     }
 
-    /// Whether the tree's surfaces are seen from both sides (spec §6.2, tree flag bit 1): a
-    /// renderer lights each node from the side facing the eye. A builder marks such a tree
-    /// and gives its leaves the cone π (see [`SceneTree::set_two_sided`]).
+    /// Whether the tree's surfaces are seen from both sides (spec §6.2, tree flag bit 1): its
+    /// cones bound the normals up to sign, so a renderer does not cull its nodes as
+    /// back-facing and lights each from the side facing the eye.
     pub fn is_two_sided(&self) -> bool {
         self.two_sided
     }
 
-    /// Marks the tree two-sided (or not). Only the flag: the builder also gives two-sided
-    /// leaves the cone π before building the hierarchy, so that normal-cone culling, here
-    /// and in group trees above, never removes a surface seen from its back.
+    /// Marks the tree two-sided (or not); a group tree over a two-sided child is marked too
+    /// (spec §6.2), so no group node above it is culled by its cone.
     pub fn set_two_sided(&mut self, two_sided: bool) {
         self.two_sided = two_sided;
     }

@@ -77,3 +77,41 @@ fn instanced_gltf_scenes_validate_deep_in_every_profile() {
         }
     }
 }
+
+/// A quad is an open mesh, so it is built two-sided: seen from behind it is drawn (not
+/// culled as back-facing) and covers about what the mesh reference covers; the file says
+/// 1.1. A closed box keeps back-face culling: seen from inside, nothing is drawn.
+#[test]
+fn two_sided_quad_is_drawn_from_behind_closed_box_is_culled_from_inside() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let quad = dir.path().join("quad.obj");
+    // Front faces +Z (counter-clockwise seen from +Z).
+    std::fs::write(&quad, "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3\nf 1 3 4\n").expect("write quad");
+    let samples = dir.path().join("quad.samples");
+    voxelize(&quad, &samples);
+    let sct = dir.path().join("quad.sct");
+    build(&samples, &sct, Profile::Default);
+    let r = SctReader::open(&sct, &Limits::default()).expect("open");
+    assert!(r.trees()[0].two_sided());
+    assert_eq!(r.header().minor, 1);
+    let behind = render_preview::RenderOptions { width: 200, height: 200, eye: Some([0.0, 0.0, -4.0]), target: Some([0.0; 3]), ..Default::default() };
+    let out = render_preview::render_file(&sct, &behind).expect("render from behind");
+    let drawn = out.frame.depth.iter().filter(|d| d.is_finite()).count();
+    let mesh = render_preview::reference::WorldMesh::load(&quad).expect("load quad");
+    let view = render_preview::View::new(&out.camera, out.near).expect("view");
+    let refr = render_preview::reference::render_reference(&mesh, &view, behind.shading, behind.background);
+    let m = render_preview::metrics::compare(&out.frame, &refr);
+    assert!(drawn > 200 * 200 / 10, "the quad's back is drawn ({drawn} pixels)");
+    assert!(m.silhouette_iou > 0.95, "IoU {} against the two-sided reference", m.silhouette_iou);
+
+    let boxed = repo().join("../shared/models/gltf/Box/glTF-Binary/Box.glb");
+    let samples = dir.path().join("box.samples");
+    voxelize(&boxed, &samples);
+    let sct = dir.path().join("box.sct");
+    build(&samples, &sct, Profile::Default);
+    let r = SctReader::open(&sct, &Limits::default()).expect("open");
+    assert!(!r.trees()[0].two_sided() && r.header().minor == 0, "a closed single-sided box stays 1.0");
+    let inside = render_preview::RenderOptions { width: 64, height: 64, eye: Some([0.0; 3]), target: Some([0.0, 0.0, -1.0]), ..Default::default() };
+    let out = render_preview::render_file(&sct, &inside).expect("render from inside");
+    assert!(out.stats.lod.backface_culled > 0, "back faces are culled");
+}

@@ -91,6 +91,12 @@ mod tests {
         let mut open = tetra(false);
         open.primitives[0].triangles.pop();
         assert!(!closed_and_oriented(&open));
+        // An edge shared by three triangles (a fin on the tetrahedron).
+        let mut fin = tetra(false);
+        fin.primitives[0].positions.push([1.0, 1.0, 1.0]);
+        fin.primitives[0].triangles.push([0, 1, 4]);
+        assert!(!closed_and_oriented(&fin));
+        assert!(!closed_and_oriented(&mesh(vec![], vec![])));
         // A single quad (a leaf card) is open.
         let quad = mesh(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]], vec![[0, 1, 2], [0, 2, 3]]);
         assert!(!closed_and_oriented(&quad));
