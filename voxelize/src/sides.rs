@@ -25,10 +25,12 @@ impl LoadedScene {
         }
     }
 
-    /// The point cloud is two-sided when it has no normals (nothing says which way its
-    /// surface faces).
+    /// A point cloud is two-sided: without normals nothing says which way its surface
+    /// faces, and a scan's normals, when present, are often estimated without a consistent
+    /// orientation (the pond scan's point half away from the viewer: culled, 80 % of its
+    /// pixels went missing).
     pub fn points_two_sided(&self) -> bool {
-        self.points.as_ref().is_some_and(|p| p.normals.is_none())
+        self.points.is_some()
     }
 }
 
