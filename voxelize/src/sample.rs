@@ -6,26 +6,36 @@
 //! is the depth axis, the other two index grid *columns*. For each column the triangle
 //! overlaps, the triangle is clipped to the column and the depth range of the clipped polygon
 //! gives the voxels it crosses — one voxel for most columns (the dominant axis keeps depth
-//! slopes ≤ 1), up to three where the plane is steep (45°). Each crossed voxel becomes a sample
-//! at the voxel centre with radius = half the voxel diagonal (EQ 15), so the union of the
-//! sample spheres contains every voxel the surface passes through, and hence the surface:
-//! coverage is guaranteed by construction, not just for points near column centres.
-//! The sample's area is the exact area of triangle ∩ voxel (the §5.2.3 "better measurement";
-//! the sum equals the mesh area to rounding), or EQ 17 (triangle area / sample count) with
-//! [`AreaMode::Eq17`]. Attributes are interpolated at the centroid of triangle ∩ voxel.
+//! slopes ≤ 1), up to three where the plane is steep (45°). Each piece of triangle ∩ voxel
+//! becomes a sample at the piece's centroid — a point of the surface, whatever the voxel
+//! size — with the radius that reaches the piece's farthest vertex, so the union of the
+//! sample spheres contains every piece, and hence the surface: coverage is guaranteed by
+//! construction, not just for points near column centres. (The thesis' EQ 15 puts samples
+//! at voxel centres with half the voxel diagonal as radius: off the surface by up to half a
+//! voxel.) The sample's area is the exact area of triangle ∩ voxel (the §5.2.3 "better
+//! measurement"; the sum equals the mesh area to rounding), or EQ 17 (triangle area / sample
+//! count) with [`AreaMode::Eq17`]. Attributes are interpolated at the piece's centroid.
 //!
 //! ## Scanline method (the thesis as written)
-//! One sample per column whose centre falls inside the projected triangle, in the voxel that
-//! holds the plane point above that centre; EQ 17 areas. A triangle that covers no column
-//! centre gets one sample at its centroid's voxel (the thesis would drop it). Coverage is
-//! *not* guaranteed near triangle edges; it is here to compare with the thesis' counts.
+//! One sample per column whose centre falls inside the projected triangle, at the plane
+//! point above that centre (keyed by the voxel that holds it), with the radius that reaches
+//! the column's square lifted onto the plane; EQ 17 areas. A triangle that covers no column
+//! centre gets one sample at its centroid reaching its corners (the thesis would drop it).
+//! Coverage is *not* guaranteed near triangle edges (columns whose centres a triangle misses
+//! have no sample of it); it is here to compare with the thesis' counts.
 //!
 //! ## Merging
 //! Samples of the same mesh that fall in the same voxel (from neighbouring triangles) are
 //! merged here (thesis Table 2, "after merging"): the voxel key exists only here, so
-//! build-tree would need a spatial search to find duplicates. Areas add; colour and normal
-//! are area-weighted means. `merge = false` keeps one sample per triangle per voxel.
-
+//! build-tree would need a spatial search to find duplicates. Areas add; the centre, colour
+//! and normal are area-weighted means (the centre is the centroid of the merged pieces: on
+//! the surface where they are coplanar, under it where they meet at a crease or curve); the
+//! radius reaches every merged piece, and for the voxel method need not exceed the distance
+//! to the voxel's farthest corner. `merge = false` keeps one sample per triangle per voxel.
+//!
+//! Radii are rounded up when stored, and grown by how far rounding the centre to f32 moved
+//! it, so containment survives the f32 storage. A voxel wider than the model is clamped to
+//! the model's largest extent (a warning in [`SampleStats::warnings`]).
 //!
 //! ## Modules
 //! `density` chooses the voxel size, `plan` the units to sample; `prepare` readies their

@@ -83,9 +83,10 @@ impl Poly2 {
     /// Splits where the vertex values `vals` (an affine function's, one per vertex) cross `c`
     /// into the parts `≤ c` (`below`) and `≥ c` (`above`) in one pass: the polygons of
     /// [`Poly2::clip_half_by_index_into`] by `c − vals[i]` and by `vals[i] − c`, bit for bit
-    /// (the cut points are the same numbers either way), each cut point computed once.
-    #[inline]
-    pub(super) fn split_values_into(&self, vals: &[f64; MAXV], c: f64, below: &mut Poly2, above: &mut Poly2) {
+    /// (the cut points are the same numbers either way), each cut point computed once. The
+    /// parts' vertex values go to `below_vals` and `above_vals` (`c` at the cut points).
+    #[inline(always)]
+    pub(super) fn split_values_into(&self, vals: &[f64; MAXV], c: f64, (below, below_vals): (&mut Poly2, &mut [f64; MAXV]), (above, above_vals): (&mut Poly2, &mut [f64; MAXV])) {
         below.n = 0;
         above.n = 0;
         if self.n == 0 {
@@ -96,29 +97,28 @@ impl Poly2 {
         // cut's parameter `fp / (fp − fc)` is the same for both signs.
         let mut fp = c - vals[self.n - 1];
         let (mut prev_below, mut prev_above) = (fp >= 0.0, -fp >= 0.0);
-        for i in 0..self.n {
-            let cur = self.v[i];
-            let fc = c - vals[i];
+        for (&cur, &val) in self.v[..self.n].iter().zip(vals) {
+            let fc = c - val;
             let (cur_below, cur_above) = (fc >= 0.0, -fc >= 0.0);
             let (cross_below, cross_above) = (cur_below != prev_below, cur_above != prev_above);
             if cross_below || cross_above {
                 let t = fp / (fp - fc);
                 let x = [prev[0] + t * (cur[0] - prev[0]), prev[1] + t * (cur[1] - prev[1])];
                 if cross_below && below.n < MAXV {
-                    below.v[below.n] = x;
+                    (below.v[below.n], below_vals[below.n]) = (x, c);
                     below.n += 1;
                 }
                 if cross_above && above.n < MAXV {
-                    above.v[above.n] = x;
+                    (above.v[above.n], above_vals[above.n]) = (x, c);
                     above.n += 1;
                 }
             }
             if cur_below && below.n < MAXV {
-                below.v[below.n] = cur;
+                (below.v[below.n], below_vals[below.n]) = (cur, val);
                 below.n += 1;
             }
             if cur_above && above.n < MAXV {
-                above.v[above.n] = cur;
+                (above.v[above.n], above_vals[above.n]) = (cur, val);
                 above.n += 1;
             }
             prev = cur;
@@ -295,7 +295,15 @@ mod tests {
             }
             let c = if i % 3 == 0 { vals[i % p.n] } else { rng.next_f64() * 2.0 - 0.5 };
             let (mut below, mut above) = (Poly2::empty(), Poly2::empty());
-            p.split_values_into(&vals, c, &mut below, &mut above);
+            let (mut below_vals, mut above_vals) = ([f64::NAN; MAXV], [f64::NAN; MAXV]);
+            p.split_values_into(&vals, c, (&mut below, &mut below_vals), (&mut above, &mut above_vals));
+            // A part's values are its vertices' (of the polygon) or `c` (at the cut points).
+            for (part, part_vals) in [(&below, &below_vals), (&above, &above_vals)] {
+                for (q, &v) in part.v[..part.n].iter().zip(part_vals) {
+                    let own = p.v[..p.n].iter().position(|x| x == q).map(|i| vals[i]);
+                    assert!(own == Some(v) || v == c, "{q:?}: {v} (own {own:?}, cut {c})");
+                }
+            }
             let (mut want_below, mut want_above) = (Poly2::empty(), Poly2::empty());
             p.clip_half_by_index_into(|i, _| c - vals[i], None, &mut want_below);
             p.clip_half_by_index_into(|i, _| vals[i] - c, None, &mut want_above);

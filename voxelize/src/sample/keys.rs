@@ -19,11 +19,14 @@ pub(super) struct Rec {
     pub(super) r: f32,
 }
 
-/// `x` as an f32 no smaller than `x` (for radii: containment must survive the rounding).
+/// `x ≥ 0` as an f32 no smaller than `x` (for radii: containment must survive the rounding).
 #[inline(always)]
 pub(super) fn up_f32(x: f64) -> f32 {
     let y = x as f32;
-    if f64::from(y) < x { y.next_up() } else { y }
+    // For a non-negative finite `y`, the next larger f32 is one bit pattern up (`next_up`
+    // without its checks for negative, infinite and NaN values). Without a branch: whether
+    // rounding went down is a coin toss, which a branch would mispredict half the time.
+    f32::from_bits(y.to_bits() + u32::from(f64::from(y) < x))
 }
 
 /// A record's offset ([`Rec::off`]) for the point `p` (grid units) sampling voxel `v`, and
@@ -124,6 +127,22 @@ impl RecSink for Vec<Rec> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `up_f32` is the smallest f32 no smaller than its argument: exact values, values
+    /// between two f32s, zero, subnormals and values beyond the largest f32.
+    #[test]
+    fn up_f32_rounds_up_to_the_next_f32() {
+        let mut rng = sct_format::rng::SplitMix64(19);
+        let mut xs = vec![0.0, 1.0, f64::from(f32::MAX), f64::from(f32::MAX) * 1.5, 1e-45, f64::from(f32::from_bits(1)), 0.1];
+        for _ in 0..100_000 {
+            xs.push(rng.next_f64() * 2f64.powi((rng.next_u64() % 60) as i32 - 30));
+        }
+        for x in xs {
+            let y = up_f32(x);
+            assert!(f64::from(y) >= x, "{x:e} → {y:e}");
+            assert!(y == 0.0 || f64::from(y.next_down()) < x, "{x:e} → {y:e} is not the smallest");
+        }
+    }
 
     #[test]
     fn key_pack_round_trips_and_orders_x_major() {
