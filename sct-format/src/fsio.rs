@@ -117,9 +117,17 @@ pub(crate) enum Source<'a> {
     },
 }
 
+#[cfg(test)]
+thread_local! {
+    /// Files this thread opened as a [`Source`] (tests count how often a target is read).
+    pub(crate) static OPENS: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
+}
+
 impl Source<'static> {
     /// Opens the regular file at `path` ([`open_regular`]).
     pub fn open(path: &Path) -> Result<Self> {
+        #[cfg(test)]
+        OPENS.with(|c| c.set(c.get() + 1));
         let file = open_regular(path)?;
         let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
         Ok(Source::File { file, len, path: path.to_path_buf() })

@@ -754,6 +754,19 @@ mod tests {
         b
     }
 
+    /// Item 2: the level table's counts are claims; reading reserves nothing for them (a
+    /// claim of 2^40 nodes used to be reserved before the first block was decoded).
+    #[test]
+    fn read_levels_reserves_nothing_from_claims() {
+        let e = SectionEntry { tag: tags::TREE, flags: 1, offset: 0, stored_len: 0, raw_len: 0, crc: 0 };
+        let header = TreeHeader { profile: 0, flags: 0, root_internal: 1, level_count: 2, node_count: (1 << 40) + 1, leaf_count: 1 << 39, block_count: 1, root: Node::default() };
+        let levels = vec![LevelEntry { node_count: 1, first_block: 0, block_count: 0 }, LevelEntry { node_count: 1 << 40, first_block: 0, block_count: 1 }];
+        let blocks = vec![BlockEntry { level: 1, node_count: 2, ..Default::default() }];
+        let tree = TreeIndex { section: e, header, profile: Profile::Raw, params: CodecParams::default(), levels, blocks };
+        let r = read_levels(&tree, usize::MAX, |_, _| Err(Error::malformed(7, "no such block")));
+        assert!(matches!(r, Err(Error::Malformed { offset: 7, .. })), "{r:?}");
+    }
+
     /// The reader fails at the first bad child, naming it; it does not collect the others.
     #[test]
     fn strict_graph_fails_at_the_first_problem() {
