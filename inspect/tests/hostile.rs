@@ -4,7 +4,6 @@
 
 mod common;
 
-#[allow(dead_code)]
 #[path = "../../sct-format/tests/common/craft.rs"]
 mod craft;
 
@@ -57,7 +56,8 @@ fn empty_trees_dump_and_export() {
     let d = tmp();
     let t = pair(leaf(0.0), leaf(1.0));
     let b = t.nodes()[0];
-    let cases: [(&str, Vec<GraphNode>, u32, Vec<SceneTree>, &str); 3] = [
+    type Case = (&'static str, Vec<GraphNode>, u32, Vec<SceneTree>, &'static str);
+    let cases: [Case; 3] = [
         ("root", vec![GraphNode::Tree { tree: 0 }], 0, vec![SceneTree::default()], "root"),
         (
             "instance",

@@ -242,13 +242,20 @@ impl SamplesFile {
             return Err(Error::malformed(c.header.section_table_offset, "the first section must be the generator (GENR)"));
         }
         let genr = c.single(tags::GENR)?;
+        // Sizes are checked by meaning before anything is inflated: the generator is a
+        // string, and each table, like the samples it places, at most the decoded-samples cap.
+        Limits::check("generator size", genr.raw_len, limits.max_string_bytes as u64)?;
         let generator = parse_generator(&c.section_bytes(genr, limits)?, genr.offset, limits)?;
+        let table_bytes = |e: &SectionEntry| {
+            Limits::check("samples table bytes", e.raw_len, limits.max_sample_bytes)?;
+            c.section_bytes(e, limits)
+        };
 
         let stored = stored_samples(&c, limits)?;
 
         let e = c.single(tags::MESH)?;
         let mesh_offset = e.offset;
-        let bytes = c.section_bytes(e, limits)?;
+        let bytes = table_bytes(e)?;
         let mut cur = Cursor::new(&bytes, e.offset);
         let n = cur.count(MESH_ENTRY_MIN, "mesh count")?;
         let mut meshes = Vec::with_capacity(n);
@@ -261,7 +268,7 @@ impl SamplesFile {
         cur.finish("mesh table")?;
 
         let e = c.single(tags::INST)?;
-        let bytes = c.section_bytes(e, limits)?;
+        let bytes = table_bytes(e)?;
         let mut cur = Cursor::new(&bytes, e.offset);
         let n = cur.count(INST_ENTRY_BYTES, "instance count")?;
         let mut instances = Vec::with_capacity(n);
@@ -277,7 +284,7 @@ impl SamplesFile {
         if c.sections.iter().any(|s| s.tag == AFFI) {
             let e = c.single(AFFI)?;
             offsets.affi = e.offset;
-            let bytes = c.section_bytes(e, limits)?;
+            let bytes = table_bytes(e)?;
             let mut cur = Cursor::new(&bytes, e.offset);
             let n = cur.count(AFFI_ENTRY_BYTES, "affine instance count")?;
             affine_instances.reserve(n);
@@ -975,7 +982,9 @@ fn decode_legacy(l: &Legacy<'_>) -> Result<Vec<Node>> {
     let mut out: Vec<Node> = Vec::new();
     // A multiple of every field's size (12 and 4), so a piece never splits a value.
     let mut buf = vec![0u8; 48 << 10];
-    let mut column = |width: usize, out: &mut Vec<Node>, set: &mut dyn FnMut(&mut Vec<Node>, usize, &[u8])| -> Result<()> {
+    /// Sets a field of sample `i` from its bytes.
+    type Set<'s> = &'s mut dyn FnMut(&mut Vec<Node>, usize, &[u8]);
+    let mut column = |width: usize, out: &mut Vec<Node>, set: Set<'_>| -> Result<()> {
         let mut i = 0usize;
         let mut left = n * width;
         while left > 0 {

@@ -612,3 +612,32 @@ fn file_shrunk_under_the_reader_is_an_io_error() {
     assert!(matches!(r.verify_checksums(), Err(Error::Io { .. })));
     assert!(matches!(r.content_hash(), Err(Error::Io { .. })));
 }
+
+/// A samples file's generator and tables claiming huge raw lengths are refused by their caps
+/// before they are inflated (the frames are garbage inside: inflating first reported that).
+#[test]
+fn samples_table_bombs_are_refused_before_inflating() {
+    let big = u32::MAX as u64;
+    let smps = || {
+        let f = zstd::bulk::compress(&[0u8; 36], 1).expect("compress");
+        let mut s = 1u32.to_le_bytes().to_vec();
+        s.extend_from_slice(&(f.len() as u32).to_le_bytes());
+        s.extend_from_slice(&f);
+        Sec::plain(*b"SMPS", s)
+    };
+    let mut mesh = 1u64.to_le_bytes().to_vec();
+    mesh.extend_from_slice(&0u64.to_le_bytes());
+    mesh.extend_from_slice(&1u64.to_le_bytes());
+    mesh.extend_from_slice(&0u32.to_le_bytes());
+    let file = craft::container(
+        SAMPLES_MAGIC,
+        &[Sec::frame(tags::GENR, craft::corrupt_frame(big), big), Sec::plain(tags::MESH, mesh.clone()), Sec::frame(tags::INST, craft::corrupt_frame(64), 64), smps()],
+    );
+    limit(SamplesFile::read(&file, &Limits::default()).map(|_| ()), "generator size");
+    let file = craft::container(
+        SAMPLES_MAGIC,
+        &[Sec::plain(tags::GENR, craft::genr()), Sec::plain(tags::MESH, mesh), Sec::frame(tags::INST, craft::corrupt_frame(big), big), smps()],
+    );
+    let tight = Limits { max_sample_bytes: 1 << 30, ..Limits::default() };
+    limit(SamplesFile::read(&file, &tight).map(|_| ()), "samples table bytes");
+}
