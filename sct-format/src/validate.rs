@@ -866,6 +866,22 @@ impl<'o> Validator<'o> {
                         self.issue(format!("graph/{i}"), k, label, format!("unreachable graph node {i}: {m}"));
                     }
                 }
+                // Tree references are checked for every node, as the reader does: an
+                // unreachable node naming a tree the file lacks (or a group whose tree does not
+                // have one leaf per child) makes the file unreadable, reachable or not.
+                let what = match &nodes[i] {
+                    GraphNode::Tree { tree } | GraphNode::Group { tree, .. } if *tree as usize >= trees.len() => {
+                        Some(format!("refers to tree {tree}, the file has {}", trees.len()))
+                    }
+                    GraphNode::Group { children, tree } => trees[*tree as usize]
+                        .as_ref()
+                        .filter(|idx| idx.header.leaf_count != children.len() as u64)
+                        .map(|idx| format!("is a group of {} children, its tree {tree} has {} leaves", children.len(), idx.header.leaf_count)),
+                    _ => None,
+                };
+                if let Some(m) = what {
+                    self.issue(format!("graph/{i}"), CheckId::Graph, label, format!("unreachable graph node {i} {m}"));
+                }
             }
         }
     }

@@ -641,3 +641,25 @@ fn samples_table_bombs_are_refused_before_inflating() {
     let tight = Limits { max_sample_bytes: 1 << 30, ..Limits::default() };
     limit(SamplesFile::read(&file, &tight).map(|_| ()), "samples table bytes");
 }
+
+/// Found by the structured fuzzer: an unreachable graph node naming a tree the file lacks
+/// (or a group whose tree has too few leaves) was valid to the validator, which checked tree
+/// references only on the paths it walked, while the reader refuses the file.
+#[test]
+fn unreachable_nodes_with_bad_tree_references_are_invalid() {
+    let file = bytes(SceneGraph { nodes: vec![GraphNode::Tree { tree: 0 }], root: 0 }, vec![box_tree(0.0)], &raw());
+    let tree = tree_section_of(&file);
+    for (graph, needle) in [
+        (craft::graph_bytes(&[G::Tree(65_536), G::Tree(0)], 1), "unreachable graph node 0 refers to tree 65536, the file has 1"),
+        (craft::graph_bytes(&[G::Tree(0), G::Group(0, vec![0, 0]), G::Tree(0)], 2), "unreachable graph node 1 is a group of 2 children, its tree 0 has 3 leaves"),
+    ] {
+        let file = craft::container(SCT_MAGIC, &[Sec::plain(tags::GENR, craft::genr()), Sec::zstd(tags::GRPH, &graph), Sec::plain(tags::TREE, tree.clone())]);
+        assert!(SctReader::from_bytes(file.clone(), &Limits::default()).is_err());
+        for deep in [false, true] {
+            let r = validate_bytes(&file, &ValidateOptions { deep, ..Default::default() });
+            assert_eq!(r.check_ids(), vec![CheckId::Graph], "{:?}", r.issues);
+            assert!(r.issues[0].message.contains(needle), "{}", r.issues[0]);
+            assert!(r.issues[0].path.starts_with("graph/"), "{}", r.issues[0]);
+        }
+    }
+}
