@@ -409,7 +409,7 @@ impl<'a> Composer<'a> {
         let reader = SctReader::open(&full, &self.limits).map_err(|e| prefix(e.into(), &format!("inline {path:?}")))?;
         let bound = graph_bound(&reader, reader.graph().root)
             .ok_or_else(|| BuildError::Input(format!("inline {path:?}: the file's scene has no bound")))?;
-        let hash = *blake3::hash(reader.bytes()).as_bytes();
+        let hash = reader.content_hash().map_err(|e| prefix(e.into(), &format!("inline {path:?}")))?;
         self.out.inlines.push((full.display().to_string(), sct_format::traverse::hex(&hash)));
         let id = self.push(GraphNode::Inline { path: path.to_string(), hash, bound }, bound);
         // Conservative: any two-sided tree in the file makes the inline two-sided.

@@ -42,6 +42,8 @@ pub struct AgainstOptions {
     /// Most graph nodes the traversal may reach, a shared node counted once per path to it
     /// (each reached tree is one use). Default [`MAX_USES`].
     pub max_uses: u64,
+    /// Follow inlines whose target lies outside the scene file's directory.
+    pub allow_outside_inlines: bool,
 }
 
 /// Default [`AgainstOptions::max_uses`]. Uses are not deduplicated (each is a placement), so
@@ -61,7 +63,7 @@ pub const DEFAULT_MIN_COVERAGE: f64 = 0.999;
 
 impl Default for AgainstOptions {
     fn default() -> Self {
-        AgainstOptions { points: DEFAULT_POINTS, seed: DEFAULT_SEED, min_coverage: DEFAULT_MIN_COVERAGE, limits: Limits::default(), max_uses: MAX_USES }
+        AgainstOptions { points: DEFAULT_POINTS, seed: DEFAULT_SEED, min_coverage: DEFAULT_MIN_COVERAGE, limits: Limits::default(), max_uses: MAX_USES, allow_outside_inlines: false }
     }
 }
 
@@ -412,7 +414,7 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
     let points = mesh_points(mesh, opts)?;
     let t1 = std::time::Instant::now();
 
-    let topts = TraverseOptions { limits: opts.limits.clone(), verify_inline_hashes: false };
+    let topts = TraverseOptions { limits: opts.limits.clone(), verify_inline_hashes: false, allow_outside_inlines: opts.allow_outside_inlines };
     let mut trees: Vec<SphereTree> = Vec::new();
     // `None`: the tree failed to decode; it is reported once, not decoded again per use.
     let mut by_key: HashMap<(PathBuf, usize), Option<usize>> = HashMap::new();
@@ -426,6 +428,8 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
         sct_format::Limits::check("graph nodes reached by the coverage traversal (shared nodes once per path)", reached_count, opts.max_uses)?;
         let reached = match item {
             Ok(r) => r,
+            // The traversal's own visit limit ends it: a partial coverage is no answer.
+            Err(e) if e.is_visit_limit() => return Err(crate::traverse_fatal(e)),
             Err(e) => {
                 errors.push(e.to_string());
                 continue;

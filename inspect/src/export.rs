@@ -4,8 +4,7 @@
 use std::io::Read;
 use std::path::Path;
 
-use sct_format::export::{samples_to_ply, scene_to_ply, ExportSummary};
-use sct_format::samples::SamplesFile;
+use sct_format::export::{samples_file_to_ply, scene_to_ply, ExportSummary};
 use sct_format::traverse::TraverseOptions;
 use sct_format::Limits;
 
@@ -15,19 +14,21 @@ use crate::InspectError;
 pub const DEFAULT_MAX_POINTS: u64 = 100_000_000;
 
 /// Exports `file` — a samples file (all samples, every placement) or an SCT file (the cut at
-/// `level`, or the leaves) — to the PLY file `out`, in world space.
-pub fn export_ply(file: &Path, out: &Path, level: Option<usize>, max_points: u64, limits: &Limits) -> Result<ExportSummary, InspectError> {
+/// `level`, or the leaves) — to the PLY file `out`, in world space. `max_points` is checked
+/// before anything is decoded (samples) or written (scenes). Inlines leave the scene's
+/// directory only with `allow_outside_inlines`.
+pub fn export_ply(file: &Path, out: &Path, level: Option<usize>, max_points: u64, limits: &Limits, allow_outside_inlines: bool) -> Result<ExportSummary, InspectError> {
     let mut magic = [0u8; 8];
-    let n = std::fs::File::open(file)
-        .and_then(|mut f| f.read(&mut magic))
+    // A regular file only: a FIFO would block the open.
+    let n = sct_format::fsio::open_regular(file)?
+        .read(&mut magic)
         .map_err(|e| sct_format::Error::io(file, e))?;
     if magic[..n] == sct_format::raw::SAMPLES_MAGIC[..] {
         if level.is_some() {
             return Err(InspectError::Usage("--export-level applies to SCT files; a samples file has no levels".into()));
         }
-        let samples = SamplesFile::read_file(file, limits)?;
-        return Ok(samples_to_ply(&samples, out, max_points)?);
+        return Ok(samples_file_to_ply(file, out, max_points, limits)?);
     }
-    let opts = TraverseOptions { limits: limits.clone(), ..Default::default() };
+    let opts = TraverseOptions { limits: limits.clone(), allow_outside_inlines, ..Default::default() };
     Ok(scene_to_ply(file, level, out, opts, max_points)?)
 }

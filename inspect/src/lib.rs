@@ -12,7 +12,7 @@ use serde::Serialize;
 
 use sct_format::graph::GraphNode;
 use sct_format::read::TreeIndex;
-use sct_format::traverse::{ReachedKind, Traversal, TraverseOptions};
+use sct_format::traverse::{ReachedKind, Traversal, TraverseError, TraverseErrorKind, TraverseOptions};
 pub use sct_format::validate::{validate_file, CheckId, Issue, Report as Validation, ValidateOptions};
 use sct_format::{Generator, Limits, Node, Profile, SctReader};
 
@@ -54,6 +54,15 @@ impl InspectError {
             InspectError::Mesh(_) | InspectError::BadMesh(_) => 1,
             _ => 2,
         }
+    }
+}
+
+/// The error that ends an inspection when a traversal stops at its visit limit
+/// ([`sct_format::Limits::max_traversal_visits`]): what was reached so far is no answer.
+pub(crate) fn traverse_fatal(e: TraverseError) -> InspectError {
+    match e.kind {
+        TraverseErrorKind::Read(inner) => InspectError::Sct(inner),
+        other => InspectError::Sct(sct_format::Error::malformed(0, format!("{}: {other}", e.path))),
     }
 }
 
@@ -297,6 +306,8 @@ fn tree_report(i: usize, t: &TreeIndex) -> TreeReport {
 /// inlines (memoized per node and per file, so shared subgraphs cost once).
 struct LeafCounter {
     limits: Limits,
+    /// The directory inline targets must stay in (`None`: anywhere).
+    root: Option<PathBuf>,
     files: HashMap<PathBuf, Option<u64>>,
     stack: Vec<PathBuf>,
     complete: bool,
@@ -324,7 +335,7 @@ impl LeafCounter {
     }
 
     fn inline(&mut self, from: &Path, rel: &str) -> Option<u64> {
-        let canon = std::fs::canonicalize(from.parent()?.join(rel)).ok()?;
+        let canon = sct_format::traverse::resolve_inline(from, rel, self.root.as_deref()).ok()?;
         if let Some(v) = self.files.get(&canon) {
             return *v;
         }
@@ -341,7 +352,14 @@ impl LeafCounter {
 }
 
 /// Builds the report of the file at `path` (headers and indices only: no block is decoded).
+/// Inlines are counted only inside the file's directory (see [`summarize_with`]).
 pub fn summarize(path: &Path, limits: &Limits) -> Result<Summary, InspectError> {
+    summarize_with(path, limits, false)
+}
+
+/// [`summarize`], following inlines outside the file's directory too when
+/// `allow_outside_inlines`.
+pub fn summarize_with(path: &Path, limits: &Limits, allow_outside_inlines: bool) -> Result<Summary, InspectError> {
     let r = SctReader::open(path, limits)?;
     let canon = std::fs::canonicalize(path).map_err(|e| sct_format::Error::io(path, e))?;
     let g = r.graph();
@@ -359,7 +377,8 @@ pub fn summarize(path: &Path, limits: &Limits) -> Result<Summary, InspectError> 
         g.nodes.iter().filter_map(|n| if let GraphNode::Group { tree, .. } = n { Some(*tree as usize) } else { None }).collect();
     let leaves: u64 = trees.iter().filter(|t| !group_trees.contains(&t.index)).map(|t| t.leaves).sum();
     let nodes: u64 = trees.iter().map(|t| t.nodes).sum();
-    let mut lc = LeafCounter { limits: limits.clone(), files: HashMap::new(), stack: vec![canon.clone()], complete: true };
+    let root = (!allow_outside_inlines).then(|| sct_format::traverse::scene_root(&canon));
+    let mut lc = LeafCounter { limits: limits.clone(), root, files: HashMap::new(), stack: vec![canon.clone()], complete: true };
     let leaves_expanded = lc.file(&r, &canon);
     let sections = r
         .sections()
@@ -541,7 +560,9 @@ pub fn parse_path(p: &str) -> Result<Vec<u8>, InspectError> {
 
 /// Prints the scene graph, then the scene tree below `path` (an abstract path, see
 /// [`sct_format::traverse`]) down `levels` levels, attributes decoded and in world space.
-pub fn dump(file: &Path, path: &str, levels: usize, limits: &Limits, w: &mut dyn Write) -> Result<(), InspectError> {
+/// Only the branch towards `path` is traversed. Inlines leave the file's directory only with
+/// `allow_outside_inlines`.
+pub fn dump(file: &Path, path: &str, levels: usize, limits: &Limits, allow_outside_inlines: bool, w: &mut dyn Write) -> Result<(), InspectError> {
     let steps = parse_path(path)?;
     let r = SctReader::open(file, limits)?;
     writeln!(w, "scene graph of {} (root = node {}):", file.display(), r.graph().root)?;
@@ -558,10 +579,19 @@ pub fn dump(file: &Path, path: &str, levels: usize, limits: &Limits, w: &mut dyn
         writeln!(w, "  [{i}] {d}")?;
     }
     // The deepest reached tree whose root path is a prefix of the requested path.
-    let opts = TraverseOptions { limits: limits.clone(), verify_inline_hashes: false };
+    let opts = TraverseOptions { limits: limits.clone(), verify_inline_hashes: false, allow_outside_inlines };
     let mut best: Option<(usize, sct_format::traverse::Reached)> = None;
-    for item in Traversal::open(file, opts)? {
-        let Ok(reached) = item else { continue };
+    let mut traversal = Traversal::open(file, opts)?;
+    // Only nodes on the way to the requested path can hold it: every other branch is skipped
+    // before it is expanded, so shared subgraphs are not walked path by path.
+    let want = steps.clone();
+    traversal.set_cull(move |_, p| parse_path(p).is_ok_and(|ps| want.starts_with(&ps)));
+    for item in traversal {
+        let reached = match item {
+            Ok(r) => r,
+            Err(e) if e.is_visit_limit() => return Err(traverse_fatal(e)),
+            Err(_) => continue,
+        };
         let Ok(rs) = parse_path(&reached.path) else { continue };
         if steps.starts_with(&rs) && best.as_ref().is_none_or(|(l, _)| rs.len() >= *l) {
             best = Some((rs.len(), reached));
@@ -572,6 +602,14 @@ pub fn dump(file: &Path, path: &str, levels: usize, limits: &Limits, w: &mut dyn
     };
     let rest = &steps[depth..];
     let tree = reached.file.read_tree_levels(reached.tree, rest.len() + levels)?;
+    if tree.is_empty() {
+        // An empty tree (node count 0, spec §6.2) has no node to print, not even a root.
+        if !rest.is_empty() {
+            return Err(InspectError::Usage(format!("{} is an empty tree (tree {}): {path} does not exist", reached.path, reached.tree)));
+        }
+        writeln!(w, "{path} of {} is empty tree {} (graph node {}): no nodes", file.display(), reached.tree, reached.graph_node)?;
+        return Ok(());
+    }
     let mut at = 0usize;
     for (k, &s) in rest.iter().enumerate() {
         match tree.children(at) {

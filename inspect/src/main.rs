@@ -10,7 +10,7 @@ use std::process::ExitCode;
 use clap::Parser;
 use inspect::coverage::{DEFAULT_MIN_COVERAGE, DEFAULT_POINTS, DEFAULT_SEED};
 use inspect::{
-    coverage_against, dump, summarize, validate_file, write_coverage, write_json, write_text, write_validation, AgainstOptions, InspectError,
+    coverage_against, dump, summarize_with, validate_file, write_coverage, write_json, write_text, write_validation, AgainstOptions, InspectError,
     ValidateOptions,
 };
 use sct_format::Limits;
@@ -76,6 +76,10 @@ struct Cli {
     /// Refuse exports of more points than this.
     #[arg(long, value_name = "N", default_value_t = inspect::export::DEFAULT_MAX_POINTS, requires = "export_ply")]
     max_points: u64,
+    /// Follow inlines whose target (symlinks resolved) lies outside the file's directory. Off
+    /// by default: such inlines are reported (inline-outside) and their targets not opened.
+    #[arg(long)]
+    allow_outside_inlines: bool,
 }
 
 fn fraction(s: &str) -> Result<f64, String> {
@@ -97,7 +101,7 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
     let limits = Limits::default();
     let mut out = std::io::stdout().lock();
     if let Some(ply) = &cli.export_ply {
-        let e = inspect::export::export_ply(&cli.file, ply, cli.export_level, cli.max_points, &limits)?;
+        let e = inspect::export::export_ply(&cli.file, ply, cli.export_level, cli.max_points, &limits, cli.allow_outside_inlines)?;
         if cli.json {
             serde_json::to_writer_pretty(&mut out, &e).map_err(std::io::Error::from)?;
             writeln!(out)?;
@@ -107,20 +111,27 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
         return Ok(0);
     }
     if let Some(p) = &cli.dump {
-        dump(&cli.file, p, cli.levels, &limits, &mut out)?;
+        dump(&cli.file, p, cli.levels, &limits, cli.allow_outside_inlines, &mut out)?;
         return Ok(0);
     }
     let validation = if cli.validate || cli.deep {
-        Some(validate_file(&cli.file, &ValidateOptions { deep: cli.deep, limits: limits.clone() })?)
+        Some(validate_file(&cli.file, &ValidateOptions { deep: cli.deep, limits: limits.clone(), allow_outside_inlines: cli.allow_outside_inlines })?)
     } else {
         None
     };
     let invalid = validation.as_ref().is_some_and(|v| !v.is_valid());
-    match summarize(&cli.file, &limits) {
+    match summarize_with(&cli.file, &limits, cli.allow_outside_inlines) {
         Ok(mut s) => {
             s.validation = validation;
             if let Some(mesh) = &cli.against {
-                let opts = AgainstOptions { points: cli.points, seed: cli.seed, min_coverage: cli.min_coverage, limits: limits.clone(), ..Default::default() };
+                let opts = AgainstOptions {
+                    points: cli.points,
+                    seed: cli.seed,
+                    min_coverage: cli.min_coverage,
+                    limits: limits.clone(),
+                    allow_outside_inlines: cli.allow_outside_inlines,
+                    ..Default::default()
+                };
                 s.coverage = Some(coverage_against(&cli.file, mesh, &opts)?);
             }
             if cli.json {

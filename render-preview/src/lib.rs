@@ -109,6 +109,8 @@ pub struct RenderOptions {
     pub background: [u8; 3],
     /// Reader limits.
     pub limits: Limits,
+    /// Follow inlines whose target lies outside the scene file's directory.
+    pub allow_outside_inlines: bool,
 }
 
 impl Default for RenderOptions {
@@ -130,6 +132,7 @@ impl Default for RenderOptions {
             backface_culling: true,
             background: [24, 24, 28],
             limits: Limits::default(),
+            allow_outside_inlines: false,
         }
     }
 }
@@ -341,6 +344,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
 pub fn render_file(path: &Path, opts: &RenderOptions) -> Result<Rendered> {
     let t0 = Instant::now();
     let mut files = SceneFiles::open(path, &opts.limits)?;
+    files.set_allow_outside_inlines(opts.allow_outside_inlines);
     let open = t0.elapsed().as_secs_f64();
     let mut out = render(&mut files, opts)?;
     out.stats.seconds.open = open;

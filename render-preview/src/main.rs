@@ -115,6 +115,9 @@ struct RenderArgs {
     /// Background colour as RRGGBB hex.
     #[arg(long, default_value = "18181c", value_parser = parse_hex)]
     background: [u8; 3],
+    /// Follow inlines whose target lies outside the scene file's directory.
+    #[arg(long)]
+    allow_outside_inlines: bool,
 }
 
 impl RenderArgs {
@@ -141,6 +144,7 @@ impl RenderArgs {
             lod_size: self.lod_size,
             backface_culling: !self.no_backface_culling,
             background: self.background,
+            allow_outside_inlines: self.allow_outside_inlines,
             ..RenderOptions::default()
         }
     }

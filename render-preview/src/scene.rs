@@ -13,7 +13,7 @@ use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
-use sct_format::traverse::{hex, TraversalState, TraverseErrorKind};
+use sct_format::traverse::{hex, resolve_inline, scene_root, TraversalState, TraverseErrorKind, VisitBudget};
 use sct_format::{GraphNode, Limits, Node, SctReader};
 
 use crate::camera::View;
@@ -38,6 +38,9 @@ pub struct SceneFiles {
     limits: Limits,
     /// Check inline targets' BLAKE3 hashes (on by default).
     verify_inline_hashes: bool,
+    /// The directory inline targets must stay in, unless `allow_outside_inlines`.
+    root: PathBuf,
+    allow_outside_inlines: bool,
 }
 
 impl std::fmt::Debug for SceneFiles {
@@ -76,8 +79,9 @@ struct Visit {
 impl SceneFiles {
     /// Opens `path` (parsing only its index).
     pub fn open(path: &Path, limits: &Limits) -> Result<SceneFiles> {
-        let mut s = SceneFiles { files: Vec::new(), by_path: HashMap::new(), limits: limits.clone(), verify_inline_hashes: true };
         let canon = std::fs::canonicalize(path).map_err(|e| Error::sct(path, sct_format::Error::io(path, e)))?;
+        let root = scene_root(&canon);
+        let mut s = SceneFiles { files: Vec::new(), by_path: HashMap::new(), limits: limits.clone(), verify_inline_hashes: true, root, allow_outside_inlines: false };
         let reader = SctReader::open(&canon, limits).map_err(|e| Error::sct(path, e))?;
         s.add_file(canon, reader);
         Ok(s)
@@ -86,6 +90,11 @@ impl SceneFiles {
     /// Turns the BLAKE3 check of inline targets off (it reads each target file whole once).
     pub fn set_verify_inline_hashes(&mut self, on: bool) {
         self.verify_inline_hashes = on;
+    }
+
+    /// Follows inlines whose target lies outside the scene file's directory (off by default).
+    pub fn set_allow_outside_inlines(&mut self, on: bool) {
+        self.allow_outside_inlines = on;
     }
 
     fn add_file(&mut self, canon: PathBuf, reader: SctReader) -> usize {
@@ -99,9 +108,8 @@ impl SceneFiles {
     /// the checks of `sct_format::traverse` in the same order: target present, not already
     /// on the branch, depth limit, hash.
     fn follow_inline(&mut self, chain: &Chain, rel: &str, hash: &[u8; 32]) -> std::result::Result<usize, TraverseErrorKind> {
-        let dir = self.files[chain.file].path.parent().unwrap_or(Path::new("."));
-        let target = dir.join(rel);
-        let canon = std::fs::canonicalize(&target).map_err(|source| TraverseErrorKind::InlineMissing { target: target.clone(), source })?;
+        let root = (!self.allow_outside_inlines).then_some(self.root.as_path());
+        let canon = resolve_inline(&self.files[chain.file].path, rel, root)?;
         let known = self.by_path.get(&canon).copied();
         if known.is_some_and(|k| chain.contains(k)) {
             let mut files = Vec::new();
@@ -129,7 +137,10 @@ impl SceneFiles {
         };
         if self.verify_inline_hashes {
             let f = &mut self.files[k];
-            let found = *f.hash.get_or_insert_with(|| *blake3::hash(f.reader.bytes()).as_bytes());
+            let found = match f.hash {
+                Some(h) => h,
+                None => *f.hash.insert(f.reader.content_hash().map_err(TraverseErrorKind::Read)?),
+            };
             if &found != hash {
                 return Err(TraverseErrorKind::InlineHash { target: canon, expected: hex(hash), found: hex(&found) });
             }
@@ -227,8 +238,12 @@ impl SceneFiles {
         let root = self.files[0].reader.graph().root;
         let chain = Rc::new(Chain { file: 0, parent: None, depth: 0 });
         queue.push_back(Visit { chain, node: root, state: TraversalState::IDENTITY });
+        // Shared groups make the paths through a small graph exponential in number: every
+        // visit counts against the limit sct_format's traversal enforces.
+        let mut budget = VisitBudget::new(&self.limits);
         while let Some(v) = queue.pop_front() {
             let fi = v.chain.file;
+            budget.charge(1).map_err(|e| Error::sct(&self.files[fi].path, e))?;
             let f = &self.files[fi];
             let gnode = f
                 .reader

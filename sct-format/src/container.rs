@@ -154,59 +154,11 @@ impl<'a> Container<'a> {
     /// Parses and checks the header and section table. `known` lists the tags this reader
     /// understands; unknown required sections are an error, unknown optional ones skipped.
     pub fn parse(data: &'a [u8], magic: [u8; 8], expected: &'static str, known: &[[u8; 4]], limits: &Limits) -> Result<Self> {
-        let found_magic = data.get(..8).unwrap_or(data);
-        if found_magic != magic {
-            return Err(Error::BadMagic { expected, found: found_magic.to_vec() });
-        }
-        let mut c = Cursor::new(data, 0);
-        let header = FileHeader::parse(&mut c)?;
-        let computed = crc32fast::hash(&data[..FILE_HEADER_LEN - 4]);
-        if computed != header.header_crc {
-            return Err(Error::Checksum { what: "file header".into(), offset: 0, stored: header.header_crc, computed });
-        }
-        if header.major != MAJOR {
-            return Err(Error::UnsupportedVersion { major: header.major, minor: header.minor, supported: MAJOR });
-        }
-        if header.file_length != data.len() as u64 {
-            return Err(Error::malformed(
-                32,
-                format!("header says the file has {} bytes, it has {} (truncated or extended)", header.file_length, data.len()),
-            ));
-        }
-        Limits::check("section count", header.section_count as u64, limits.max_sections as u64)?;
+        let header = parse_header(data, data.len() as u64, magic, expected)?;
         let table_len = (header.section_count as u64) * SECTION_ENTRY_LEN as u64;
+        Limits::check("section count", header.section_count as u64, limits.max_sections as u64)?;
         let table = slice(data, header.section_table_offset, table_len, "section table")?;
-        let computed = crc32fast::hash(table);
-        if computed != header.table_crc {
-            return Err(Error::Checksum {
-                what: "section table".into(),
-                offset: header.section_table_offset,
-                stored: header.table_crc,
-                computed,
-            });
-        }
-        let mut c = Cursor::new(table, header.section_table_offset);
-        let mut sections = Vec::with_capacity(header.section_count as usize);
-        let mut skipped = Vec::new();
-        for _ in 0..header.section_count {
-            let at = c.offset();
-            let e = SectionEntry::parse(&mut c)?;
-            slice(data, e.offset, e.stored_len, "section data")
-                .map_err(|_| Error::malformed(at, format!("section {} lies outside the file", e.tag_str())))?;
-            if !e.compressed() && e.raw_len != e.stored_len {
-                return Err(Error::malformed(at, format!("uncompressed section {} has raw length != stored length", e.tag_str())));
-            }
-            if e.flags & !(SectionEntry::REQUIRED | SectionEntry::ZSTD) != 0 {
-                return Err(Error::malformed(at + 4, format!("section {} has reserved flag bits set", e.tag_str())));
-            }
-            if known.contains(&e.tag) {
-                sections.push(e);
-            } else if e.required() {
-                return Err(Error::UnknownRequiredSection { tag: e.tag_str(), offset: at });
-            } else {
-                skipped.push(e.tag_str());
-            }
-        }
+        let (sections, skipped) = parse_table(&header, table, data.len() as u64, known, limits)?;
         Ok(Container { data, header, sections, skipped })
     }
 
@@ -222,14 +174,7 @@ impl<'a> Container<'a> {
 
     /// The only section with `tag`; an error if it is missing or repeated.
     pub fn single(&self, tag: [u8; 4]) -> Result<&SectionEntry> {
-        let mut it = self.sections_with(tag);
-        let first = it.next().ok_or_else(|| {
-            Error::malformed(self.header.section_table_offset, format!("required section {} is missing", tag.escape_ascii()))
-        })?;
-        if it.next().is_some() {
-            return Err(Error::malformed(self.header.section_table_offset, format!("section {} appears twice", tag.escape_ascii())));
-        }
-        Ok(first)
+        single_in(&self.sections, tag, self.header.section_table_offset)
     }
 
     /// Stored bytes of a section, without checking the CRC.
@@ -258,6 +203,99 @@ impl<'a> Container<'a> {
     }
 }
 
+/// The only section of `sections` with `tag`; an error (at the section table,
+/// `table_offset`) if it is missing or repeated.
+pub(crate) fn single_in(sections: &[SectionEntry], tag: [u8; 4], table_offset: u64) -> Result<&SectionEntry> {
+    let mut it = sections.iter().filter(|e| e.tag == tag);
+    let first = it.next().ok_or_else(|| Error::malformed(table_offset, format!("required section {} is missing", tag.escape_ascii())))?;
+    if it.next().is_some() {
+        return Err(Error::malformed(table_offset, format!("section {} appears twice", tag.escape_ascii())));
+    }
+    Ok(first)
+}
+
+/// Checks the file header at the start of `head` (at least its first bytes) for a file of
+/// `file_len` bytes, in the order of spec §2.1: magic, header CRC, major version, length.
+pub(crate) fn parse_header(head: &[u8], file_len: u64, magic: [u8; 8], expected: &'static str) -> Result<FileHeader> {
+    let found_magic = head.get(..8).unwrap_or(head);
+    if found_magic != magic {
+        return Err(Error::BadMagic { expected, found: found_magic.to_vec() });
+    }
+    let mut c = Cursor::new(head, 0);
+    let header = FileHeader::parse(&mut c)?;
+    let computed = crc32fast::hash(&head[..FILE_HEADER_LEN - 4]);
+    if computed != header.header_crc {
+        return Err(Error::Checksum { what: "file header".into(), offset: 0, stored: header.header_crc, computed });
+    }
+    if header.major != MAJOR {
+        return Err(Error::UnsupportedVersion { major: header.major, minor: header.minor, supported: MAJOR });
+    }
+    if header.file_length != file_len {
+        return Err(Error::malformed(
+            32,
+            format!("header says the file has {} bytes, it has {file_len} (truncated or extended)", header.file_length),
+        ));
+    }
+    Ok(header)
+}
+
+/// Parses and checks the section table `table` (the `40 × section_count` bytes at
+/// `header.section_table_offset`) of a file of `file_len` bytes: its CRC, every entry's
+/// range and flags, and that no two of the header, the table and the sections overlap (a
+/// section aliasing another's bytes would make a reader do the same work twice, or
+/// thousands of times, for one stored copy). Returns the known sections in table order and
+/// the tags of the skipped unknown optional ones.
+pub(crate) fn parse_table(header: &FileHeader, table: &[u8], file_len: u64, known: &[[u8; 4]], limits: &Limits) -> Result<(Vec<SectionEntry>, Vec<String>)> {
+    Limits::check("section count", header.section_count as u64, limits.max_sections as u64)?;
+    let computed = crc32fast::hash(table);
+    if computed != header.table_crc {
+        return Err(Error::Checksum { what: "section table".into(), offset: header.section_table_offset, stored: header.table_crc, computed });
+    }
+    let mut c = Cursor::new(table, header.section_table_offset);
+    let mut sections = Vec::with_capacity(header.section_count as usize);
+    let mut skipped = Vec::new();
+    // (start, end, what, entry offset) of every non-empty range of the file, for the overlap check.
+    let mut ranges: Vec<(u64, u64, String, u64)> = Vec::with_capacity(header.section_count as usize + 2);
+    ranges.push((0, FILE_HEADER_LEN as u64, "the file header".into(), 0));
+    let table_end = header.section_table_offset.saturating_add(table.len() as u64);
+    ranges.push((header.section_table_offset, table_end, "the section table".into(), 24));
+    for i in 0..header.section_count {
+        let at = c.offset();
+        let e = SectionEntry::parse(&mut c)?;
+        if e.offset.checked_add(e.stored_len).is_none_or(|end| end > file_len) {
+            return Err(Error::malformed(at, format!("section {} lies outside the file", e.tag_str())));
+        }
+        if !e.compressed() && e.raw_len != e.stored_len {
+            return Err(Error::malformed(at, format!("uncompressed section {} has raw length != stored length", e.tag_str())));
+        }
+        if e.flags & !(SectionEntry::REQUIRED | SectionEntry::ZSTD) != 0 {
+            return Err(Error::malformed(at + 4, format!("section {} has reserved flag bits set", e.tag_str())));
+        }
+        ranges.push((e.offset, e.offset + e.stored_len, format!("section {i} ({})", e.tag_str()), at));
+        if known.contains(&e.tag) {
+            sections.push(e);
+        } else if e.required() {
+            return Err(Error::UnknownRequiredSection { tag: e.tag_str(), offset: at });
+        } else {
+            skipped.push(e.tag_str());
+        }
+    }
+    ranges.retain(|r| r.1 > r.0);
+    ranges.sort_by_key(|r| (r.0, r.1));
+    for w in ranges.windows(2) {
+        let (a, b) = (&w[0], &w[1]);
+        if b.0 < a.1 {
+            // Reported at the table entry of the later-starting range (the header's own
+            // offset field when it is the table that overlaps).
+            return Err(Error::malformed(
+                b.3,
+                format!("{} (bytes {}..{}) overlaps {} (bytes {}..{}): sections must not overlap", b.2, b.0, b.1, a.2, a.0, a.1),
+            ));
+        }
+    }
+    Ok((sections, skipped))
+}
+
 /// `data[offset..offset + len]`, or a malformed error naming `what`.
 pub(crate) fn slice<'d>(data: &'d [u8], offset: u64, len: u64, what: &str) -> Result<&'d [u8]> {
     let end = offset.checked_add(len).filter(|&e| e <= data.len() as u64).ok_or_else(|| {
@@ -266,20 +304,27 @@ pub(crate) fn slice<'d>(data: &'d [u8], offset: u64, len: u64, what: &str) -> Re
     Ok(&data[offset as usize..end as usize])
 }
 
-/// Decompresses one zstd frame that must inflate to exactly `raw_len` bytes (what follows
-/// the frame is ignored). Memory grows with the data actually produced, never with the
-/// claimed length alone: a frame whose claim is plausible (at most 8 times its stored size)
-/// is decompressed in one pass straight into a buffer of the claimed size, which bounds it;
-/// any other streams into a buffer that grows as data comes out.
+/// Decompresses `stored`, which must be exactly one zstd frame (spec §1: bytes after the
+/// frame are malformed, not ignored) inflating to exactly `raw_len` bytes. Memory grows with
+/// the data actually produced and never past `raw_len`, so callers bound `raw_len` by what
+/// the section or block can mean before calling: a frame whose claim is plausible (at most
+/// 8 times its stored size) is decompressed in one pass straight into a buffer of the
+/// claimed size, which bounds it; any other streams into a buffer that grows as data comes
+/// out.
 pub(crate) fn decompress(stored: &[u8], raw_len: u64, offset: u64, limits: &Limits) -> Result<Vec<u8>> {
     Limits::check("decompressed size", raw_len, limits.max_decompressed_bytes)?;
+    let corrupt = |code: usize| Error::malformed(offset, format!("zstd data is corrupt: {}", zstd::zstd_safe::get_error_name(code)));
+    let frame_len = zstd::zstd_safe::find_frame_compressed_size(stored).map_err(corrupt)?;
+    if frame_len != stored.len() {
+        return Err(Error::malformed(
+            offset,
+            format!("{} bytes follow the zstd frame ({frame_len} bytes): the stored bytes must be exactly one frame", stored.len().saturating_sub(frame_len)),
+        ));
+    }
     let plausible = stored.len() as u64 * 8 + 4096;
     if raw_len <= plausible {
-        let corrupt = |code: usize| Error::malformed(offset, format!("zstd data is corrupt: {}", zstd::zstd_safe::get_error_name(code)));
-        let frame_len = zstd::zstd_safe::find_frame_compressed_size(stored).map_err(corrupt)?;
-        let frame = stored.get(..frame_len).ok_or_else(|| Error::malformed(offset, "zstd frame is longer than its section"))?;
         let mut out = Vec::with_capacity(raw_len as usize);
-        inflate_into(frame, &mut out, offset)?;
+        inflate_into(stored, &mut out, offset)?;
         if out.len() as u64 != raw_len {
             return Err(Error::malformed(offset, format!("decompressed to {} bytes, expected {raw_len}", out.len())));
         }

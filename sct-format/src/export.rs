@@ -58,11 +58,17 @@ pub struct ExportSummary {
     pub placements: u64,
 }
 
+/// Points a PLY export of `file` writes: every placement of every mesh, from the tables
+/// alone (the samples need not be decoded).
+fn placed_points(file: &SamplesFile) -> u64 {
+    let count = |m: u32| file.meshes.get(m as usize).map_or(0, |e| e.count);
+    file.instances.iter().map(|i| count(i.mesh)).chain(file.affine_instances.iter().map(|i| count(i.mesh))).fold(0u64, u64::saturating_add)
+}
+
 /// Writes every sample of `file` in world space (each placement of each mesh, similarity
 /// and affine) to `out`, atomically. Refuses more than `max_points` points.
 pub fn samples_to_ply(file: &SamplesFile, out: &Path, max_points: u64) -> Result<ExportSummary> {
-    let count = |m: u32| file.meshes.get(m as usize).map_or(0, |e| e.count);
-    let total: u64 = file.instances.iter().map(|i| count(i.mesh)).chain(file.affine_instances.iter().map(|i| count(i.mesh))).sum();
+    let total = placed_points(file);
     if total > max_points {
         return Err(Error::LimitExceeded { what: "PLY export points", value: total, limit: max_points });
     }
@@ -87,12 +93,27 @@ pub fn samples_to_ply(file: &SamplesFile, out: &Path, max_points: u64) -> Result
     Ok(ExportSummary { points: total, bytes: ply_size(out)?, placements })
 }
 
+/// Reads the samples file at `path` and exports it as [`samples_to_ply`] does. The
+/// `max_points` check runs on the tables, before any sample is decoded: a file that would
+/// export too many points costs no decoding.
+pub fn samples_file_to_ply(path: &Path, out: &Path, max_points: u64, limits: &crate::Limits) -> Result<ExportSummary> {
+    let file = SamplesFile::read_file_checked(path, limits, |tables, _| {
+        let total = placed_points(tables);
+        crate::Limits::check("PLY export points", total, max_points)
+    })?;
+    samples_to_ply(&file, out, max_points)
+}
+
 fn ply_size(out: &Path) -> Result<u64> {
     std::fs::metadata(out).map(|m| m.len()).map_err(|e| Error::io(out, e))
 }
 
 /// The level cut of one tree read to at most `level + 1` levels (module docs).
 pub fn level_cut(tree: &SceneTree, level: usize) -> Vec<Node> {
+    // An empty tree (node count 0, allowed by spec §6.2) has no level to cut.
+    if tree.is_empty() {
+        return Vec::new();
+    }
     let nodes = tree.nodes();
     let last = tree.level_count().saturating_sub(1).min(level);
     let mut out = Vec::new();
@@ -114,8 +135,12 @@ pub fn level_cut(tree: &SceneTree, level: usize) -> Vec<Node> {
 /// distinct tree is held once (40 bytes per cut node), however often it is instanced.
 pub fn scene_to_ply(sct: &Path, level: Option<usize>, out: &Path, opts: TraverseOptions, max_points: u64) -> Result<ExportSummary> {
     let level = level.unwrap_or(usize::MAX - 1);
-    let mut cuts: HashMap<(PathBuf, usize), Vec<Node>> = HashMap::new();
-    let mut placements: Vec<((PathBuf, usize), TraversalState)> = Vec::new();
+    // Each distinct tree's cut once; a placement is its cut's index and a state (88 bytes),
+    // and empty cuts place nothing, so placements are bounded by the points and by the
+    // traversal's visit limit.
+    let mut cut_of: HashMap<(PathBuf, usize), usize> = HashMap::new();
+    let mut cuts: Vec<Vec<Node>> = Vec::new();
+    let mut placements: Vec<(usize, TraversalState)> = Vec::new();
     let mut total: u64 = 0;
     for reached in Traversal::open(sct, opts)? {
         let r = reached.map_err(|e| match e.kind {
@@ -128,16 +153,25 @@ pub fn scene_to_ply(sct: &Path, level: Option<usize>, out: &Path, opts: Traverse
             continue;
         }
         let key = (r.file_path.clone(), r.tree);
-        if !cuts.contains_key(&key) {
-            let levels = level.saturating_add(1).min(r.file.trees().get(r.tree).map_or(0, |t| t.levels.len()));
-            let tree = r.file.read_tree_levels(r.tree, levels)?;
-            cuts.insert(key.clone(), level_cut(&tree, level));
+        let c = match cut_of.get(&key) {
+            Some(&c) => c,
+            None => {
+                let levels = level.saturating_add(1).min(r.file.trees().get(r.tree).map_or(0, |t| t.levels.len()));
+                let tree = r.file.read_tree_levels(r.tree, levels)?;
+                cuts.push(level_cut(&tree, level));
+                cut_of.insert(key, cuts.len() - 1);
+                cuts.len() - 1
+            }
+        };
+        let n = cuts.get(c).map_or(0, |v| v.len() as u64);
+        if n == 0 {
+            continue;
         }
-        total = total.saturating_add(cuts.get(&key).map_or(0, |c| c.len() as u64));
+        total = total.saturating_add(n);
         if total > max_points {
             return Err(Error::LimitExceeded { what: "PLY export points (choose a coarser level)", value: total, limit: max_points });
         }
-        placements.push((key, r.state));
+        placements.push((c, r.state));
     }
     crate::atomic::write_atomic(out, |w| {
         let io = |e| Error::io(out, e);
@@ -146,8 +180,8 @@ pub fn scene_to_ply(sct: &Path, level: Option<usize>, out: &Path, opts: Traverse
             l => format!("level {l} cut"),
         };
         header(w, total, &format!("SCT {what} of {} exported by sct-format {}", sct.display(), env!("CARGO_PKG_VERSION"))).map_err(io)?;
-        for (key, state) in &placements {
-            for n in cuts.get(key).map(Vec::as_slice).unwrap_or_default() {
+        for (c, state) in &placements {
+            for n in cuts.get(*c).map(Vec::as_slice).unwrap_or_default() {
                 point(w, &state.apply(n)).map_err(io)?;
             }
         }

@@ -45,6 +45,7 @@ pub mod codec;
 pub mod container;
 pub mod error;
 pub mod export;
+pub mod fsio;
 pub mod graph;
 pub mod geometry;
 pub mod limits;

@@ -23,6 +23,22 @@ pub struct Limits {
     pub max_string_bytes: u32,
     /// Deepest chain of inline files followed by a traversal.
     pub max_inline_depth: u32,
+    /// Largest in-memory size of one parsed scene graph, in bytes: every graph node counts
+    /// `max(size_of::<GraphNode>(), 77)` bytes (at least its largest fixed-size record), each
+    /// group child 4 and each inline path its length. Graph records can be 5 bytes on disk
+    /// and zstd packs thousands of them in a few bytes, so this, not the node cap, bounds the
+    /// graph's memory; since no record takes less memory than its stored bytes, it also caps
+    /// the decompressed `GRPH` section (at this plus its 12-byte head).
+    pub max_graph_bytes: u64,
+    /// Most graph nodes one traversal visits, counting a node once per path that reaches it
+    /// (a group child, an instance's child, an inline's root). Shared subgraphs make the paths
+    /// of a small graph exponential in number (a chain of groups that each use the previous
+    /// one twice), so every consumer that expands paths stops here.
+    pub max_traversal_visits: u64,
+    /// Largest memory for the decoded samples of one samples file, in bytes
+    /// (`size_of::<Node>()` = 40 per sample). Checked from the chunk headers (or the legacy
+    /// `SMPL` section's length) before anything is decoded.
+    pub max_sample_bytes: u64,
 }
 
 impl Default for Limits {
@@ -36,6 +52,9 @@ impl Default for Limits {
             max_samples: 1 << 31,
             max_string_bytes: 1 << 20,
             max_inline_depth: 64,
+            max_graph_bytes: 1 << 30,
+            max_traversal_visits: 10_000_000,
+            max_sample_bytes: 4 << 30,
         }
     }
 }
@@ -52,6 +71,9 @@ impl Limits {
             max_samples: u64::MAX,
             max_string_bytes: u32::MAX,
             max_inline_depth: u32::MAX,
+            max_graph_bytes: u64::MAX,
+            max_traversal_visits: u64::MAX,
+            max_sample_bytes: u64::MAX,
         }
     }
 

@@ -1,44 +1,55 @@
 //! Reading SCT files lazily (spec §2–§7).
 //!
-//! [`SctReader::open`] memory-maps the file and parses only the header, section table,
-//! generator, scene graph and each tree's index; node data is decoded block by block on
-//! request. [`SctReader::read_tree_levels`] reads the first `L` levels of a tree without
-//! touching deeper blocks (progressive loading); [`SctReader::decode_block`] gives random
-//! access at block granularity. [`SctReader::bytes_read`] counts the bytes actually used.
+//! [`SctReader::open`] opens the file (regular files only, [`crate::fsio::open_regular`])
+//! and reads only the header, section table, generator, scene graph and each tree's index;
+//! node data is read and decoded block by block on request. [`SctReader::read_tree_levels`]
+//! reads the first `L` levels of a tree without touching deeper blocks (progressive
+//! loading); [`SctReader::decode_block`] gives random access at block granularity.
+//! [`SctReader::bytes_read`] counts the bytes actually used.
+//!
+//! The file is read with positioned reads, not memory-mapped: a mapped file that another
+//! process truncates kills the reader with SIGBUS when it touches the lost pages, while a
+//! read past the new end is an I/O error. Measured on a 1.1 GB raw-profile file in the page
+//! cache, decoding every block costs the same either way (the copy out of the page cache is
+//! a few percent of decoding); see the `bench_read` note in `BENCHMARKS.md`.
 
-use std::ops::Deref;
+use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::OnceLock;
 
-use crate::codec::{decode_children, CodecParams, Profile};
-use crate::container::{decompress, slice, Container};
+use crate::codec::{block_raw_len, decode_children, CodecParams, Profile};
+use crate::container::{decompress, parse_header, parse_table, single_in};
 use crate::error::{Error, Result};
+use crate::fsio::Source;
 use crate::graph::{Generator, GraphNode, InstanceAttrs, Propagation, SceneGraph};
 use crate::limits::Limits;
 use crate::node::Node;
 use crate::raw::{
-    tags, BlockEntry, Cursor, FileHeader, LevelEntry, SectionEntry, TreeHeader, BLOCK_ENTRY_LEN, LEVEL_ENTRY_LEN, SCT_MAGIC,
-    TREE_HEADER_LEN,
+    tags, BlockEntry, Cursor, FileHeader, LevelEntry, SectionEntry, TreeHeader, BLOCK_ENTRY_LEN, FILE_HEADER_LEN, LEVEL_ENTRY_LEN, SCT_MAGIC,
+    SECTION_ENTRY_LEN, TREE_HEADER_LEN,
 };
 use crate::samples::{parse_generator, read_similarity};
 use crate::tree::SceneTree;
 use crate::write::kind;
 
-/// The bytes of an open file.
-enum Data {
-    Mapped(memmap2::Mmap),
-    Owned(Vec<u8>),
-}
-
-impl Deref for Data {
-    type Target = [u8];
-    fn deref(&self) -> &[u8] {
-        match self {
-            Data::Mapped(m) => m,
-            Data::Owned(v) => v,
-        }
+/// Bytes one scene-graph node counts against [`Limits::max_graph_bytes`]: its in-memory size,
+/// and at least 77, the largest fixed part of a record (an inline's), so that no record
+/// counts less than its stored bytes and the limit also bounds the decompressed section.
+pub const GRAPH_NODE_BYTES: u64 = {
+    let m = std::mem::size_of::<GraphNode>() as u64;
+    if m > 77 {
+        m
+    } else {
+        77
     }
-}
+};
+
+/// The quantity [`Limits::max_graph_bytes`] caps, as errors name it.
+const GRAPH_MEMORY: &str = "scene graph memory (bytes)";
+
+/// Bytes of the `GRPH` section's head (node count u64, root u32).
+const GRAPH_HEAD_BYTES: u64 = 12;
 
 /// The index of one tree: enough to locate and decode any block.
 #[derive(Clone, Debug, PartialEq)]
@@ -112,7 +123,7 @@ pub struct DecodedBlock {
 
 /// An open SCT file.
 pub struct SctReader {
-    data: Data,
+    src: Source<'static>,
     path: Option<PathBuf>,
     limits: Limits,
     header: FileHeader,
@@ -122,50 +133,74 @@ pub struct SctReader {
     graph: SceneGraph,
     trees: Vec<TreeIndex>,
     bytes_read: AtomicU64,
+    /// BLAKE3 of the file, once computed.
+    hash: OnceLock<[u8; 32]>,
 }
 
 impl std::fmt::Debug for SctReader {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("SctReader").field("path", &self.path).field("bytes", &self.data.len()).finish_non_exhaustive()
+        f.debug_struct("SctReader").field("path", &self.path).field("bytes", &self.src.len()).finish_non_exhaustive()
     }
 }
 
+/// The bytes of section `e` after its CRC check and (if flagged) decompression, refusing a
+/// raw length over `max_raw` (named `what`) before anything is read or inflated: the caller
+/// knows what the section can mean, and a frame inflates only as far as its claim.
+pub(crate) fn section_bytes_in<'s>(src: &'s Source<'_>, e: &SectionEntry, max_raw: u64, what: &'static str, limits: &Limits) -> Result<Cow<'s, [u8]>> {
+    Limits::check(what, e.raw_len, max_raw)?;
+    let stored = src.read(e.offset, e.stored_len, "section data")?;
+    let computed = crate::container::crc32(&stored);
+    if computed != e.crc {
+        return Err(Error::Checksum { what: format!("section {}", e.tag_str()), offset: e.offset, stored: e.crc, computed });
+    }
+    if !e.compressed() {
+        return Ok(stored);
+    }
+    decompress(&stored, e.raw_len, e.offset, limits).map(Cow::Owned)
+}
+
+/// Largest raw length of a `GRPH` section that can parse within `limits` (see
+/// [`GRAPH_NODE_BYTES`]).
+pub(crate) fn max_graph_section(limits: &Limits) -> u64 {
+    limits.max_graph_bytes.saturating_add(GRAPH_HEAD_BYTES)
+}
+
+/// The header and section table of an SCT file in `src` (spec §2).
+pub(crate) fn parse_container(src: &Source<'_>, limits: &Limits) -> Result<(FileHeader, Vec<SectionEntry>, Vec<String>)> {
+    let len = src.len();
+    let head = src.read(0, len.min(FILE_HEADER_LEN as u64), "file header")?;
+    let header = parse_header(&head, len, SCT_MAGIC, "SCT scene")?;
+    Limits::check("section count", header.section_count as u64, limits.max_sections as u64)?;
+    let table = src.read(header.section_table_offset, header.section_count as u64 * SECTION_ENTRY_LEN as u64, "section table")?;
+    let (sections, skipped) = parse_table(&header, &table, len, &[tags::GENR, tags::GRPH, tags::TREE], limits)?;
+    Ok((header, sections, skipped))
+}
+
 impl SctReader {
-    /// Opens and memory-maps `path`.
+    /// Opens `path` (a regular file; see [`crate::fsio::open_regular`]) and reads its index.
     pub fn open(path: &Path, limits: &Limits) -> Result<Self> {
-        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-        let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
-        let data = if len == 0 {
-            Data::Owned(Vec::new())
-        } else {
-            // SAFETY: the map is read-only; the SCT tools never modify a file in place
-            // (outputs are replaced by rename), so the bytes cannot change under us.
-            #[allow(unsafe_code)]
-            let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| Error::io(path, e))?;
-            Data::Mapped(map)
-        };
-        Self::parse(data, Some(path.to_path_buf()), limits)
+        Self::parse(Source::open(path)?, Some(path.to_path_buf()), limits)
     }
 
     /// Parses a file held in memory.
     pub fn from_bytes(bytes: Vec<u8>, limits: &Limits) -> Result<Self> {
-        Self::parse(Data::Owned(bytes), None, limits)
+        Self::parse(Source::Bytes(Cow::Owned(bytes)), None, limits)
     }
 
-    fn parse(data: Data, path: Option<PathBuf>, limits: &Limits) -> Result<Self> {
-        let known = [tags::GENR, tags::GRPH, tags::TREE];
-        let c = Container::parse(&data, SCT_MAGIC, "SCT scene", &known, limits)?;
-        let mut read = (crate::raw::FILE_HEADER_LEN + c.sections.len() * crate::raw::SECTION_ENTRY_LEN) as u64;
-        if c.sections.first().map(|e| e.tag) != Some(tags::GENR) {
-            return Err(Error::malformed(c.header.section_table_offset, "the first section must be the generator (GENR)"));
+    fn parse(src: Source<'static>, path: Option<PathBuf>, limits: &Limits) -> Result<Self> {
+        let (header, sections, skipped) = parse_container(&src, limits)?;
+        let mut read = (FILE_HEADER_LEN + sections.len() * SECTION_ENTRY_LEN) as u64;
+        if sections.first().map(|e| e.tag) != Some(tags::GENR) {
+            return Err(Error::malformed(header.section_table_offset, "the first section must be the generator (GENR)"));
         }
-        let genr = c.single(tags::GENR)?;
-        let generator = parse_generator(&c.section_bytes(genr, limits)?, genr.offset, limits)?;
+        let genr = single_in(&sections, tags::GENR, header.section_table_offset)?;
+        let bytes = section_bytes_in(&src, genr, limits.max_string_bytes as u64, "generator size", limits)?;
+        let generator = parse_generator(&bytes, genr.offset, limits)?;
         read += genr.stored_len;
-        let grph = c.single(tags::GRPH)?;
+        let grph = single_in(&sections, tags::GRPH, header.section_table_offset)?;
         let mut trees = Vec::new();
-        for e in c.sections_with(tags::TREE) {
-            let t = parse_tree_index(c.stored(e)?, e, limits)?;
+        for e in sections.iter().filter(|e| e.tag == tags::TREE) {
+            let t = parse_tree_index(&src, e, limits)?;
             if !t.header.root.is_finite() && t.header.node_count > 0 {
                 return Err(Error::malformed(e.offset + 32, "root node has non-finite or out-of-range attributes"));
             }
@@ -174,10 +209,23 @@ impl SctReader {
         }
         // After the tree indices, so that a bad tree reference is reported at its node.
         let leaves: Vec<u64> = trees.iter().map(|t| t.header.leaf_count).collect();
-        let graph = parse_graph(&c.section_bytes(grph, limits)?, grph.offset, limits, OnProblem::Fail, Some(&leaves))?.0;
+        let bytes = section_bytes_in(&src, grph, max_graph_section(limits), "scene graph section bytes", limits)?;
+        let graph = parse_graph(&bytes, grph.offset, limits, OnProblem::Fail, Some(&leaves))?.0;
+        drop(bytes);
         read += grph.stored_len;
-        let (header, sections, skipped) = (c.header.clone(), c.sections.clone(), c.skipped.clone());
-        Ok(SctReader { data, path, limits: limits.clone(), header, sections, skipped, generator, graph, trees, bytes_read: AtomicU64::new(read) })
+        Ok(SctReader {
+            src,
+            path,
+            limits: limits.clone(),
+            header,
+            sections,
+            skipped,
+            generator,
+            graph,
+            trees,
+            bytes_read: AtomicU64::new(read),
+            hash: OnceLock::new(),
+        })
     }
 
     /// The path the file was opened from.
@@ -186,11 +234,16 @@ impl SctReader {
     }
     /// File size in bytes.
     pub fn file_len(&self) -> u64 {
-        self.data.len() as u64
+        self.src.len()
     }
-    /// The whole file's bytes.
-    pub fn bytes(&self) -> &[u8] {
-        &self.data
+    /// BLAKE3 hash of the whole file (what an inline records), read in pieces (memory stays
+    /// small) the first time and remembered.
+    pub fn content_hash(&self) -> Result<[u8; 32]> {
+        if let Some(h) = self.hash.get() {
+            return Ok(*h);
+        }
+        let h = self.src.blake3()?;
+        Ok(*self.hash.get_or_init(|| h))
     }
     /// The limits in force.
     pub fn limits(&self) -> &Limits {
@@ -226,14 +279,15 @@ impl SctReader {
         self.bytes_read.load(Ordering::Relaxed)
     }
 
-    /// Verifies the CRC of every section (reads the whole file).
+    /// Verifies the CRC of every section (reads the whole file, a piece at a time).
     pub fn verify_checksums(&self) -> Result<()> {
-        let c = self.container();
-        self.sections.iter().try_for_each(|e| c.verify(e))
-    }
-
-    fn container(&self) -> Container<'_> {
-        Container { data: &self.data, header: self.header.clone(), sections: self.sections.clone(), skipped: Vec::new() }
+        for e in &self.sections {
+            let computed = self.src.crc32(e.offset, e.stored_len, "section data")?;
+            if computed != e.crc {
+                return Err(Error::Checksum { what: format!("section {}", e.tag_str()), offset: e.offset, stored: e.crc, computed });
+            }
+        }
+        Ok(())
     }
 
     /// Decodes block `b` of tree `t`; `parents` are the decoded parents of its sibling
@@ -243,7 +297,7 @@ impl SctReader {
         let tree = self.trees.get(t).ok_or_else(|| Error::Misuse(format!("no tree {t}")))?;
         let e = tree.blocks.get(b).ok_or_else(|| Error::Misuse(format!("tree {t} has no block {b}")))?;
         self.bytes_read.fetch_add(e.stored_len as u64, Ordering::Relaxed);
-        decode_block_in(&self.data, tree, b, parents, &self.limits).map_err(|e| match e {
+        decode_block_in(&self.src, tree, b, parents, &self.limits).map_err(|e| match e {
             Error::Checksum { offset, stored, computed, .. } => Error::Checksum { what: format!("tree {t} block {b}"), offset, stored, computed },
             e => e,
         })
@@ -272,30 +326,33 @@ impl SctReader {
     }
 }
 
-/// Decodes block `b` of `tree` from the whole file's bytes `data` (see
-/// [`SctReader::decode_block`]); shared with the validator, which has no reader for files
-/// the reader rejects.
-pub(crate) fn decode_block_in(data: &[u8], tree: &TreeIndex, b: usize, parents: &[Node], limits: &Limits) -> Result<DecodedBlock> {
+/// Decodes block `b` of `tree` from the file `src` (see [`SctReader::decode_block`]); shared
+/// with the validator, which has no reader for files the reader rejects. The index was
+/// checked by [`parse_tree_index`], so the block lies inside its section and its raw length
+/// is what its node count needs: nothing here inflates or allocates past that.
+pub(crate) fn decode_block_in(src: &Source<'_>, tree: &TreeIndex, b: usize, parents: &[Node], limits: &Limits) -> Result<DecodedBlock> {
     let e = tree.blocks.get(b).ok_or_else(|| Error::Misuse(format!("no block {b}")))?;
     if parents.len() * 2 != e.node_count as usize {
         return Err(Error::Misuse(format!("block {b} needs {} parents, {} given", e.node_count / 2, parents.len())));
     }
-    let section = slice(data, tree.section.offset, tree.section.stored_len, "tree section")?;
     let abs = tree.section.offset + e.offset;
-    let stored = slice(section, e.offset, e.stored_len as u64, "block").map_err(|_| Error::malformed(abs, format!("block {b} lies outside its section")))?;
-    let computed = crc32fast::hash(stored);
+    if e.offset.checked_add(e.stored_len as u64).is_none_or(|end| end > tree.section.stored_len) {
+        return Err(Error::malformed(abs, format!("block {b} lies outside its section")));
+    }
+    let stored = src.read(abs, e.stored_len as u64, "block")?;
+    let computed = crc32fast::hash(&stored);
     if computed != e.crc {
         return Err(Error::Checksum { what: format!("block {b} (level {})", e.level), offset: abs, stored: e.crc, computed });
     }
     let owned;
     let payload: &[u8] = if e.flags & 1 != 0 {
-        owned = decompress(stored, e.raw_len as u64, abs, limits)?;
+        owned = decompress(&stored, e.raw_len as u64, abs, limits)?;
         &owned
     } else {
         if e.raw_len != e.stored_len {
             return Err(Error::malformed(abs, format!("uncompressed block {b} with raw length != stored length")));
         }
-        stored
+        &stored
     };
     let n = e.node_count as usize;
     let mask_len = n.div_ceil(8);
@@ -325,9 +382,11 @@ pub(crate) fn read_levels(tree: &TreeIndex, max_levels: usize, decode: impl Fn(u
         t.set_two_sided(tree.two_sided());
         return Ok(t);
     }
-    let total: u64 = tree.levels[..levels].iter().map(|l| l.node_count).sum();
-    let mut nodes = Vec::with_capacity(total as usize);
-    let mut internal = Vec::with_capacity(total as usize);
+    // No reservation from the level table: its counts are claims, and a table claiming 2^32
+    // nodes of empty blocks once made this reserve 171 GB before the first block failed.
+    // The vectors grow with the nodes actually decoded.
+    let mut nodes = Vec::new();
+    let mut internal = Vec::new();
     nodes.push(tree.header.root);
     internal.push(tree.header.root_internal == 1);
     walk_levels(tree, levels, decode, |_, blk| {
@@ -385,8 +444,9 @@ pub(crate) fn walk_levels(
 /// trust it. Shared by the reader and the validator: a block past its section is reported
 /// as lying "past the end", an oversized block through [`Limits::check`], so the validator
 /// can tell truncation and limits from other inconsistencies.
-pub(crate) fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits) -> Result<TreeIndex> {
-    let mut c = Cursor::new(section, e.offset);
+pub(crate) fn parse_tree_index(src: &Source<'_>, e: &SectionEntry, limits: &Limits) -> Result<TreeIndex> {
+    let head = src.read(e.offset, e.stored_len.min(TREE_HEADER_LEN as u64), "tree header")?;
+    let mut c = Cursor::new(&head, e.offset);
     let header = TreeHeader::parse(&mut c)?;
     let at = e.offset;
     let profile = Profile::from_id(header.profile).ok_or_else(|| Error::malformed(at, format!("unknown profile id {}", header.profile)))?;
@@ -395,13 +455,26 @@ pub(crate) fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits
     }
     Limits::check("tree levels", header.level_count as u64, limits.max_tree_levels as u64)?;
     Limits::check("tree nodes", header.node_count, limits.max_tree_nodes)?;
-    let levels_bytes = c.take(header.level_count as usize * LEVEL_ENTRY_LEN, "level table")?;
-    let blocks_len = (header.block_count as usize).checked_mul(BLOCK_ENTRY_LEN).ok_or_else(|| Error::malformed(at, "block count overflows"))?;
-    let block_bytes = c.take(blocks_len, "block table")?;
-    let mut lc = Cursor::new(levels_bytes, at + TREE_HEADER_LEN as u64);
+    // The tables must fit in the section before they are read (their counts are claims).
+    let mut left = e.stored_len.saturating_sub(TREE_HEADER_LEN as u64);
+    let tables_at = at + TREE_HEADER_LEN as u64;
+    let mut table_len = 0u64;
+    for (what, len) in [("level table", header.level_count as u64 * LEVEL_ENTRY_LEN as u64), ("block table", header.block_count as u64 * BLOCK_ENTRY_LEN as u64)] {
+        if len > left {
+            return Err(Error::malformed(tables_at + table_len, format!("unexpected end of data reading {what} ({len} bytes needed, {left} left)")));
+        }
+        left -= len;
+        table_len += len;
+    }
+    let tables = src.read(tables_at, table_len, "tree tables")?;
+    let mut lc = Cursor::new(&tables, tables_at);
     let levels: Vec<LevelEntry> = (0..header.level_count).map(|_| LevelEntry::parse(&mut lc)).collect::<Result<_>>()?;
-    let mut bc = Cursor::new(block_bytes, lc.offset());
-    let blocks: Vec<BlockEntry> = (0..header.block_count).map(|_| BlockEntry::parse(&mut bc)).collect::<Result<_>>()?;
+    let blocks_at = lc.offset();
+    let blocks: Vec<BlockEntry> = (0..header.block_count).map(|_| BlockEntry::parse(&mut lc)).collect::<Result<_>>()?;
+    drop(tables);
+    // Offsets are relative to the section; block data starts after the tables.
+    let index_len = TREE_HEADER_LEN as u64 + table_len;
+    let params = CodecParams { alpha: header.flags & 1 == 1 };
 
     // Structural consistency of the index, so decoding can trust it.
     let node_sum = levels.iter().try_fold(0u64, |s, l| s.checked_add(l.node_count)).ok_or_else(|| Error::malformed(at, "level counts overflow"))?;
@@ -436,7 +509,7 @@ pub(crate) fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits
         let mut first = 0u64;
         let mut internal_before = 0u64;
         for (k, b) in blocks[l.first_block as usize..next_block as usize].iter().enumerate() {
-            let bw = lc.offset() + ((l.first_block as usize + k) * BLOCK_ENTRY_LEN) as u64;
+            let bw = blocks_at + ((l.first_block as usize + k) * BLOCK_ENTRY_LEN) as u64;
             let bi = l.first_block as usize + k;
             if b.offset.checked_add(b.stored_len as u64).is_none_or(|end| end > e.stored_len) {
                 return Err(Error::malformed(bw, format!("block {bi} (level {d}) extends past the end of its tree section")));
@@ -452,6 +525,23 @@ pub(crate) fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits
                 return Err(Error::malformed(bw, format!("block entry {bi} of level {d} is inconsistent ({b:?})")));
             }
             Limits::check("block decompressed bytes", b.raw_len as u64, limits.max_decompressed_bytes)?;
+            // A block's raw length follows from its node count (spec §6.3): checked here, so
+            // no block can make a reader inflate (or hold) more than its nodes need, and a
+            // table of empty blocks claiming billions of nodes fails before any is decoded.
+            let need = block_raw_len(profile, params, b.node_count as u64)
+                .ok_or_else(|| Error::malformed(bw, format!("block {bi} node count overflows")))?;
+            if b.raw_len as u64 != need {
+                return Err(Error::malformed(
+                    bw,
+                    format!("block {bi} (level {d}) has raw length {}, its {} nodes take {need} bytes in the {} profile", b.raw_len, b.node_count, profile.name()),
+                ));
+            }
+            if b.flags & 1 == 0 && b.stored_len != b.raw_len {
+                return Err(Error::malformed(bw, format!("uncompressed block {bi} (level {d}) has stored length {} != raw length {}", b.stored_len, b.raw_len)));
+            }
+            if b.offset < index_len && b.stored_len > 0 {
+                return Err(Error::malformed(bw, format!("block {bi} (level {d}) at {} overlaps the tree's header and tables ({index_len} bytes)", b.offset)));
+            }
             first += b.node_count as u64;
             internal_before = b.internal_before;
         }
@@ -466,9 +556,23 @@ pub(crate) fn parse_tree_index(section: &[u8], e: &SectionEntry, limits: &Limits
     if next_block != header.block_count {
         return Err(Error::malformed(at, "block table has blocks no level uses"));
     }
+    // Blocks must not overlap (spec §6.2): aliased blocks would be read, inflated and checked
+    // once per alias, so a small file could stand for unbounded work.
+    let mut ranges: Vec<(u64, u64, usize)> =
+        blocks.iter().enumerate().filter(|(_, b)| b.stored_len > 0).map(|(i, b)| (b.offset, b.offset + b.stored_len as u64, i)).collect();
+    ranges.sort_unstable();
+    for w in ranges.windows(2) {
+        let ((s0, e0, i0), (s1, e1, i1)) = (w[0], w[1]);
+        if s1 < e0 {
+            return Err(Error::malformed(
+                blocks_at + (i1 * BLOCK_ENTRY_LEN) as u64,
+                format!("block {i1} (bytes {s1}..{e1} of its section) overlaps block {i0} (bytes {s0}..{e0}): blocks must not overlap"),
+            ));
+        }
+    }
     Ok(TreeIndex {
         section: e.clone(),
-        params: CodecParams { alpha: header.flags & 1 == 1 },
+        params,
         header,
         profile,
         levels,
@@ -538,6 +642,11 @@ pub(crate) fn parse_graph(
     let mut c = Cursor::new(bytes, offset);
     let n = c.count(5, "graph node count")?;
     Limits::check("graph nodes", n as u64, limits.max_graph_nodes)?;
+    // Every node costs at least GRAPH_NODE_BYTES in memory, however few bytes its record
+    // takes: checked for all of them before any is parsed, then grown by what the records
+    // add (group children, inline paths) before those are allocated.
+    let mut memory = (n as u64).saturating_mul(GRAPH_NODE_BYTES);
+    Limits::check(GRAPH_MEMORY, memory, limits.max_graph_bytes)?;
     let root = c.u32("graph root")?;
     let mut nodes = Vec::with_capacity(n);
     let mut problems = GraphProblems::default();
@@ -566,6 +675,8 @@ pub(crate) fn parse_graph(
             kind::GROUP => {
                 let tree = c.u32("group tree")?;
                 let k = c.count(4, "group child count")?;
+                memory = memory.saturating_add(4 * k as u64);
+                Limits::check(GRAPH_MEMORY, memory, limits.max_graph_bytes)?;
                 let mut children = Vec::with_capacity(k);
                 for _ in 0..k {
                     let r = c.u32("group child")?;
@@ -593,6 +704,8 @@ pub(crate) fn parse_graph(
             }
             kind::INLINE => {
                 let path = c.string(limits.max_string_bytes, "inline path")?;
+                memory = memory.saturating_add(path.len() as u64);
+                Limits::check(GRAPH_MEMORY, memory, limits.max_graph_bytes)?;
                 let hash = c.array::<32>("inline hash")?;
                 let bound = crate::codec::raw::read_node(&c.array("inline bound")?);
                 if path.is_empty() || path.starts_with('/') || path.contains('\\') || path.contains('\0') {
@@ -648,6 +761,19 @@ mod tests {
         b.put_u64(k);
         (0..k).for_each(|_| b.put_u32(7));
         b
+    }
+
+    /// Item 2: the level table's counts are claims; reading reserves nothing for them (a
+    /// claim of 2^40 nodes used to be reserved before the first block was decoded).
+    #[test]
+    fn read_levels_reserves_nothing_from_claims() {
+        let e = SectionEntry { tag: tags::TREE, flags: 1, offset: 0, stored_len: 0, raw_len: 0, crc: 0 };
+        let header = TreeHeader { profile: 0, flags: 0, root_internal: 1, level_count: 2, node_count: (1 << 40) + 1, leaf_count: 1 << 39, block_count: 1, root: Node::default() };
+        let levels = vec![LevelEntry { node_count: 1, first_block: 0, block_count: 0 }, LevelEntry { node_count: 1 << 40, first_block: 0, block_count: 1 }];
+        let blocks = vec![BlockEntry { level: 1, node_count: 2, ..Default::default() }];
+        let tree = TreeIndex { section: e, header, profile: Profile::Raw, params: CodecParams::default(), levels, blocks };
+        let r = read_levels(&tree, usize::MAX, |_, _| Err(Error::malformed(7, "no such block")));
+        assert!(matches!(r, Err(Error::Malformed { offset: 7, .. })), "{r:?}");
     }
 
     /// The reader fails at the first bad child, naming it; it does not collect the others.

@@ -13,7 +13,6 @@
 //! both sides compress and decompress on every thread; the tables, known last, follow the
 //! samples, and the section table ends the file.
 
-use std::borrow::Cow;
 use std::io::{Seek, SeekFrom, Write};
 use std::path::Path;
 
@@ -235,12 +234,13 @@ impl SamplesFile {
     /// Parses a samples file from bytes.
     pub fn read(data: &[u8], limits: &Limits) -> Result<Self> {
         let (mut file, stored, at) = Self::read_tables(data, limits)?;
-        file.decode(stored, &at, limits)?;
+        file.decode(stored, &at)?;
         Ok(file)
     }
 
     /// Everything but the samples, which come back as stored (after the section's CRC check:
-    /// `SMPL` decompressed, `SMPS` or `SMPC` walked) with the offsets the table checks report.
+    /// `SMPL` located and sized, `SMPS` or `SMPC` walked) with the offsets the table checks
+    /// report.
     fn read_tables<'a>(data: &'a [u8], limits: &Limits) -> Result<(Self, StoredSamples<'a>, TableOffsets)> {
         let known = [tags::GENR, tags::MESH, tags::INST, tags::SMPL, SMPC, SMPS, AFFI, SIDE];
         let c = Container::parse(data, SAMPLES_MAGIC, "SCT samples", &known, limits)?;
@@ -248,13 +248,20 @@ impl SamplesFile {
             return Err(Error::malformed(c.header.section_table_offset, "the first section must be the generator (GENR)"));
         }
         let genr = c.single(tags::GENR)?;
+        // Sizes are checked by meaning before anything is inflated: the generator is a
+        // string, and each table, like the samples it places, at most the decoded-samples cap.
+        Limits::check("generator size", genr.raw_len, limits.max_string_bytes as u64)?;
         let generator = parse_generator(&c.section_bytes(genr, limits)?, genr.offset, limits)?;
+        let table_bytes = |e: &SectionEntry| {
+            Limits::check("samples table bytes", e.raw_len, limits.max_sample_bytes)?;
+            c.section_bytes(e, limits)
+        };
 
         let stored = stored_samples(&c, limits)?;
 
         let e = c.single(tags::MESH)?;
         let mesh_offset = e.offset;
-        let bytes = c.section_bytes(e, limits)?;
+        let bytes = table_bytes(e)?;
         let mut cur = Cursor::new(&bytes, e.offset);
         let n = cur.count(MESH_ENTRY_MIN, "mesh count")?;
         let mut meshes = Vec::with_capacity(n);
@@ -267,7 +274,7 @@ impl SamplesFile {
         cur.finish("mesh table")?;
 
         let e = c.single(tags::INST)?;
-        let bytes = c.section_bytes(e, limits)?;
+        let bytes = table_bytes(e)?;
         let mut cur = Cursor::new(&bytes, e.offset);
         let n = cur.count(INST_ENTRY_BYTES, "instance count")?;
         let mut instances = Vec::with_capacity(n);
@@ -283,7 +290,7 @@ impl SamplesFile {
         if c.sections.iter().any(|s| s.tag == AFFI) {
             let e = c.single(AFFI)?;
             offsets.affi = e.offset;
-            let bytes = c.section_bytes(e, limits)?;
+            let bytes = table_bytes(e)?;
             let mut cur = Cursor::new(&bytes, e.offset);
             let n = cur.count(AFFI_ENTRY_BYTES, "affine instance count")?;
             affine_instances.reserve(n);
@@ -321,53 +328,47 @@ impl SamplesFile {
         Ok((file, stored, offsets))
     }
 
-    /// Decodes the samples and checks the tables against them: for chunks before decoding
-    /// (the chunk walk gave the count), for `SMPL` after.
-    fn decode(&mut self, stored: StoredSamples<'_>, at: &TableOffsets, limits: &Limits) -> Result<()> {
-        match stored {
-            StoredSamples::Columns(columns, offset) => {
-                self.samples = decode_samples(&columns, offset, limits)?;
-                self.check_tables(at)
-            }
-            StoredSamples::Chunks(chunks, count, layout) => {
-                check_tables(&self.meshes, &self.instances, &self.affine_instances, count, at)?;
-                self.samples = decode_chunks(&chunks, layout)?;
-                Ok(())
-            }
-        }
+    /// Checks the tables against the sample count the stored samples declare, then decodes
+    /// them. Both layouts give the count before anything is decoded (chunks by their
+    /// headers, `SMPL` by its length), so a file whose tables disagree costs no decoding.
+    fn decode(&mut self, stored: StoredSamples<'_>, at: &TableOffsets) -> Result<()> {
+        check_tables(&self.meshes, &self.instances, &self.affine_instances, stored.count(), at)?;
+        self.samples = match stored {
+            StoredSamples::Legacy(l) => decode_legacy(&l)?,
+            StoredSamples::Chunks(chunks, count, layout) => decode_chunks(&chunks, count, layout)?,
+        };
+        Ok(())
     }
 
-    /// The table checks that need the sample count (see [`check_tables`]).
-    fn check_tables(&self, at: &TableOffsets) -> Result<()> {
-        check_tables(&self.meshes, &self.instances, &self.affine_instances, self.samples.len() as u64, at)
-    }
-
-    /// Reads a samples file from disk. For an `SMPL` file the bytes are freed before the
-    /// samples are decoded from the decompressed columns, so the peak is columns + samples
-    /// (76 bytes a sample), not file + columns + samples (92); a chunked file decodes chunk
-    /// by chunk from the file's bytes (about 56 for `SMPC`, less for `SMPS`).
+    /// Reads a samples file from disk (a regular file; see [`crate::fsio::open_regular`]).
+    /// Chunks decode chunk by chunk from the file's bytes, a legacy `SMPL` section streams
+    /// out of its frame: the peak is the file plus the samples (40 bytes each).
     pub fn read_file(path: &Path, limits: &Limits) -> Result<Self> {
-        Ok(Self::read_file_impl(path, limits, false)?.0)
+        Ok(Self::read_file_impl(path, limits, false, |_, _| Ok(()))?.0)
+    }
+
+    /// [`Self::read_file`], calling `check(tables, sample_count)` once the tables are read
+    /// and the samples located and counted, before any sample is decoded (`tables.samples` is
+    /// still empty): a caller that will refuse a file for what it holds (too many points to
+    /// export, say) refuses it before paying for the decoding.
+    pub fn read_file_checked(path: &Path, limits: &Limits, check: impl FnOnce(&SamplesFile, u64) -> Result<()>) -> Result<Self> {
+        Ok(Self::read_file_impl(path, limits, false, check)?.0)
     }
 
     /// [`Self::read_file`], also returning the BLAKE3 hash (lowercase hex) of the bytes read:
     /// provenance without reading the file twice, and of exactly the bytes the samples came
     /// from. Hashed on every thread ([`crate::atomic::hash_bytes`]) while the tables are read.
     pub fn read_file_hashed(path: &Path, limits: &Limits) -> Result<(Self, String)> {
-        let (file, hash) = Self::read_file_impl(path, limits, true)?;
+        let (file, hash) = Self::read_file_impl(path, limits, true, |_, _| Ok(()))?;
         Ok((file, hash.unwrap_or_default()))
     }
 
-    fn read_file_impl(path: &Path, limits: &Limits, hash: bool) -> Result<(Self, Option<String>)> {
+    fn read_file_impl(path: &Path, limits: &Limits, hash: bool, check: impl FnOnce(&SamplesFile, u64) -> Result<()>) -> Result<(Self, Option<String>)> {
         let data = read_whole(path)?;
         let (hash, tables) = rayon::join(|| hash.then(|| crate::atomic::hash_bytes(&data)), || Self::read_tables(&data, limits));
         let (mut file, stored, at) = tables?;
-        if let StoredSamples::Columns(Cow::Owned(columns), offset) = stored {
-            drop(data);
-            file.decode(StoredSamples::Columns(Cow::Owned(columns), offset), &at, limits)?;
-        } else {
-            file.decode(stored, &at, limits)?;
-        }
+        check(&file, stored.count())?;
+        file.decode(stored, &at)?;
         Ok((file, hash))
     }
     /// Samples of mesh `m`.
@@ -393,14 +394,11 @@ struct TableOffsets {
 /// B/leaf on the bunny). The pages beyond the file are reserved, never touched.
 const MIN_READ_CAPACITY: usize = (32 << 20) + (1 << 16);
 
-/// The whole file at `path` (as `std::fs::read`, with [`MIN_READ_CAPACITY`]).
+/// The whole regular file at `path`, in a buffer of at least [`MIN_READ_CAPACITY`]; never
+/// more than the size it had when opened (a FIFO, a device or a growing file cannot make
+/// the read endless; [`crate::fsio`]).
 fn read_whole(path: &Path) -> Result<Vec<u8>> {
-    use std::io::Read;
-    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let len = f.metadata().map(|m| m.len()).unwrap_or(0);
-    let mut data = Vec::with_capacity(usize::try_from(len).unwrap_or(0).saturating_add(1).max(MIN_READ_CAPACITY));
-    f.read_to_end(&mut data).map_err(|e| Error::io(path, e))?;
-    Ok(data)
+    crate::fsio::read_regular_with_capacity(path, u64::MAX, MIN_READ_CAPACITY)
 }
 
 fn check_tables(meshes: &[MeshEntry], instances: &[SampleInstance], affine: &[AffineInstance], samples: u64, at: &TableOffsets) -> Result<()> {
@@ -779,11 +777,32 @@ fn put_columns(samples: &[Node], out: &mut Vec<u8>) {
 
 /// The samples as stored, after the section's CRC check.
 enum StoredSamples<'a> {
-    /// `SMPL`: the decompressed column section and its offset.
-    Columns(Cow<'a, [u8]>, u64),
+    /// `SMPL`: one section of columns (one zstd frame), decoded as it inflates.
+    Legacy(Legacy<'a>),
     /// `SMPS` or `SMPC`: the chunks, walked and checked, the number of samples they hold and
     /// how a chunk lays out its samples.
     Chunks(Vec<Chunk<'a>>, u64, ChunkLayout),
+}
+
+impl StoredSamples<'_> {
+    /// The number of samples the stored bytes declare.
+    fn count(&self) -> u64 {
+        match self {
+            StoredSamples::Legacy(l) => l.count,
+            StoredSamples::Chunks(_, count, _) => *count,
+        }
+    }
+}
+
+/// A legacy `SMPL` section, located and sized but not inflated.
+struct Legacy<'a> {
+    /// The stored bytes (one zstd frame when `compressed`).
+    stored: &'a [u8],
+    compressed: bool,
+    /// Samples, from the section's raw length (`8 + 36 · count`).
+    count: u64,
+    /// The section's offset, for errors.
+    offset: u64,
 }
 
 /// How a chunk's inflated 36 · n bytes hold its samples.
@@ -810,7 +829,20 @@ fn stored_samples<'a>(c: &Container<'a>, limits: &Limits) -> Result<StoredSample
     match present[..] {
         [tag] if tag == tags::SMPL => {
             let e = c.single(tags::SMPL)?;
-            Ok(StoredSamples::Columns(c.section_bytes(e, limits)?, e.offset))
+            // The count follows from the raw length (8 + 36 per sample), so the limits are
+            // checked before anything is inflated; the frame is then decoded as it inflates,
+            // never held whole (a 4 GiB frame once took 9.8 GB: columns and samples).
+            let count = e.raw_len.checked_sub(8).filter(|b| b % SAMPLE_BYTES as u64 == 0).map(|b| b / SAMPLE_BYTES as u64).ok_or_else(|| {
+                Error::malformed(e.offset, format!("section SMPL of {} raw bytes is not a count and whole samples (8 + 36 per sample)", e.raw_len))
+            })?;
+            check_sample_totals(count, e.offset, limits)?;
+            Limits::check("decompressed size", e.raw_len, limits.max_decompressed_bytes)?;
+            c.verify(e)?;
+            let stored = c.stored(e)?;
+            if e.compressed() {
+                check_frame(stored, e.raw_len, e.offset)?;
+            }
+            Ok(StoredSamples::Legacy(Legacy { stored, compressed: e.compressed(), count, offset: e.offset }))
         }
         [tag] => {
             let e = c.single(tag)?;
@@ -850,13 +882,22 @@ fn walk_chunks<'a>(bytes: &'a [u8], offset: u64, limits: &Limits) -> Result<Vec<
         let frame_at = cur.offset();
         let frame = cur.take(len as usize, "chunk zstd frame")?;
         total = total.checked_add(u64::from(n)).ok_or_else(|| Error::malformed(at, "sample count overflows"))?;
-        Limits::check("sample count", total, limits.max_samples)?;
-        let raw = total.checked_mul(SAMPLE_BYTES as u64).ok_or_else(|| Error::malformed(at, "sample bytes overflow"))?;
-        Limits::check("decompressed size", raw, limits.max_decompressed_bytes)?;
+        check_sample_totals(total, at, limits)?;
         check_frame(frame, n as u64 * SAMPLE_BYTES as u64, frame_at)?;
         chunks.push(Chunk { n: n as usize, frame, offset: frame_at });
     }
     Ok(chunks)
+}
+
+/// The limits on a samples file's sample count, checked from the headers before anything is
+/// decoded: the count, its bytes as stored columns ([`Limits::max_decompressed_bytes`]) and
+/// its decoded memory ([`Limits::max_sample_bytes`], 40 bytes a sample).
+fn check_sample_totals(count: u64, at: u64, limits: &Limits) -> Result<()> {
+    Limits::check("sample count", count, limits.max_samples)?;
+    let raw = count.checked_mul(SAMPLE_BYTES as u64).ok_or_else(|| Error::malformed(at, "sample bytes overflow"))?;
+    Limits::check("decompressed size", raw, limits.max_decompressed_bytes)?;
+    let decoded = count.checked_mul(std::mem::size_of::<Node>() as u64).ok_or_else(|| Error::malformed(at, "sample bytes overflow"))?;
+    Limits::check("decoded sample bytes", decoded, limits.max_sample_bytes)
 }
 
 /// Cheap checks of a chunk's frame before anything is decompressed: exactly one frame, and
@@ -880,12 +921,19 @@ fn check_frame(frame: &[u8], raw_len: u64, offset: u64) -> Result<()> {
 /// frames do not inflate fails before the reader holds memory for every sample it claims.
 const DECODE_ROUND_CHUNKS: usize = 64;
 
-/// Decodes the chunks in parallel, each straight into its slice of the samples; the first
-/// bad chunk (in file order) is the error.
-fn decode_chunks(chunks: &[Chunk<'_>], layout: ChunkLayout) -> Result<Vec<Node>> {
+/// Decodes the chunks (`total` samples) in parallel, each straight into its slice of the
+/// samples; the first bad chunk (in file order) is the error.
+fn decode_chunks(chunks: &[Chunk<'_>], total: u64, layout: ChunkLayout) -> Result<Vec<Node>> {
     let mut samples: Vec<Node> = Vec::new();
+    let total = usize::try_from(total).map_err(|_| Error::LimitExceeded { what: "sample count", value: total, limit: usize::MAX as u64 })?;
     for round in chunks.chunks(DECODE_ROUND_CHUNKS) {
         let start = samples.len();
+        // Room a round at a time, doubling but never past the total (plain doubling could
+        // reserve twice what the file holds).
+        let want: usize = round.iter().map(|c| c.n).sum();
+        if samples.capacity() - start < want {
+            samples.reserve_exact(want.max(start).min(total.saturating_sub(start)).max(want));
+        }
         samples.par_extend(rayon::iter::repeat_n(Node::default(), round.iter().map(|c| c.n).sum()));
         let mut outs = Vec::with_capacity(round.len());
         let mut rest = &mut samples[start..];
@@ -944,29 +992,62 @@ fn node_from_columns(c: &[u8], r: &[u8], nm: &[u8], ar: &[u8], co: &[u8]) -> Nod
     Node { center: f3(c), radius: f1(r), normal: f3(nm), cone: 0.0, area: f1(ar), color: [co[0], co[1], co[2], co[3]] }
 }
 
-/// Decodes an `SMPL` section (files written before chunks): count, then whole columns.
-fn decode_samples(bytes: &[u8], offset: u64, limits: &Limits) -> Result<Vec<Node>> {
-    let mut c = Cursor::new(bytes, offset);
-    let n = c.count(SAMPLE_BYTES, "sample count")?;
-    Limits::check("sample count", n as u64, limits.max_samples)?;
-    let centers = c.take(n * 12, "sample centres")?;
-    let radii = c.take(n * 4, "sample radii")?;
-    let normals = c.take(n * 12, "sample normals")?;
-    let areas = c.take(n * 4, "sample areas")?;
-    let colors = c.take(n * 4, "sample colours")?;
-    c.finish("samples")?;
-    // Straight from the column bytes: no intermediate f32 columns (36 bytes a sample at the
-    // reader's peak). In parallel, zipping fixed-size records of the five columns (no
-    // per-value bounds checks), collected straight into the output.
-    Ok(centers
-        .par_chunks_exact(12)
-        .zip(radii.par_chunks_exact(4))
-        .zip(normals.par_chunks_exact(12))
-        .zip(areas.par_chunks_exact(4))
-        .zip(colors.par_chunks_exact(4))
-        .with_min_len(4096)
-        .map(|((((c, r), nm), ar), co)| node_from_columns(c, r, nm, ar, co))
-        .collect())
+/// Decodes a legacy `SMPL` section (files written before chunks): the count, then whole
+/// columns, read as the frame inflates, a piece at a time, into the samples. Memory is the
+/// samples (grown with the data produced, up to the count already checked against the
+/// limits) and one piece: a frame that does not inflate as claimed fails before the reader
+/// holds memory for samples it never produced.
+fn decode_legacy(l: &Legacy<'_>) -> Result<Vec<Node>> {
+    use std::io::Read;
+    let corrupt = |e: std::io::Error| Error::malformed(l.offset, format!("SMPL: {e}"));
+    let mut input: Box<dyn Read + '_> = if l.compressed {
+        Box::new(zstd::stream::read::Decoder::with_buffer(l.stored).map_err(corrupt)?.single_frame())
+    } else {
+        Box::new(l.stored)
+    };
+    let mut head = [0u8; 8];
+    input.read_exact(&mut head).map_err(corrupt)?;
+    let n = u64::from_le_bytes(head);
+    if n != l.count {
+        return Err(Error::malformed(l.offset, format!("SMPL holds {n} samples by its count, {} by its length", l.count)));
+    }
+    let n = usize::try_from(n).map_err(|_| Error::LimitExceeded { what: "sample count", value: n, limit: usize::MAX as u64 })?;
+    let mut out: Vec<Node> = Vec::new();
+    // A multiple of every field's size (12 and 4), so a piece never splits a value.
+    let mut buf = vec![0u8; 48 << 10];
+    /// Sets a field of sample `i` from its bytes.
+    type Set<'s> = &'s mut dyn FnMut(&mut Vec<Node>, usize, &[u8]);
+    let mut column = |width: usize, out: &mut Vec<Node>, set: Set<'_>| -> Result<()> {
+        let mut i = 0usize;
+        let mut left = n * width;
+        while left > 0 {
+            let k = left.min(buf.len());
+            input.read_exact(&mut buf[..k]).map_err(corrupt)?;
+            for v in buf[..k].chunks_exact(width) {
+                set(out, i, v);
+                i += 1;
+            }
+            left -= k;
+        }
+        Ok(())
+    };
+    column(12, &mut out, &mut |out, _, c| {
+        if out.len() == out.capacity() {
+            // Doubling, but never past the count.
+            out.reserve_exact(out.len().max(4096).min(n - out.len()));
+        }
+        out.push(Node { center: f3(c), radius: 0.0, normal: [0.0; 3], cone: 0.0, area: 0.0, color: [0; 4] });
+    })?;
+    column(4, &mut out, &mut |out, i, r| out[i].radius = f1(r))?;
+    column(12, &mut out, &mut |out, i, v| out[i].normal = f3(v))?;
+    column(4, &mut out, &mut |out, i, a| out[i].area = f1(a))?;
+    column(4, &mut out, &mut |out, i, c| out[i].color = [c[0], c[1], c[2], c[3]])?;
+    let mut more = [0u8; 1];
+    match input.read(&mut more) {
+        Ok(0) => Ok(out),
+        Ok(_) => Err(Error::malformed(l.offset, format!("SMPL inflates to more than {} bytes", 8 + SAMPLE_BYTES * n))),
+        Err(e) => Err(corrupt(e)),
+    }
 }
 
 /// One little-endian f32 from a 4-byte chunk.

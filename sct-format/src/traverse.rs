@@ -101,28 +101,82 @@ pub fn child_path(path: &str, step: usize) -> String {
     format!("{path}/{step}")
 }
 
+/// The leaves of a group's tree, so that its children can be named and bounded one at a
+/// time: leaf `j` (breadth-first leaf order) stands for the group's child `j` (§5.10.5).
+/// Holds the tree and 8 bytes per node; no path is built until one is asked for.
+#[derive(Clone, Debug)]
+pub struct GroupLeaves {
+    tree: crate::SceneTree,
+    parents: Vec<u32>,
+    leaves: Vec<u32>,
+}
+
+impl GroupLeaves {
+    /// The leaves of `tree`.
+    pub fn new(tree: crate::SceneTree) -> Self {
+        let parents = tree.parents();
+        // Node indices fit in u32: a SceneTree holds fewer than u32::MAX nodes.
+        let leaves = tree.leaves().map(|i| i as u32).collect();
+        GroupLeaves { tree, parents, leaves }
+    }
+
+    /// Number of leaves.
+    pub fn len(&self) -> usize {
+        self.leaves.len()
+    }
+
+    /// True for a tree without leaves.
+    pub fn is_empty(&self) -> bool {
+        self.leaves.is_empty()
+    }
+
+    /// The tree.
+    pub fn tree(&self) -> &crate::SceneTree {
+        &self.tree
+    }
+
+    /// Node index (breadth first) of leaf `j`.
+    pub fn leaf_index(&self, j: usize) -> Option<usize> {
+        self.leaves.get(j).map(|&i| i as usize)
+    }
+
+    /// Leaf `j`, if there is one.
+    pub fn leaf(&self, j: usize) -> Option<&Node> {
+        self.tree.nodes().get(*self.leaves.get(j)? as usize)
+    }
+
+    /// The abstract path of leaf `j` below `base`.
+    pub fn path(&self, j: usize, base: &str) -> Option<String> {
+        Some(path_of(&self.tree, &self.parents, *self.leaves.get(j)? as usize, base))
+    }
+}
+
+/// The abstract path of node `leaf` of `tree` below `base` (`parents` from
+/// [`crate::SceneTree::parents`]).
+fn path_of(tree: &crate::SceneTree, parents: &[u32], leaf: usize, base: &str) -> String {
+    let mut steps = Vec::new();
+    let mut i = leaf;
+    // Parents come before their children, so this walk ends at the root.
+    while let Some(&p) = parents.get(i).filter(|&&p| p != crate::tree::NO_CHILD && (p as usize) < i) {
+        let p = p as usize;
+        steps.push(if tree.children(p).is_some_and(|c| c[0] == i) { b'0' } else { b'1' });
+        i = p;
+    }
+    let mut s = String::with_capacity(base.len() + 2 * steps.len());
+    s.push_str(base);
+    for &st in steps.iter().rev() {
+        s.push('/');
+        s.push(st as char);
+    }
+    s
+}
+
 /// The abstract path of every leaf of `tree` (breadth-first leaf order), each prefixed by
-/// `base`. Leaf `j` of a group's tree is the virtual root of the group's child `j`.
+/// `base`. Leaf `j` of a group's tree is the virtual root of the group's child `j`. (One
+/// string per leaf: [`GroupLeaves::path`] names them one at a time.)
 pub fn leaf_paths(tree: &crate::SceneTree, base: &str) -> Vec<String> {
     let parents = tree.parents();
-    let mut out = Vec::with_capacity(tree.leaf_count());
-    let mut steps = Vec::new();
-    for leaf in tree.leaves() {
-        steps.clear();
-        let mut i = leaf;
-        while let Some(&p) = parents.get(i).filter(|&&p| p != crate::tree::NO_CHILD) {
-            let p = p as usize;
-            steps.push(if tree.children(p).is_some_and(|c| c[0] == i) { 0 } else { 1 });
-            i = p;
-        }
-        let mut s = base.to_string();
-        for &st in steps.iter().rev() {
-            s.push('/');
-            s.push(if st == 0 { '0' } else { '1' });
-        }
-        out.push(s);
-    }
-    out
+    tree.leaves().map(|leaf| path_of(tree, &parents, leaf, base)).collect()
 }
 
 /// The bound of graph node `node` of `file` in that file's frame: a tree's or group's root,
@@ -196,8 +250,10 @@ impl Reached {
 }
 
 /// Why a branch of the traversal could not be followed. The traversal goes on with the other
-/// branches.
+/// branches, except after [`Limits::max_traversal_visits`] is reached (a
+/// [`TraverseErrorKind::Read`] of [`Error::LimitExceeded`]), where it ends.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum TraverseErrorKind {
     /// The inline target does not exist or cannot be opened.
     #[error("inline target {target} cannot be opened: {source}")]
@@ -230,7 +286,19 @@ pub enum TraverseErrorKind {
         /// The limit.
         limit: u32,
     },
-    /// The inline target (or a group tree) could not be read.
+    /// The inline target (symlinks resolved) lies outside the scene's directory, and the
+    /// caller did not allow that ([`TraverseOptions::allow_outside_inlines`]). The target is
+    /// not opened, so a scene cannot make a tool read (or report the hash of) files
+    /// elsewhere on the system.
+    #[error("inline target {target} lies outside the scene directory {root} (not followed unless outside inlines are allowed)")]
+    InlineOutside {
+        /// Resolved target path.
+        target: PathBuf,
+        /// The scene directory.
+        root: PathBuf,
+    },
+    /// The inline target (or a group tree) could not be read, or the traversal reached
+    /// [`Limits::max_traversal_visits`].
     #[error("{0}")]
     Read(#[from] Error),
 }
@@ -247,6 +315,65 @@ pub struct TraverseError {
     pub graph_node: u32,
     /// What went wrong.
     pub kind: TraverseErrorKind,
+}
+
+impl TraverseError {
+    /// True when the traversal stopped at [`Limits::max_traversal_visits`] (it yields nothing
+    /// after this error).
+    pub fn is_visit_limit(&self) -> bool {
+        matches!(&self.kind, TraverseErrorKind::Read(Error::LimitExceeded { what, .. }) if *what == VISITS)
+    }
+}
+
+/// The quantity [`Limits::max_traversal_visits`] caps, as errors name it.
+pub const VISITS: &str = "graph nodes visited by a traversal (a shared node counts once per path that reaches it)";
+
+/// Counts graph-node visits against [`Limits::max_traversal_visits`]. [`Traversal`] uses one;
+/// a consumer with its own graph walk (a renderer refining group trees lazily) charges one
+/// per node it visits, so that every walk of a DAG of shared groups is bounded alike.
+#[derive(Clone, Debug)]
+pub struct VisitBudget {
+    used: u64,
+    limit: u64,
+}
+
+impl VisitBudget {
+    /// A budget of `limits.max_traversal_visits`.
+    pub fn new(limits: &Limits) -> Self {
+        VisitBudget { used: 0, limit: limits.max_traversal_visits }
+    }
+
+    /// Records `n` more visits; [`Error::LimitExceeded`] (naming [`VISITS`]) past the limit.
+    pub fn charge(&mut self, n: u64) -> Result<(), Error> {
+        self.used = self.used.saturating_add(n);
+        Limits::check(VISITS, self.used, self.limit)
+    }
+
+    /// Visits recorded so far.
+    pub fn used(&self) -> u64 {
+        self.used
+    }
+}
+
+/// Resolves inline path `rel` of the file at `from` (a canonical path): joined to `from`'s
+/// directory and canonicalized (symlinks resolved). With `root` (a canonical directory), a
+/// target outside it is [`TraverseErrorKind::InlineOutside`] and is not opened. The same
+/// rules for every consumer that follows inlines.
+pub fn resolve_inline(from: &Path, rel: &str, root: Option<&Path>) -> Result<PathBuf, TraverseErrorKind> {
+    let dir = from.parent().unwrap_or(Path::new("."));
+    let target = dir.join(rel);
+    let canon = std::fs::canonicalize(&target).map_err(|source| TraverseErrorKind::InlineMissing { target: target.clone(), source })?;
+    if let Some(root) = root {
+        if !canon.starts_with(root) {
+            return Err(TraverseErrorKind::InlineOutside { target: canon, root: root.to_path_buf() });
+        }
+    }
+    Ok(canon)
+}
+
+/// The directory inline targets must stay in for a scene whose top file is at `canonical`.
+pub fn scene_root(canonical: &Path) -> PathBuf {
+    canonical.parent().unwrap_or(Path::new("/")).to_path_buf()
 }
 
 /// The inline chain of one branch, for cycle detection (a persistent stack shared by
@@ -307,18 +434,37 @@ impl Pending {
     }
 }
 
+/// The children of one use of a group, handed out one at a time: a group of a million
+/// children costs one frame on the stack, not a million pending entries, and each child's
+/// path is built only when the child is visited.
+struct GroupFrame {
+    group: Pending,
+    leaves: GroupLeaves,
+    next: usize,
+}
+
+/// An entry of the traversal's stack.
+enum Frame {
+    One(Pending),
+    Children(Box<GroupFrame>),
+}
+
 /// Options of a traversal.
 #[derive(Clone, Debug)]
 pub struct TraverseOptions {
-    /// Limits for every file opened (inline depth included).
+    /// Limits for every file opened (inline depth and visits included).
     pub limits: Limits,
     /// Check each inline target's BLAKE3 hash (reads the whole target once per file).
     pub verify_inline_hashes: bool,
+    /// Follow inlines whose target (symlinks resolved) lies outside the directory of the file
+    /// the traversal started from. Off by default: a scene file is data, and following
+    /// `../../` paths would let it make a tool open (and hash) any file on the system.
+    pub allow_outside_inlines: bool,
 }
 
 impl Default for TraverseOptions {
     fn default() -> Self {
-        TraverseOptions { limits: Limits::default(), verify_inline_hashes: true }
+        TraverseOptions { limits: Limits::default(), verify_inline_hashes: true, allow_outside_inlines: false }
     }
 }
 
@@ -326,19 +472,29 @@ type CullFn = Box<dyn FnMut(&Node, &str) -> bool + Send>;
 
 /// A lazy depth-first walk of a scene graph and the files it inlines; an iterator of
 /// [`Reached`] trees (or [`TraverseError`]s for branches that cannot be followed).
+///
+/// Bounded work: every graph node visited on every path counts against
+/// [`Limits::max_traversal_visits`] (a shared subgraph is expanded once per path that
+/// reaches it, and a DAG of shared groups has exponentially many paths); past the limit
+/// the traversal yields one limit-exceeded error and ends. Memory is the stack of the
+/// current path (a group is one frame whatever its width), the group trees on it, and one
+/// reader per distinct file opened.
 pub struct Traversal {
     opts: TraverseOptions,
-    stack: Vec<Pending>,
-    /// Children of the last yielded group, pushed on the next call unless skipped.
+    stack: Vec<Frame>,
+    /// The last yielded group, expanded on the next call unless skipped.
     deferred: Option<Pending>,
-    /// Open files by canonical path, with their hash once verified.
-    files: HashMap<PathBuf, (Arc<SctReader>, Option<[u8; 32]>)>,
+    /// Open files by canonical path (each reader remembers its hash once computed).
+    files: HashMap<PathBuf, Arc<SctReader>>,
     cull: Option<CullFn>,
+    /// The directory inline targets must stay in (unless allowed).
+    root: PathBuf,
+    budget: VisitBudget,
 }
 
 impl std::fmt::Debug for Traversal {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Traversal").field("pending", &self.stack.len()).finish_non_exhaustive()
+        f.debug_struct("Traversal").field("pending", &self.stack.len()).field("visits", &self.budget.used()).finish_non_exhaustive()
     }
 }
 
@@ -351,14 +507,16 @@ impl Traversal {
     }
 
     /// Starts a traversal at the graph root of an open file; `canonical_path` locates its
-    /// inlines (their paths are relative to its directory).
+    /// inlines (their paths are relative to its directory, and stay inside it unless
+    /// [`TraverseOptions::allow_outside_inlines`]).
     pub fn from_reader(file: Arc<SctReader>, canonical_path: PathBuf, opts: TraverseOptions) -> Traversal {
         let root = file.graph().root;
         let chain = Arc::new(Chain { path: canonical_path.clone(), parent: None, depth: 0 });
         let mut files = HashMap::new();
-        files.insert(canonical_path, (file.clone(), None));
-        let stack = vec![Pending { file, chain, node: root, path: "root".into(), state: TraversalState::IDENTITY, bound: None }];
-        Traversal { opts, stack, deferred: None, files, cull: None }
+        files.insert(canonical_path.clone(), file.clone());
+        let pending = Pending { file, chain, node: root, path: "root".into(), state: TraversalState::IDENTITY, bound: None };
+        let budget = VisitBudget::new(&opts.limits);
+        Traversal { opts, stack: vec![Frame::One(pending)], deferred: None, files, cull: None, root: scene_root(&canonical_path), budget }
     }
 
     /// Installs a predicate called with each pending node's world bound and path before it
@@ -372,36 +530,49 @@ impl Traversal {
         self.deferred = None;
     }
 
+    /// Graph nodes visited so far (what [`Limits::max_traversal_visits`] caps).
+    pub fn visits(&self) -> u64 {
+        self.budget.used()
+    }
+
     // Built once per failing group, never on a hot path: no need to box it.
     #[allow(clippy::result_large_err)]
     fn expand_group(&mut self, g: Pending) -> Result<(), TraverseError> {
-        let GraphNode::Group { children, tree } = &g.file.graph().nodes[g.node as usize] else { return Ok(()) };
+        let Some(GraphNode::Group { tree, .. }) = g.file.graph().nodes.get(g.node as usize) else { return Ok(()) };
         let err = |kind| TraverseError { path: g.path.clone(), file: g.chain.path.clone(), graph_node: g.node, kind };
         let t = g.file.read_tree(*tree as usize).map_err(|e| err(TraverseErrorKind::Read(e)))?;
-        let paths = leaf_paths(&t, &g.path);
-        let leaves: Vec<usize> = t.leaves().collect();
-        // Push in reverse so child 0 is visited first.
-        for (j, &c) in children.iter().enumerate().rev() {
-            let (Some(&leaf), Some(path)) = (leaves.get(j), paths.get(j)) else { continue };
-            self.stack.push(Pending {
+        self.stack.push(Frame::Children(Box::new(GroupFrame { leaves: GroupLeaves::new(t), group: g, next: 0 })));
+        Ok(())
+    }
+
+    /// The next child of the group frame on top of the stack (the frame stays while it has
+    /// more), or `None` when it is done.
+    fn next_child(f: &mut GroupFrame) -> Option<Pending> {
+        let GraphNode::Group { children, .. } = f.group.file.graph().nodes.get(f.group.node as usize)? else { return None };
+        // A child without a leaf (a group tree with fewer leaves than children, which the
+        // reader refuses) is skipped, as before.
+        while f.next < children.len() {
+            let j = f.next;
+            f.next += 1;
+            let (Some(leaf), Some(path)) = (f.leaves.leaf(j), f.leaves.path(j, &f.group.path)) else { continue };
+            let g = &f.group;
+            return Some(Pending {
                 file: g.file.clone(),
                 chain: g.chain.clone(),
-                node: c,
-                path: path.clone(),
+                node: children[j],
+                path,
                 state: g.state,
-                bound: Some(g.state.apply(&t.nodes()[leaf])),
+                bound: Some(g.state.apply(leaf)),
             });
         }
-        Ok(())
+        None
     }
 
     // The error is built once per failing inline, never on a hot path: no need to box it.
     #[allow(clippy::result_large_err)]
     fn follow_inline(&mut self, p: &Pending, rel: &str, hash: &[u8; 32]) -> Result<Pending, TraverseErrorKind> {
-        let dir = p.chain.path.parent().unwrap_or(Path::new("."));
-        let target = dir.join(rel);
-        let canon =
-            std::fs::canonicalize(&target).map_err(|source| TraverseErrorKind::InlineMissing { target: target.clone(), source })?;
+        let root = (!self.opts.allow_outside_inlines).then_some(self.root.as_path());
+        let canon = resolve_inline(&p.chain.path, rel, root)?;
         // The cycle check comes before the hash check: a file that (transitively) inlines
         // itself can never record its own hash correctly, and the cycle is the real fault.
         if p.chain.contains(&canon) {
@@ -412,28 +583,24 @@ impl Traversal {
         if p.chain.depth + 1 > self.opts.limits.max_inline_depth {
             return Err(TraverseErrorKind::InlineDepth { limit: self.opts.limits.max_inline_depth });
         }
-        let entry = match self.files.get(&canon) {
-            Some(e) => e.clone(),
+        let file = match self.files.get(&canon) {
+            Some(f) => f.clone(),
             None => {
                 let f = SctReader::open(&canon, &self.opts.limits).map_err(|e| match e {
                     Error::Io { source, .. } => TraverseErrorKind::InlineMissing { target: canon.clone(), source },
                     e => TraverseErrorKind::Read(e),
                 })?;
-                let e = (Arc::new(f), None);
-                self.files.insert(canon.clone(), e.clone());
-                e
+                let f = Arc::new(f);
+                self.files.insert(canon.clone(), f.clone());
+                f
             }
         };
-        let (file, known) = entry;
         if self.opts.verify_inline_hashes {
-            let found = match known {
-                Some(h) => h,
-                None => {
-                    let h = *blake3::hash(file.bytes()).as_bytes();
-                    self.files.insert(canon.clone(), (file.clone(), Some(h)));
-                    h
-                }
-            };
+            // Computed once per file (the reader keeps it), however many inlines name it.
+            let found = file.content_hash().map_err(|e| match e {
+                Error::Io { source, .. } => TraverseErrorKind::InlineMissing { target: canon.clone(), source },
+                e => TraverseErrorKind::Read(e),
+            })?;
             if &found != hash {
                 return Err(TraverseErrorKind::InlineHash { target: canon, expected: hex(hash), found: hex(&found) });
             }
@@ -448,6 +615,13 @@ impl Traversal {
             state: p.state,
             bound: None,
         })
+    }
+
+    /// Ends the traversal with the visit-limit error at `p`.
+    fn stop(&mut self, p: &Pending, e: Error) -> Option<Result<Reached, TraverseError>> {
+        self.stack.clear();
+        self.deferred = None;
+        Some(Err(TraverseError { path: p.path.clone(), file: p.chain.path.clone(), graph_node: p.node, kind: TraverseErrorKind::Read(e) }))
     }
 }
 
@@ -465,36 +639,54 @@ impl Iterator for Traversal {
                 return Some(Err(e));
             }
         }
-        while let Some(p) = self.stack.pop() {
+        loop {
+            let p = match self.stack.last_mut()? {
+                Frame::Children(f) => match Self::next_child(f) {
+                    Some(p) => p,
+                    None => {
+                        self.stack.pop();
+                        continue;
+                    }
+                },
+                Frame::One(_) => match self.stack.pop() {
+                    Some(Frame::One(p)) => p,
+                    _ => continue,
+                },
+            };
+            if let Err(e) = self.budget.charge(1) {
+                return self.stop(&p, e);
+            }
             if let (Some(b), Some(cull)) = (&p.bound, self.cull.as_mut()) {
                 if !cull(b, &p.path) {
                     continue;
                 }
             }
-            let Some(node) = p.file.graph().nodes.get(p.node as usize).cloned() else {
+            let Some(node) = p.file.graph().nodes.get(p.node as usize) else {
                 let kind = TraverseErrorKind::Read(Error::malformed(0, format!("graph node {} does not exist", p.node)));
                 return Some(Err(TraverseError { path: p.path, file: p.chain.path.clone(), graph_node: p.node, kind }));
             };
             match node {
-                GraphNode::Tree { tree } => return Some(Ok(p.reached(tree, ReachedKind::Tree))),
+                GraphNode::Tree { tree } => return Some(Ok(p.reached(*tree, ReachedKind::Tree))),
                 GraphNode::Group { children, tree } => {
-                    let r = p.reached(tree, ReachedKind::Group { children });
+                    let r = p.reached(*tree, ReachedKind::Group { children: children.clone() });
                     self.deferred = Some(p);
                     return Some(Ok(r));
                 }
                 GraphNode::Instance { child, transform, attrs } => {
-                    let state = p.state.push_instance(&transform, &attrs);
-                    self.stack.push(Pending { node: child, state, bound: None, ..p });
+                    let state = p.state.push_instance(transform, attrs);
+                    let child = *child;
+                    self.stack.push(Frame::One(Pending { node: child, state, bound: None, ..p }));
                 }
                 GraphNode::Inline { path, hash, bound } => {
-                    let world = p.state.apply(&bound);
+                    let world = p.state.apply(bound);
                     if let (None, Some(cull)) = (&p.bound, self.cull.as_mut()) {
                         if !cull(&world, &p.path) {
                             continue;
                         }
                     }
+                    let (path, hash) = (path.clone(), *hash);
                     match self.follow_inline(&p, &path, &hash) {
-                        Ok(next) => self.stack.push(next),
+                        Ok(next) => self.stack.push(Frame::One(next)),
                         Err(kind) => {
                             return Some(Err(TraverseError { path: p.path, file: p.chain.path.clone(), graph_node: p.node, kind }))
                         }
@@ -502,7 +694,6 @@ impl Iterator for Traversal {
                 }
             }
         }
-        None
     }
 }
 

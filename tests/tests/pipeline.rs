@@ -48,7 +48,7 @@ fn embedded_demo_model_goes_through_every_tool() {
         assert!(tree.leaf_count() as u64 <= vox.samples && tree.leaf_count() as u64 * 100 >= vox.samples * 99);
         assert_eq!(tree.len(), 2 * tree.leaf_count() - 1);
 
-        let report = validate_file(&sct, &ValidateOptions { deep: true, limits: Limits::default() }).expect("validate");
+        let report = validate_file(&sct, &ValidateOptions { deep: true, limits: Limits::default(), ..Default::default() }).expect("validate");
         assert!(report.issues.is_empty(), "{profile:?}: {:?}", &report.issues[..report.issues.len().min(5)]);
 
         let opts = render_preview::RenderOptions { width: 160, height: 120, ..Default::default() };
@@ -72,7 +72,7 @@ fn instanced_gltf_scenes_validate_deep_in_every_profile() {
         for profile in [Profile::Default, Profile::Canopy, Profile::Raw] {
             let sct = dir.path().join(format!("m-{}.sct", profile.name()));
             build(&samples, &sct, profile);
-            let report = validate_file(&sct, &ValidateOptions { deep: true, limits: Limits::default() }).expect("validate");
+            let report = validate_file(&sct, &ValidateOptions { deep: true, limits: Limits::default(), ..Default::default() }).expect("validate");
             assert!(report.issues.is_empty(), "{name} {profile:?}: {:?}", &report.issues[..report.issues.len().min(3)]);
         }
     }

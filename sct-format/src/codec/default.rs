@@ -277,7 +277,7 @@ fn channels(params: CodecParams) -> usize {
 }
 
 /// Payload size for `n` parents.
-fn payload_len(params: CodecParams, n: usize) -> Option<usize> {
+pub(crate) fn payload_len(params: CodecParams, n: usize) -> Option<usize> {
     let m = n.checked_mul(2)?;
     m.checked_mul(5 + channels(params))?.checked_add(n.checked_mul(2)?)
 }

@@ -152,6 +152,21 @@ impl Stream {
     }
 }
 
+/// Bytes of a block of `nodes` nodes (whole sibling pairs) after decompression: the
+/// has-children mask, then the profile payload (spec §6.3). Every profile codes a fixed
+/// number of bytes per sibling pair, so a block's raw length follows from its node count; a
+/// reader checks the stored raw length against this before it inflates anything, so a
+/// block can never make it hold more than its nodes need. `None` on overflow.
+pub fn block_raw_len(profile: Profile, params: CodecParams, nodes: u64) -> Option<u64> {
+    let mask = nodes.div_ceil(8);
+    let payload = match profile {
+        Profile::Raw => nodes.checked_mul(raw::NODE_BYTES as u64)?,
+        Profile::Canopy => nodes.checked_mul(canopy::node_bytes(params) as u64)?,
+        Profile::Default => default::payload_len(params, usize::try_from(nodes / 2).ok()?)? as u64,
+    };
+    mask.checked_add(payload)
+}
+
 /// Decodes the children of `parents` from `bytes` (one block's codec payload), appending
 /// `2 * parents.len()` nodes to `out`. `offset` is the payload's position, for errors.
 pub fn decode_children(

@@ -74,3 +74,4 @@ pub fn random_tree(seed: u64, target_nodes: usize, alpha: bool) -> SceneTree {
     }
     SceneTree::from_bfs(nodes, internal).expect("generator builds a valid tree")
 }
+pub mod craft;

@@ -1,0 +1,74 @@
+//! Hostile scenes through the renderer's own graph walk: a DAG of shared groups stops at the
+//! traversal visit limit, and inlines stay inside the scene's directory unless allowed.
+
+use std::path::{Path, PathBuf};
+
+use render_preview::{render_file, Error, RenderOptions};
+use sct_format::geometry::parent_of;
+use sct_format::graph::{Generator, GraphNode, SceneGraph};
+use sct_format::traverse::TraverseErrorKind;
+use sct_format::write::{write_scene_file, Scene, WriteOptions};
+use sct_format::{Node, SceneTree};
+
+fn leaf(x: f32) -> Node {
+    Node { center: [x, 0.0, 0.0], radius: 0.5, normal: [0.0, 0.0, 1.0], cone: 0.0, area: 1.0, color: [200, 100, 50, 255] }
+}
+
+fn pair(a: Node, b: Node) -> SceneTree {
+    SceneTree::from_bfs(vec![parent_of(&a, &b), a, b], vec![true, false, false]).expect("tree")
+}
+
+fn write(path: &Path, nodes: Vec<GraphNode>, root: u32, trees: Vec<SceneTree>) -> PathBuf {
+    let scene = Scene { generator: Generator::default(), graph: SceneGraph { nodes, root }, trees };
+    write_scene_file(path, &scene, &WriteOptions::default()).expect("write");
+    path.to_path_buf()
+}
+
+fn small() -> RenderOptions {
+    RenderOptions { width: 64, height: 48, ..RenderOptions::default() }
+}
+
+/// Group k uses group k - 1 twice, 40 levels: 2^40 paths. The walk stops at the visit limit
+/// with a limit-exceeded error instead of expanding every path.
+#[test]
+fn shared_groups_stop_at_the_visit_limit() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let t = pair(leaf(0.0), leaf(1.0));
+    let b = t.nodes()[0];
+    let mut nodes = vec![GraphNode::Tree { tree: 0 }];
+    for k in 1..=40u32 {
+        nodes.push(GraphNode::Group { children: vec![k - 1, k - 1], tree: 1 });
+    }
+    let p = write(&dir.path().join("dag.sct"), nodes, 40, vec![t, pair(b, b)]);
+    let mut opts = small();
+    opts.limits.max_traversal_visits = 5_000;
+    // Drawn from close by, so that the LOD refines every group leaf.
+    opts.pixel_error = 1e-6;
+    match render_file(&p, &opts) {
+        Err(Error::Sct { source: sct_format::Error::LimitExceeded { what, limit, .. }, .. }) => {
+            assert_eq!((what, limit), (sct_format::traverse::VISITS, 5_000))
+        }
+        other => panic!("{:?}", other.map(|r| r.stats.splats)),
+    }
+}
+
+/// An inline naming a file outside the scene's directory is not opened unless allowed.
+#[test]
+fn inline_outside_the_scene_directory_needs_permission() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scene_dir = dir.path().join("scene");
+    std::fs::create_dir_all(&scene_dir).expect("dir");
+    let t = pair(leaf(0.0), leaf(1.0));
+    let b = t.nodes()[0];
+    let outside = write(&dir.path().join("outside.sct"), vec![GraphNode::Tree { tree: 0 }], 0, vec![t]);
+    let hash = *blake3::hash(&std::fs::read(&outside).expect("read")).as_bytes();
+    let top = write(&scene_dir.join("top.sct"), vec![GraphNode::Inline { path: "../outside.sct".into(), hash, bound: b }], 0, vec![]);
+    let mut opts = small();
+    opts.pixel_error = 1e-6;
+    match render_file(&top, &opts) {
+        Err(Error::Inline { kind, .. }) => assert!(matches!(*kind, TraverseErrorKind::InlineOutside { .. }), "{kind}"),
+        other => panic!("{:?}", other.map(|r| r.stats.splats)),
+    }
+    let allowed = render_file(&top, &RenderOptions { allow_outside_inlines: true, ..opts }).expect("allowed");
+    assert_eq!(allowed.stats.files, 2);
+}

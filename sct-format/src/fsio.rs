@@ -1,0 +1,268 @@
+//! Opening input files so that no file system object can hang or crash a reader.
+//!
+//! A path may name a FIFO (opening it blocks until a writer appears, reading it may never
+//! end), a device (`/dev/zero` never ends), a socket or a directory. [`open_regular`] opens
+//! only regular files (after following symlinks), without ever blocking in `open`, and
+//! [`read_regular`] reads one with a bound. Every SCT input this crate opens goes through
+//! them; they are public so that other loaders (meshes, textures) can do the same.
+//!
+//! [`Source`] holds the bytes of an SCT file: in memory, or an open regular file read on
+//! demand with positioned reads. Reading instead of memory-mapping matters for robustness:
+//! when another process truncates a mapped file, touching the lost pages raises SIGBUS and
+//! kills the process, while a read past the new end is an ordinary I/O error.
+
+use std::borrow::Cow;
+use std::fs::File;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+
+/// The error for a path that exists but is not a regular file.
+fn not_regular(path: &Path, what: &str) -> Error {
+    Error::io(path, std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("not a regular file ({what})")))
+}
+
+/// What kind of non-regular file `m` describes, for messages.
+fn kind_of(m: &std::fs::Metadata) -> &'static str {
+    let t = m.file_type();
+    if t.is_dir() {
+        return "a directory";
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return "a FIFO";
+        }
+        if t.is_char_device() || t.is_block_device() {
+            return "a device";
+        }
+        if t.is_socket() {
+            return "a socket";
+        }
+    }
+    "not a plain file"
+}
+
+/// Opens `path` for reading if it is a regular file (symlinks are followed), else fails with
+/// an [`Error::Io`] naming the path. Never blocks: the type is checked before opening, and
+/// the open itself is non-blocking (on Unix), so a FIFO swapped in between the check and the
+/// open is still refused (by the second check, on the opened file) instead of hanging.
+pub fn open_regular(path: &Path) -> Result<File> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
+        return Err(not_regular(path, kind_of(&meta)));
+    }
+    let mut opts = std::fs::OpenOptions::new();
+    opts.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        // O_NONBLOCK makes opening a FIFO return at once; on a regular file it changes nothing.
+        opts.custom_flags(libc::O_NONBLOCK);
+    }
+    let file = opts.open(path).map_err(|e| Error::io(path, e))?;
+    let meta = file.metadata().map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
+        return Err(not_regular(path, kind_of(&meta)));
+    }
+    Ok(file)
+}
+
+/// Reads the regular file at `path` whole, refusing files of more than `max_bytes` bytes
+/// ([`Error::LimitExceeded`]) and never reading more than the size it had when opened (a file
+/// that grows while it is read is an I/O error, not an endless read).
+pub fn read_regular(path: &Path, max_bytes: u64) -> Result<Vec<u8>> {
+    read_regular_with_capacity(path, max_bytes, 0)
+}
+
+/// [`read_regular`] into a buffer of at least `min_capacity` bytes.
+pub(crate) fn read_regular_with_capacity(path: &Path, max_bytes: u64, min_capacity: usize) -> Result<Vec<u8>> {
+    let file = open_regular(path)?;
+    let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    crate::Limits::check("file size", len, max_bytes)?;
+    let len_usize = usize::try_from(len).map_err(|_| crate::Error::LimitExceeded { what: "file size", value: len, limit: usize::MAX as u64 })?;
+    let mut data = Vec::with_capacity(len_usize.saturating_add(1).max(min_capacity));
+    // One byte more than the size: a file that grew is detected without reading the growth.
+    file.take(len.saturating_add(1)).read_to_end(&mut data).map_err(|e| Error::io(path, e))?;
+    if data.len() as u64 != len {
+        return Err(Error::io(
+            path,
+            std::io::Error::other(format!("the file changed size while it was read ({len} bytes when opened, {} read)", data.len())),
+        ));
+    }
+    Ok(data)
+}
+
+/// Bytes hashed or checksummed per read when a [`Source`] streams a range.
+const STREAM_PIECE: u64 = 1 << 20;
+
+/// The bytes of an SCT file: in memory, or an open regular file read on demand.
+///
+/// Reads are bounds-checked against the length the file had when opened; a file that shrinks
+/// afterwards makes later reads fail with an I/O error naming the path.
+#[derive(Debug)]
+pub(crate) enum Source<'a> {
+    /// Bytes held in memory.
+    Bytes(Cow<'a, [u8]>),
+    /// A regular file, read with positioned reads (safe from several threads at once).
+    File {
+        /// The open file.
+        file: File,
+        /// Its length when opened.
+        len: u64,
+        /// Its path, for errors.
+        path: PathBuf,
+    },
+}
+
+#[cfg(test)]
+thread_local! {
+    /// Files this thread opened as a [`Source`] (tests count how often a target is read).
+    pub(crate) static OPENS: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
+}
+
+impl Source<'static> {
+    /// Opens the regular file at `path` ([`open_regular`]).
+    pub fn open(path: &Path) -> Result<Self> {
+        #[cfg(test)]
+        OPENS.with(|c| c.set(c.get() + 1));
+        let file = open_regular(path)?;
+        let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+        Ok(Source::File { file, len, path: path.to_path_buf() })
+    }
+}
+
+impl Source<'_> {
+    /// Length of the file (when opened).
+    pub fn len(&self) -> u64 {
+        match self {
+            Source::Bytes(b) => b.len() as u64,
+            Source::File { len, .. } => *len,
+        }
+    }
+
+    /// `len` bytes at `offset`: borrowed from memory, or read from the file. A range past
+    /// the end is [`Error::Malformed`] naming `what`; a failed read is [`Error::Io`].
+    pub fn read(&self, offset: u64, len: u64, what: &str) -> Result<Cow<'_, [u8]>> {
+        let end = offset.checked_add(len).filter(|&e| e <= self.len()).ok_or_else(|| {
+            Error::malformed(offset, format!("{what} ({len} bytes at {offset}) extends past the end of the file ({} bytes)", self.len()))
+        })?;
+        match self {
+            Source::Bytes(b) => Ok(Cow::Borrowed(&b[offset as usize..end as usize])),
+            Source::File { file, path, .. } => {
+                // The range lies inside the file as opened, so this allocation is bounded by
+                // the file's size.
+                let n = usize::try_from(len).map_err(|_| Error::LimitExceeded { what: "read size", value: len, limit: usize::MAX as u64 })?;
+                let mut buf = vec![0u8; n];
+                read_exact_at(file, &mut buf, offset).map_err(|e| Error::io(path, e))?;
+                Ok(Cow::Owned(buf))
+            }
+        }
+    }
+
+    /// Calls `f` with consecutive pieces of `len` bytes at `offset`, a piece of at most
+    /// [`STREAM_PIECE`] bytes at a time, so that hashing a range needs no buffer of its size.
+    pub fn for_each_piece(&self, offset: u64, len: u64, what: &str, mut f: impl FnMut(&[u8])) -> Result<()> {
+        if let Source::Bytes(_) = self {
+            f(&self.read(offset, len, what)?);
+            return Ok(());
+        }
+        // Bounds first, so a range past the end fails before anything is read.
+        offset.checked_add(len).filter(|&e| e <= self.len()).ok_or_else(|| {
+            Error::malformed(offset, format!("{what} ({len} bytes at {offset}) extends past the end of the file ({} bytes)", self.len()))
+        })?;
+        let mut at = 0;
+        while at < len {
+            let n = (len - at).min(STREAM_PIECE);
+            f(&self.read(offset + at, n, what)?);
+            at += n;
+        }
+        Ok(())
+    }
+
+    /// CRC-32 of `len` bytes at `offset`, streamed.
+    pub fn crc32(&self, offset: u64, len: u64, what: &str) -> Result<u32> {
+        if let Source::Bytes(_) = self {
+            return Ok(crate::container::crc32(&self.read(offset, len, what)?));
+        }
+        let mut h = crc32fast::Hasher::new();
+        self.for_each_piece(offset, len, what, |p| h.update(p))?;
+        Ok(h.finalize())
+    }
+
+    /// BLAKE3 of the whole file, streamed.
+    pub fn blake3(&self) -> Result<[u8; 32]> {
+        let mut h = blake3::Hasher::new();
+        self.for_each_piece(0, self.len(), "file", |p| {
+            h.update(p);
+        })?;
+        Ok(*h.finalize().as_bytes())
+    }
+}
+
+#[cfg(unix)]
+fn read_exact_at(file: &File, buf: &mut [u8], offset: u64) -> std::io::Result<()> {
+    use std::os::unix::fs::FileExt;
+    file.read_exact_at(buf, offset)
+}
+
+#[cfg(windows)]
+fn read_exact_at(file: &File, mut buf: &mut [u8], mut offset: u64) -> std::io::Result<()> {
+    use std::os::windows::fs::FileExt;
+    while !buf.is_empty() {
+        match file.seek_read(buf, offset) {
+            Ok(0) => return Err(std::io::ErrorKind::UnexpectedEof.into()),
+            Ok(n) => {
+                buf = &mut buf[n..];
+                offset += n as u64;
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}
+
+#[cfg(not(any(unix, windows)))]
+fn read_exact_at(_file: &File, _buf: &mut [u8], _offset: u64) -> std::io::Result<()> {
+    Err(std::io::ErrorKind::Unsupported.into())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn regular_files_read_with_a_bound() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("a");
+        std::fs::write(&p, b"hello").expect("write");
+        assert_eq!(read_regular(&p, 5).expect("read"), b"hello");
+        assert!(matches!(read_regular(&p, 4), Err(Error::LimitExceeded { what: "file size", value: 5, limit: 4 })));
+        // A directory is refused, with its path.
+        match open_regular(dir.path()) {
+            Err(Error::Io { path: Some(q), source }) => {
+                assert_eq!(q, dir.path());
+                assert!(source.to_string().contains("directory"), "{source}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    /// A source over a file that shrinks after opening fails with an I/O error on the lost
+    /// bytes (a mapped file would raise SIGBUS there).
+    #[test]
+    fn shrunk_file_is_an_io_error() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("a");
+        std::fs::write(&p, vec![7u8; 10_000]).expect("write");
+        let s = Source::open(&p).expect("open");
+        assert_eq!(s.read(9_000, 1_000, "x").expect("read")[..], [7u8; 1000][..]);
+        std::fs::OpenOptions::new().write(true).open(&p).expect("open rw").set_len(100).expect("truncate");
+        assert!(matches!(s.read(9_000, 1_000, "x"), Err(Error::Io { .. })));
+        assert!(matches!(s.crc32(0, 10_000, "x"), Err(Error::Io { .. })));
+        assert!(matches!(s.read(9_000, 2_000, "x"), Err(Error::Malformed { .. })), "past the length at open");
+    }
+}
