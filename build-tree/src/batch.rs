@@ -70,12 +70,9 @@ impl Shard {
     }
 }
 
-/// Samples per asset in batch mode unless `--sample-budget` says otherwise: about four
-/// leaves per pixel of a full 1280 × 720 view, so the default density (one leaf per pixel
-/// of the intended view) never meets it, while an explicit fine `--voxel-size` or EQ 16 on a
-/// finely tessellated asset cannot take a library's memory (about 125 B per sample at the
-/// peak: 500 MB per job).
-pub const DEFAULT_SAMPLE_BUDGET: u64 = 4_000_000;
+/// Samples per asset in batch mode unless `--sample-budget` says otherwise, whatever the
+/// density rule: the default density's budget ([`voxelize::args::DEFAULT_SAMPLE_BUDGET`]).
+pub const DEFAULT_SAMPLE_BUDGET: u64 = voxelize::args::DEFAULT_SAMPLE_BUDGET;
 
 /// What to convert and how.
 #[derive(Clone, Debug)]

@@ -9,6 +9,13 @@ use clap::{Args, ValueEnum};
 use crate::load::LoadOptions;
 use crate::sample::{AreaMode, Density, Method, SampleOptions};
 
+/// The sample budget of the default density and of batch conversion: about four leaves per
+/// pixel of a full 1280 × 720 view, so an ordinary model at the default density (2–3 leaves
+/// per pixel it covers) never meets it, while a file of stacked surfaces, or EQ 16 on a
+/// finely tessellated asset in a library, cannot take the memory of a conversion (about
+/// 125 B per sample at its peak: 500 MB).
+pub const DEFAULT_SAMPLE_BUDGET: u64 = 4_000_000;
+
 /// Sampler choice on the command line.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -99,9 +106,9 @@ pub struct SamplingArgs {
     /// Refuse runs estimated to make more samples than this.
     #[arg(long, value_name = "N", default_value_t = 400_000_000)]
     pub max_samples: u64,
-    /// Coarsen the voxel, when the density rule above would make more, to about N samples
-    /// (estimated before merging): a cap for batch conversion of assets whose triangles are
-    /// far smaller than any view needs.
+    /// Coarsen the voxel, when the density rule above would make more, to about N samples,
+    /// with a warning [default: 4000000 with the default density and in batch mode; none
+    /// when --voxel-size, --distance or EQ 16 ask for a density].
     #[arg(long, value_name = "N")]
     pub sample_budget: Option<u64>,
 }
@@ -150,7 +157,11 @@ impl SamplingArgs {
             merge: !self.no_merge,
             crease_deg: self.crease,
             max_samples: self.max_samples,
-            budget: self.sample_budget,
+            // The intended view needs no more than a few samples per pixel; more means many
+            // surfaces stacked behind each other (a hostile file of a few KB can ask for
+            // billions), so the default density gets a default budget. Explicit densities
+            // are bounded by --max-samples.
+            budget: self.sample_budget.or(matches!(self.density(), Density::View { .. }).then_some(DEFAULT_SAMPLE_BUDGET)),
         }
     }
 }

@@ -99,10 +99,9 @@ fn main() -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => {
-            let e = anyhow::Error::from(e);
-            eprintln!("sct-voxelize: error: {e:#}");
-            let code = e.downcast_ref::<voxelize::Error>().map_or(2, |e| e.exit_code());
-            ExitCode::from(code as u8)
+            // Every variant's message already names its cause: print it once.
+            eprintln!("sct-voxelize: error: {e}");
+            ExitCode::from(e.exit_code() as u8)
         }
     }
 }

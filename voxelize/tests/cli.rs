@@ -84,3 +84,31 @@ fn oversized_voxel_is_clamped_with_a_warning() {
     assert!(warnings.iter().any(|w| w.as_str().unwrap().contains("larger than the model")), "{v}");
     assert!(String::from_utf8_lossy(&st.stderr).contains("larger than the model"));
 }
+
+/// A few KB of stacked quads ask the default density for tens of millions of samples (each
+/// layer fills the intended view): the default budget coarsens the voxel, with a warning,
+/// so a small file cannot take a conversion's time and memory. An explicit voxel size is
+/// bounded by --max-samples instead.
+#[test]
+fn stacked_surfaces_meet_the_default_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("stack.obj");
+    let mut text = String::new();
+    for k in 0..200 {
+        let z = k as f64 * 0.001;
+        text += &format!("v 0 0 {z}\nv 1 0 {z}\nv 1 1 {z}\nv 0 1 {z}\n");
+        let b = 4 * k + 1;
+        text += &format!("f {} {} {}\nf {} {} {}\n", b, b + 1, b + 2, b, b + 2, b + 3);
+    }
+    std::fs::write(&obj, text).unwrap();
+    assert!(std::fs::metadata(&obj).unwrap().len() < 20_000);
+    let st = bin().arg(&obj).args(["--dry-run", "--json"]).output().unwrap();
+    assert_eq!(st.status.code(), Some(0), "{}", String::from_utf8_lossy(&st.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&st.stdout).unwrap();
+    let samples = v["samples"].as_u64().unwrap();
+    assert!(samples <= 4_400_000, "{samples} samples");
+    let warned = v["warnings"].as_array().unwrap().iter().any(|w| w.as_str().is_some_and(|w| w.contains("sample budget of 4000000")));
+    assert!(warned, "{:?}", v["warnings"]);
+    let st = bin().arg(&obj).args(["--dry-run", "--json", "--voxel-size", "1e-5"]).output().unwrap();
+    assert_eq!(st.status.code(), Some(1), "refused by --max-samples: {}", String::from_utf8_lossy(&st.stderr));
+}
