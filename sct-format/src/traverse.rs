@@ -741,6 +741,32 @@ mod tests {
         assert!(!TraversalState::IDENTITY.push_instance(&t, &pull).is_tinted());
     }
 
+    /// Group children are named one at a time; the names are those of `leaf_paths`, for
+    /// unbalanced trees too, and the leaves are the tree's leaves in breadth-first order.
+    #[test]
+    fn group_leaves_name_children_as_leaf_paths() {
+        // root -> (p, c), p -> (q, d), q -> (a, b): leaves c, d, a, b.
+        let n = leaf(0.0, 1);
+        let t = SceneTree::from_bfs(vec![n; 7], vec![true, true, false, true, false, false, false]).expect("tree");
+        let g = GroupLeaves::new(t.clone());
+        let want = leaf_paths(&t, "root/1");
+        assert_eq!(want, ["root/1/1", "root/1/0/1", "root/1/0/0/0", "root/1/0/0/1"]);
+        let got: Vec<String> = (0..g.len()).map(|j| g.path(j, "root/1").expect("leaf")).collect();
+        assert_eq!(got, want);
+        assert_eq!(g.path(4, "root"), None);
+        assert_eq!((0..4).map(|j| g.leaf_index(j).expect("leaf")).collect::<Vec<_>>(), t.leaves().collect::<Vec<_>>());
+        assert!(GroupLeaves::new(SceneTree::default()).is_empty());
+    }
+
+    /// Visits are charged one by one and the limit names its quantity.
+    #[test]
+    fn visit_budget_stops_at_the_limit() {
+        let mut b = VisitBudget::new(&Limits { max_traversal_visits: 3, ..Limits::default() });
+        assert!(b.charge(2).is_ok() && b.charge(1).is_ok());
+        assert!(matches!(b.charge(1), Err(Error::LimitExceeded { what: VISITS, value: 4, limit: 3 })));
+        assert_eq!(b.used(), 4);
+    }
+
     #[test]
     fn walks_group_instances_and_inline() {
         let dir = tempfile::tempdir().unwrap();
