@@ -33,8 +33,8 @@
 //! radius reaches every merged piece, and for the voxel method need not exceed the distance
 //! to the voxel's farthest corner. `merge = false` keeps one sample per triangle per voxel.
 //!
-//! Radii are rounded up when stored, and grown by how far rounding the centre to f32 moved
-//! it, so containment survives the f32 storage. A voxel wider than the model is clamped to
+//! Radii are rounded up when stored, and grown by a bound on how far rounding the centre to
+//! f32 moves it, so containment survives the f32 storage. A voxel wider than the model is clamped to
 //! the model's largest extent (a warning in [`SampleStats::warnings`]).
 //!
 //! ## Modules

@@ -7,7 +7,7 @@ use sct_format::Node;
 
 use crate::mesh::norm;
 
-use super::keys::{up_f32, KeyPack, Rec};
+use super::keys::{KeyPack, Rec};
 use super::shade::srgb8;
 
 /// Appends to `out` the nodes of records in the order of `items` (record index = item &
@@ -31,17 +31,26 @@ pub(super) struct NodeShape<'k> {
     /// stands for its column's piece of plane, which can leave the voxel): a merged sample's
     /// radius then need not exceed the distance to the voxel's farthest corner.
     in_voxel: bool,
-    /// Added to every radius (voxel units): pieces are computed in grid coordinates of
-    /// magnitude up to M, each vertex and centroid to within a few ulps of M; 64 ulps of M
-    /// bound how far a computed piece, centroid or centre lies from the exact one.
+    /// Added to every radius (world units): pieces are computed in grid coordinates of
+    /// magnitude up to M, each vertex and centroid to within a few ulps of M, and 64 ulps of
+    /// M bound how far a computed piece, centroid or centre lies from the exact one; then
+    /// rounding a centre to f32 moves it by at most half an ulp of the largest coordinate
+    /// per axis (a bound for the unit rather than each centre's move: a few bits of the
+    /// radius, no work per sample).
     slack: f64,
 }
 
 impl<'k> NodeShape<'k> {
     /// The shape of the nodes of key range `kp` at voxel size `h`; `in_voxel` as the field.
     pub(super) fn new(kp: &'k KeyPack, h: f64, in_voxel: bool) -> Self {
-        let m = kp.lo.iter().chain(&kp.hi).fold(0.0f64, |m, &v| m.max((v as f64).abs()));
-        NodeShape { kp, h, h2: h * h, in_voxel, slack: (m + 2.0) * (1.0 / (1u64 << 46) as f64) }
+        // Centres lie within a voxel of the key range (the range has a voxel to spare).
+        let m: [f64; 3] = std::array::from_fn(|k| (kp.lo[k] as f64).abs().max((kp.hi[k] as f64).abs()) + 2.0);
+        let pieces = m.iter().fold(0.0f64, |a, &b| a.max(b)) * (1.0 / (1u64 << 46) as f64) * h;
+        // Rounding to f32 moves a value below 2^e by at most half an ulp of [2^(e−1), 2^e),
+        // 2^(e−25); 2^(e−24) also covers a `log2` that rounds across a power of two.
+        let moved = |x: f64| (x * h).max(f64::MIN_POSITIVE).log2().ceil().exp2() * (1.0 / (1u64 << 24) as f64);
+        let centre = m.iter().map(|&x| moved(x)).sum::<f64>();
+        NodeShape { kp, h, h2: h * h, in_voxel, slack: pieces + centre }
     }
 }
 
@@ -97,12 +106,9 @@ pub(super) fn merge_loop<const MERGE: bool, const KEYED: bool>(items: &[u64], id
         if bits(color) != memo.0 {
             memo = (bits(color), srgb8(color));
         }
-        let exact: [f64; 3] = std::array::from_fn(|k| (voxel_centre[k] + off[k]) * h);
-        let center = exact.map(|x| x as f32);
-        // The ball must hold the pieces around the stored centre: grown by how far rounding
-        // to f32 moved it (L1, at least the distance).
-        let moved = (f64::from(center[0]) - exact[0]).abs() + (f64::from(center[1]) - exact[1]).abs() + (f64::from(center[2]) - exact[2]).abs();
-        let radius = up_f32((reach + slack) * h + moved);
+        let center: [f32; 3] = std::array::from_fn(|k| ((voxel_centre[k] + off[k]) * h) as f32);
+        // Rounded up: grown by 2^-22 before rounding to nearest, which takes off at most 2^-24.
+        let radius = ((reach * h + slack) * (1.0 + 1.0 / (1u64 << 22) as f64)) as f32;
         nodes.push(Node { center, radius, normal, cone: 0.0, area, color: memo.1 });
         i = j;
     }

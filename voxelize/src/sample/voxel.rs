@@ -326,8 +326,8 @@ mod tests {
     use crate::mesh::AlphaMode;
 
     /// Random triangles in every orientation and size (slivers, steep and flat ones, ones
-    /// smaller than a voxel and ones spanning dozens): every record's point lies on its
-    /// triangle and in its voxel, and random points of the triangle each lie in the ball of
+    /// smaller than a voxel and ones spanning dozens, flat ones on a voxel face): every
+    /// record's point lies on its triangle's plane and in its voxel, and random points of the triangle each lie in the ball of
     /// a record of their voxel (the pieces of a voxel are the triangle ∩ voxel); exact and
     /// EQ 17 areas place records alike.
     #[test]
