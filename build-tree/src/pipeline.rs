@@ -627,7 +627,7 @@ mod tests {
         assert!(s[2].normal.iter().any(|c| *c != 0.0 && c.abs() < f32::MIN_POSITIVE), "a denormal normal is tested");
         let out = dir.path().join("n.sct");
         build(SamplesFile::single_mesh(Generator::default(), "m", s.clone()), &out).expect("builds");
-        let opts = sct_format::validate::ValidateOptions { deep: true, limits: Limits::default() };
+        let opts = sct_format::validate::ValidateOptions { deep: true, ..Default::default() };
         let report = sct_format::validate::validate_file(&out, &opts).expect("validate");
         assert!(report.is_valid(), "{:?}", report.issues);
 
