@@ -13,16 +13,12 @@ use std::collections::HashMap;
 use crate::mesh::{LoadedScene, Mesh};
 
 impl LoadedScene {
-    /// Whether mesh `i` is seen from both sides: by its materials when the format declares
-    /// sidedness (glTF: any primitive whose material is `doubleSided`), else when it is not
-    /// [`closed_and_oriented`].
+    /// Whether mesh `i` is seen from both sides: when any primitive's material is
+    /// double-sided (glTF `doubleSided`), or, in a format that does not declare sidedness
+    /// (OBJ, PLY), when the mesh is not [`closed_and_oriented`].
     pub fn mesh_two_sided(&self, i: usize) -> bool {
         let Some(mesh) = self.meshes.get(i) else { return false };
-        if self.declares_sides {
-            mesh.primitives.iter().any(|p| self.material(p).double_sided)
-        } else {
-            !closed_and_oriented(mesh)
-        }
+        mesh.primitives.iter().any(|p| self.material(p).double_sided) || (!self.declares_sides && !closed_and_oriented(mesh))
     }
 
     /// A point cloud is two-sided: without normals nothing says which way its surface
@@ -126,8 +122,15 @@ mod tests {
         scene.materials.push(Material { double_sided: true, ..Default::default() });
         scene.meshes[0].primitives[0].material = Some(0);
         assert!(scene.mesh_two_sided(0));
-        // Without declared sidedness the closed tetrahedron stays one-sided.
+        // Without declared sidedness a double-sided material still counts; without it the
+        // closed tetrahedron stays one-sided, and an open glTF mesh too.
         scene.declares_sides = false;
+        assert!(scene.mesh_two_sided(0));
+        scene.meshes[0].primitives[0].material = None;
         assert!(!scene.mesh_two_sided(0));
+        scene.meshes[0].primitives[0].triangles.pop();
+        assert!(scene.mesh_two_sided(0));
+        scene.declares_sides = true;
+        assert!(!scene.mesh_two_sided(0), "glTF: an open mesh with one-sided materials is culled as its format says");
     }
 }
