@@ -204,3 +204,24 @@ fn fifo_input_is_refused() {
         assert!(text(&o.stderr).contains("FIFO"), "{}", text(&o.stderr));
     }
 }
+
+/// Item 4: `--against` stops with the traversal's visit limit (a partial coverage of a DAG's
+/// first paths would be no answer).
+#[test]
+fn coverage_stops_at_the_visit_limit() {
+    let d = tmp();
+    let t = pair(leaf(0.0), leaf(1.0));
+    let b = t.nodes()[0];
+    let mut nodes = vec![GraphNode::Tree { tree: 0 }];
+    for k in 1..=40u32 {
+        nodes.push(GraphNode::Group { children: vec![k - 1, k - 1], tree: 1 });
+    }
+    let f = path_in(&d, "dag.sct");
+    write(&f, SceneGraph { nodes, root: 40 }, vec![t, pair(b, b)], Profile::Raw);
+    let mesh = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/fuze/fuze.obj");
+    let opts = inspect::AgainstOptions { points: 10, limits: Limits { max_traversal_visits: 5_000, ..Limits::default() }, ..Default::default() };
+    match inspect::coverage_against(&f, &mesh, &opts) {
+        Err(InspectError::Sct(sct_format::Error::LimitExceeded { what, .. })) => assert_eq!(what, sct_format::traverse::VISITS),
+        other => panic!("{:?}", other.map(|c| c.fraction)),
+    }
+}

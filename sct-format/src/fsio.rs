@@ -6,10 +6,16 @@
 //! [`read_regular`] reads one with a bound. Every SCT input this crate opens goes through
 //! them; they are public so that other loaders (meshes, textures) can do the same.
 //!
-//! [`Source`] holds the bytes of an SCT file: in memory, or an open regular file read on
-//! demand with positioned reads. Reading instead of memory-mapping matters for robustness:
-//! when another process truncates a mapped file, touching the lost pages raises SIGBUS and
-//! kills the process, while a read past the new end is an ordinary I/O error.
+//! [`Source`] holds the bytes of an SCT file: in memory, or a regular file read on demand
+//! with positioned reads. Reading instead of memory-mapping matters for robustness: when
+//! another process truncates a mapped file, touching the lost pages raises SIGBUS and kills
+//! the process, while a read past the new end is an ordinary I/O error.
+//!
+//! A reader does not hold its file open for its whole life: a scene that inlines thousands of
+//! files would run out of file descriptors (1,024 by default on many systems; a map held
+//! none). At most [`OPEN_FILES`] sources keep their file open at a time; one whose file was
+//! closed reopens it by path on its next read and checks it is still the same file (device,
+//! inode, length, modification time), else the read is an I/O error.
 
 use std::borrow::Cow;
 use std::fs::File;
@@ -102,7 +108,7 @@ const STREAM_PIECE: u64 = 1 << 20;
 /// blocks are far smaller: 16,384 raw nodes take 640 KiB).
 const SCRATCH_KEEP: usize = 16 << 20;
 
-/// The bytes of an SCT file: in memory, or an open regular file read on demand.
+/// The bytes of an SCT file: in memory, or a regular file read on demand.
 ///
 /// Reads are bounds-checked against the length the file had when opened; a file that shrinks
 /// afterwards makes later reads fail with an I/O error naming the path.
@@ -112,13 +118,66 @@ pub(crate) enum Source<'a> {
     Bytes(Cow<'a, [u8]>),
     /// A regular file, read with positioned reads (safe from several threads at once).
     File {
-        /// The open file.
-        file: File,
         /// Its length when opened.
         len: u64,
-        /// Its path, for errors.
+        /// Its path, for errors and for reopening.
         path: PathBuf,
+        /// What identifies the file opened, checked when it is reopened.
+        ident: Ident,
+        /// Key of this source in the table of open files.
+        key: u64,
     },
+}
+
+/// Most sources whose files are open at once (see the module docs).
+pub(crate) const OPEN_FILES: usize = 64;
+
+/// What identifies a file: a reopened path must still name the same one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Ident {
+    len: u64,
+    modified: Option<std::time::SystemTime>,
+    #[cfg(unix)]
+    dev_ino: (u64, u64),
+}
+
+impl Ident {
+    fn of(m: &std::fs::Metadata) -> Self {
+        Ident {
+            len: m.len(),
+            modified: m.modified().ok(),
+            #[cfg(unix)]
+            dev_ino: {
+                use std::os::unix::fs::MetadataExt;
+                (m.dev(), m.ino())
+            },
+        }
+    }
+}
+
+/// The open files of the sources that used them last, most recent first.
+static OPEN: std::sync::Mutex<Vec<(u64, std::sync::Arc<File>)>> = std::sync::Mutex::new(Vec::new());
+/// Keys of sources.
+static NEXT_KEY: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// Files in the table, most recent first (a poisoned lock only means a panic elsewhere; the
+/// table itself is always consistent).
+fn open_table() -> std::sync::MutexGuard<'static, Vec<(u64, std::sync::Arc<File>)>> {
+    OPEN.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Puts `file` at the front of the table as source `key`'s, closing the least recently used
+/// beyond [`OPEN_FILES`] (each closes once its last in-flight read ends).
+fn remember(key: u64, file: std::sync::Arc<File>) {
+    let mut t = open_table();
+    t.retain(|(k, _)| *k != key);
+    t.insert(0, (key, file));
+    t.truncate(OPEN_FILES);
+}
+
+/// Forgets source `key`'s file (closing it once no read uses it).
+fn forget(key: u64) {
+    open_table().retain(|(k, _)| *k != key);
 }
 
 #[cfg(test)]
@@ -133,9 +192,41 @@ impl Source<'static> {
         #[cfg(test)]
         OPENS.with(|c| c.set(c.get() + 1));
         let file = open_regular(path)?;
-        let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
-        Ok(Source::File { file, len, path: path.to_path_buf() })
+        let ident = Ident::of(&file.metadata().map_err(|e| Error::io(path, e))?);
+        let key = NEXT_KEY.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        remember(key, std::sync::Arc::new(file));
+        Ok(Source::File { len: ident.len, path: path.to_path_buf(), ident, key })
     }
+}
+
+impl Drop for Source<'_> {
+    fn drop(&mut self) {
+        if let Source::File { key, .. } = self {
+            forget(*key);
+        }
+    }
+}
+
+/// The open file of source `key` (at `path`, identified by `ident`): from the table, or
+/// reopened and checked to be the same file.
+fn file_of(key: u64, path: &Path, ident: &Ident) -> Result<std::sync::Arc<File>> {
+    {
+        let mut t = open_table();
+        if let Some(i) = t.iter().position(|(k, _)| *k == key) {
+            let entry = t.remove(i);
+            let f = entry.1.clone();
+            t.insert(0, entry);
+            return Ok(f);
+        }
+    }
+    let file = open_regular(path)?;
+    let now = Ident::of(&file.metadata().map_err(|e| Error::io(path, e))?);
+    if now != *ident {
+        return Err(Error::io(path, std::io::Error::other("the file was replaced or changed since it was opened")));
+    }
+    let file = std::sync::Arc::new(file);
+    remember(key, file.clone());
+    Ok(file)
 }
 
 impl Source<'_> {
@@ -155,12 +246,13 @@ impl Source<'_> {
         })?;
         match self {
             Source::Bytes(b) => Ok(Cow::Borrowed(&b[offset as usize..end as usize])),
-            Source::File { file, path, .. } => {
+            Source::File { path, ident, key, .. } => {
                 // The range lies inside the file as opened, so this allocation is bounded by
                 // the file's size.
                 let n = usize::try_from(len).map_err(|_| Error::LimitExceeded { what: "read size", value: len, limit: usize::MAX as u64 })?;
+                let file = file_of(*key, path, ident)?;
                 let mut buf = vec![0u8; n];
-                read_exact_at(file, &mut buf, offset).map_err(|e| Error::io(path, e))?;
+                read_exact_at(&file, &mut buf, offset).map_err(|e| Error::io(path, e))?;
                 Ok(Cow::Owned(buf))
             }
         }
@@ -171,9 +263,10 @@ impl Source<'_> {
     /// costs its page faults (about 5 % of a raw-profile validation). A buffer grown past
     /// [`SCRATCH_KEEP`] is released after use, so a huge block does not stay allocated.
     pub fn read_with<R>(&self, offset: u64, len: u64, what: &str, f: impl FnOnce(&[u8]) -> R) -> Result<R> {
-        let Source::File { file, path, .. } = self else {
+        let Source::File { path, ident, key, .. } = self else {
             return Ok(f(&self.read(offset, len, what)?));
         };
+        let file = file_of(*key, path, ident)?;
         offset.checked_add(len).filter(|&e| e <= self.len()).ok_or_else(|| {
             Error::malformed(offset, format!("{what} ({len} bytes at {offset}) extends past the end of the file ({} bytes)", self.len()))
         })?;
@@ -186,7 +279,7 @@ impl Source<'_> {
             if buf.len() < n {
                 buf.resize(n, 0);
             }
-            let r = read_exact_at(file, &mut buf[..n], offset).map_err(|e| Error::io(path, e)).map(|()| f(&buf[..n]));
+            let r = read_exact_at(&file, &mut buf[..n], offset).map_err(|e| Error::io(path, e)).map(|()| f(&buf[..n]));
             if buf.len() <= SCRATCH_KEEP {
                 cell.replace(buf);
             }
@@ -281,6 +374,36 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    /// More sources than may keep their files open: each still reads (reopening its file),
+    /// and one whose file was replaced since it was opened fails instead of reading another.
+    #[test]
+    fn sources_share_a_bounded_set_of_open_files() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let n = OPEN_FILES * 3;
+        let sources: Vec<(PathBuf, Source)> = (0..n)
+            .map(|i| {
+                let p = dir.path().join(format!("f{i}"));
+                std::fs::write(&p, vec![i as u8; 100]).expect("write");
+                let s = Source::open(&p).expect("open");
+                (p, s)
+            })
+            .collect();
+        for round in 0..2 {
+            for (i, (_, s)) in sources.iter().enumerate() {
+                assert_eq!(s.read(10, 5, "x").expect("read")[..], [i as u8; 5][..], "round {round}");
+            }
+        }
+        // Replaced by rename (a new file at the path): refused once it must be reopened.
+        let (p, s) = &sources[0];
+        let tmp = dir.path().join("new");
+        std::fs::write(&tmp, vec![0xAA; 100]).expect("write");
+        std::fs::rename(&tmp, p).expect("rename");
+        for (_, other) in &sources[1..=OPEN_FILES] {
+            other.read(0, 1, "x").expect("read");
+        }
+        assert!(matches!(s.read(0, 1, "x"), Err(Error::Io { .. })));
     }
 
     /// A source over a file that shrinks after opening fails with an I/O error on the lost
