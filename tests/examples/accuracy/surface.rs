@@ -11,6 +11,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use sct_format::traverse::{ReachedKind, Traversal, TraverseOptions};
+use voxelize::mesh::closest_on_triangle;
 
 type V3 = [f64; 3];
 
@@ -20,43 +21,7 @@ fn sub(a: V3, b: V3) -> V3 {
 fn dot(a: V3, b: V3) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
-fn add_scaled(a: V3, b: V3, s: f64) -> V3 {
-    [a[0] + s * b[0], a[1] + s * b[1], a[2] + s * b[2]]
-}
 
-/// Closest point of triangle `t` to `p` (Ericson, Real-Time Collision Detection §5.1.5).
-fn closest_on_triangle(p: V3, t: &[V3; 3]) -> V3 {
-    let [a, b, c] = *t;
-    let (ab, ac, ap) = (sub(b, a), sub(c, a), sub(p, a));
-    let (d1, d2) = (dot(ab, ap), dot(ac, ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return a;
-    }
-    let bp = sub(p, b);
-    let (d3, d4) = (dot(ab, bp), dot(ac, bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return b;
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return add_scaled(a, ab, d1 / (d1 - d3));
-    }
-    let cp = sub(p, c);
-    let (d5, d6) = (dot(ab, cp), dot(ac, cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return c;
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return add_scaled(a, ac, d2 / (d2 - d6));
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        return add_scaled(b, sub(c, b), (d4 - d3) / ((d4 - d3) + (d5 - d6)));
-    }
-    let denom = 1.0 / (va + vb + vc);
-    add_scaled(add_scaled(a, ab, vb * denom), ac, vc * denom)
-}
 
 /// Triangles of a mesh in a hash grid.
 pub struct SurfaceGrid {
