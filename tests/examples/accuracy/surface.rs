@@ -122,10 +122,29 @@ pub fn leaves(path: &Path) -> Result<Vec<(V3, f64)>, String> {
     Ok(out)
 }
 
+/// Sample centres and radii of a samples file in world space (every placement).
+pub fn samples(path: &Path) -> Result<Vec<(V3, f64)>, String> {
+    let f = sct_format::samples::SamplesFile::read_file(path, &sct_format::Limits::default()).map_err(|e| e.to_string())?;
+    let mut out = Vec::new();
+    for inst in &f.instances {
+        for n in f.mesh_samples(inst.mesh as usize) {
+            let n = inst.transform.apply_node(n);
+            out.push((n.center.map(f64::from), f64::from(n.radius)));
+        }
+    }
+    for a in &f.affine_instances {
+        let stretch = a.max_stretch();
+        for n in f.mesh_samples(a.mesh as usize) {
+            let n = a.transform_node(n, stretch);
+            out.push((n.center.map(f64::from), f64::from(n.radius)));
+        }
+    }
+    Ok(out)
+}
+
 /// (max, mean) distance of the leaf centres to the surface divided by `voxel`, and the
 /// number of leaves whose sphere reaches no triangle (each one a containment failure).
-pub fn centre_distances(leaves: &[(V3, f64)], tris: Vec<[V3; 3]>, voxel: f64) -> (f64, f64, usize) {
-    let grid = SurfaceGrid::new(tris, 2.0 * voxel);
+pub fn centre_distances(leaves: &[(V3, f64)], grid: &SurfaceGrid, voxel: f64) -> (f64, f64, usize) {
     let (mut max, mut sum, mut far) = (0.0f64, 0.0f64, 0usize);
     for &(c, r) in leaves {
         match grid.distance_within(c, r.max(1e-9 * voxel)) {

@@ -1,7 +1,11 @@
-//! Turning sorted records into samples: one per voxel when merging, else one per record.
-//! A merged sample stands at the area-weighted centroid of its records' points (the
-//! centroid of the union of their pieces), with a radius that reaches every piece; areas
-//! add, normal and colour are area-weighted means.
+//! Turning sorted records into samples: one per surface of a voxel when merging, else one
+//! per record. A voxel's records belong to one surface when their normals lie within 60° of
+//! the surface's first record's normal; a box's edge, a crease or the two sides of a thin
+//! part give one sample per side, each on its own side. (Averaging them would put the sample
+//! between the surfaces, on neither, with a normal that shades neither.) A merged sample
+//! stands at the area-weighted centroid of its records' points (the centroid of the union of
+//! their pieces), with a radius that reaches every piece; areas add, normal and colour are
+//! area-weighted means.
 
 use sct_format::Node;
 
@@ -72,6 +76,7 @@ pub(super) fn merge_loop<const MERGE: bool, const KEYED: bool>(items: &[u64], id
     let mut memo = (bits([f32::NAN; 4]), srgb8([f32::NAN; 4]));
     // A local vector: its length and pointer stay in registers across the loop.
     let mut nodes = std::mem::take(out);
+    let mut surfaces = Surfaces::default();
     nodes.reserve(items.len());
     let n = items.len();
     let mut i = 0;
@@ -97,22 +102,107 @@ pub(super) fn merge_loop<const MERGE: bool, const KEYED: bool>(items: &[u64], id
             column = (hi, [v[0] as f64 + 0.5, v[1] as f64 + 0.5]);
         }
         let voxel_centre = [column.1[0], column.1[1], ((key & z_mask) as i64 + z_lo) as f64 + 0.5];
-        let (normal, area, color, off, reach) = if j == i + 1 {
-            // The common case: nothing to merge.
-            (first.normal, (f64::from(first.area) * h2) as f32, first.color, first.off.map(f64::from), f64::from(first.r))
-        } else {
-            merge_run(&items[i..j], idx_mask, recs, h2, in_voxel)
+        let mut push = |(normal, area, color, off, reach): Merged| {
+            if bits(color) != memo.0 {
+                memo = (bits(color), srgb8(color));
+            }
+            let center: [f32; 3] = std::array::from_fn(|k| ((voxel_centre[k] + off[k]) * h) as f32);
+            // Rounded up: grown by 2^-22 before rounding to nearest, which takes off at most 2^-24.
+            let radius = ((reach * h + slack) * (1.0 + 1.0 / (1u64 << 22) as f64)) as f32;
+            nodes.push(Node { center, radius, normal, cone: 0.0, area, color: memo.1 });
         };
-        if bits(color) != memo.0 {
-            memo = (bits(color), srgb8(color));
+        if j == i + 1 {
+            // The common case: nothing to merge.
+            push((first.normal, (f64::from(first.area) * h2) as f32, first.color, first.off.map(f64::from), f64::from(first.r)));
+        } else {
+            let run = &items[i..j];
+            let rec = |it: u64| &recs[(it & idx_mask) as usize];
+            if run[1..].iter().all(|&it| same_surface(first.normal, rec(it).normal)) {
+                push(merge_run(run, idx_mask, recs, h2, in_voxel));
+            } else {
+                surfaces.split(run, |it| rec(it));
+                for s in 0..surfaces.count() {
+                    push(merge_run(surfaces.items(s), idx_mask, recs, h2, in_voxel));
+                }
+            }
         }
-        let center: [f32; 3] = std::array::from_fn(|k| ((voxel_centre[k] + off[k]) * h) as f32);
-        // Rounded up: grown by 2^-22 before rounding to nearest, which takes off at most 2^-24.
-        let radius = ((reach * h + slack) * (1.0 + 1.0 / (1u64 << 22) as f64)) as f32;
-        nodes.push(Node { center, radius, normal, cone: 0.0, area, color: memo.1 });
         i = j;
     }
     *out = nodes;
+}
+
+/// (normal, area, colour, offset, reach) of a merged sample; see [`merge_run`].
+type Merged = ([f32; 3], f32, [f32; 4], [f64; 3], f64);
+
+/// Cosine of the largest angle between the normals of two pieces of one surface.
+const SAME_SURFACE_COS: f32 = 0.5;
+
+#[inline(always)]
+fn same_surface(a: [f32; 3], b: [f32; 3]) -> bool {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2] >= SAME_SURFACE_COS
+}
+
+/// A voxel's records split by surface (reused across voxels: no allocation per voxel).
+#[derive(Default)]
+struct Surfaces {
+    /// Each surface's first normal.
+    normals: Vec<[f32; 3]>,
+    /// Each record's surface, in run order.
+    label: Vec<u32>,
+    /// The items grouped by surface, surfaces in order of first appearance.
+    grouped: Vec<u64>,
+    /// Where each surface's items start in `grouped` (one more entry than surfaces).
+    starts: Vec<usize>,
+}
+
+impl Surfaces {
+    /// Splits `run` into surfaces: a record with area joins the first surface whose first
+    /// normal lies within 60° of its own, or starts one; a record without area (a piece
+    /// that only touches the voxel, an edge or a corner) joins the surface nearest its
+    /// normal and starts none, so slivers add no samples (unless the voxel holds nothing
+    /// else). The order of `run` decides, so the split is as deterministic as the sort.
+    fn split<'r>(&mut self, run: &[u64], rec: impl Fn(u64) -> &'r Rec) {
+        self.normals.clear();
+        self.label.clear();
+        // A voxel of slivers only (a face lying on the voxel's boundary) splits them alike.
+        let any_area = run.iter().any(|&it| rec(it).area > 0.0);
+        for &it in run {
+            let r = rec(it);
+            let l = if r.area > 0.0 || !any_area {
+                match self.normals.iter().position(|&n| same_surface(n, r.normal)) {
+                    Some(s) => s,
+                    None => {
+                        self.normals.push(r.normal);
+                        self.normals.len() - 1
+                    }
+                }
+            } else {
+                u32::MAX as usize
+            };
+            self.label.push(l as u32);
+        }
+        for (l, &it) in self.label.iter_mut().zip(run) {
+            if *l == u32::MAX {
+                let n = rec(it).normal;
+                let dot = |s: &[f32; 3]| s[0] * n[0] + s[1] * n[1] + s[2] * n[2];
+                let best = (0..self.normals.len()).fold(0, |b, s| if dot(&self.normals[s]) > dot(&self.normals[b]) { s } else { b });
+                *l = best as u32;
+            }
+        }
+        self.grouped.clear();
+        self.starts.clear();
+        for s in 0..self.normals.len() as u32 {
+            self.starts.push(self.grouped.len());
+            self.grouped.extend(run.iter().zip(&self.label).filter(|&(_, &l)| l == s).map(|(&it, _)| it));
+        }
+        self.starts.push(self.grouped.len());
+    }
+    fn count(&self) -> usize {
+        self.normals.len()
+    }
+    fn items(&self, s: usize) -> &[u64] {
+        &self.grouped[self.starts[s]..self.starts[s + 1]]
+    }
 }
 
 /// (normal, area, colour, offset, reach) of a run of records of one voxel: the offset is
@@ -121,7 +211,7 @@ pub(super) fn merge_loop<const MERGE: bool, const KEYED: bool>(items: &[u64], id
 /// corner when `in_voxel`. Its own function with its own locals; inlined: a call per run
 /// measured +4 % instructions in the voxel method's merge.
 #[inline(always)]
-pub(super) fn merge_run(run: &[u64], idx_mask: u64, recs: &[Rec], h2: f64, in_voxel: bool) -> ([f32; 3], f32, [f32; 4], [f64; 3], f64) {
+pub(super) fn merge_run(run: &[u64], idx_mask: u64, recs: &[Rec], h2: f64, in_voxel: bool) -> Merged {
     let (mut a, mut wsum, mut nn, mut c, mut o) = (0.0f64, 0.0f64, [0.0f64; 3], [0.0f64; 4], [0.0f64; 3]);
     for &it in run {
         let x = &recs[(it & idx_mask) as usize];
@@ -177,7 +267,8 @@ mod tests {
             let (off, r) = offset_reach(mean, v, reach);
             let c = |r: &mut sct_format::rng::SplitMix64| (r.next_u64() % 1000) as f32 / 1000.0;
             let area = if i % 7 == 0 { 0.0 } else { c(&mut rng) };
-            recs.push(Rec { key: kp.pack(v), area, normal: [c(&mut rng), 0.5, -0.25], color: [c(&mut rng), 0.25, 0.5, 1.0], off, r });
+            // One surface per voxel here (normals within 60°); `surfaces_split_a_voxel` tests the split.
+            recs.push(Rec { key: kp.pack(v), area, normal: [c(&mut rng) * 0.5, 0.5, 0.75], color: [c(&mut rng), 0.25, 0.5, 1.0], off, r });
             pts.push(piece);
         }
         (recs, pts)
@@ -248,5 +339,45 @@ mod tests {
             }
             assert_eq!(corner_bound > 0, merge && in_voxel, "{corner_bound} radii bounded by the voxel's corners");
         }
+    }
+
+    /// A voxel holding pieces of two perpendicular faces (a box's edge) gives one sample per
+    /// face, each at its own pieces' centroid with its own normal; a zero-area sliver joins
+    /// the face nearest its normal and adds no sample.
+    #[test]
+    fn surfaces_split_a_voxel() {
+        let kp = KeyPack::new([0.0; 3], [4.0; 3]).expect("keys");
+        let v = [1, 1, 1];
+        let rec = |p: [f64; 3], normal: [f32; 3], area: f32| {
+            let (off, r) = offset_reach(p, v, 0.1);
+            Rec { key: kp.pack(v), area, normal, color: [0.5, 0.5, 0.5, 1.0], off, r }
+        };
+        let top = [0.0, 0.0, 1.0];
+        let side = [1.0, 0.0, 0.0];
+        let recs = vec![
+            rec([1.5, 1.2, 2.0], top, 0.2),
+            rec([2.0, 1.5, 1.5], side, 0.3),
+            rec([1.5, 1.8, 2.0], top, 0.2),
+            rec([2.0, 1.5, 1.9], [0.9, 0.0, 0.436], 0.0), // a sliver, nearest the side
+            rec([1.7, 1.5, 2.0], [0.2, 0.0, 0.98], 0.4), // within 60° of the top
+        ];
+        let items: Vec<u64> = (0..recs.len() as u64).collect();
+        let h = 1.0;
+        let shape = NodeShape::new(&kp, h, true);
+        let mut out = Vec::new();
+        merge_sorted(&items, u64::MAX, &recs, &shape, true, &mut out);
+        assert_eq!(out.len(), 2, "{out:?}");
+        let (t, s) = (&out[0], &out[1]);
+        // The top's centre is on the plane z = 2, the side's on x = 2.
+        assert!((t.center[2] - 2.0).abs() < 1e-6, "{t:?}");
+        assert!((s.center[0] - 2.0).abs() < 1e-6, "{s:?}");
+        assert!(t.normal[2] > 0.9 && s.normal[0] > 0.9);
+        assert!((t.area - 0.8).abs() < 1e-6 && (s.area - 0.3).abs() < 1e-6);
+        // The sliver's point lies in the side's ball.
+        let d = ((s.center[0] - 2.0).powi(2) + (s.center[1] - 1.5).powi(2) + (s.center[2] - 1.9).powi(2)).sqrt();
+        assert!(d <= s.radius);
+        // Without merging every record is a sample.
+        merge_sorted(&items, u64::MAX, &recs, &shape, false, &mut out);
+        assert_eq!(out.len(), 2 + recs.len());
     }
 }

@@ -84,21 +84,37 @@ impl<'a> Prepared<'a> {
         // A mirroring bake flips the winding; swap to keep the front side.
         let idx = if self.flip { [t[0], t[2], t[1]] } else { t };
         let vi = idx.map(|i| i as usize);
+        let p = vi.map(|i| self.pos[i]);
         let n = match (&self.nrm, &self.baked) {
-            (Some(n), _) => vi.map(|i| n[i]),
+            (Some(n), _) => front_facing(vi.map(|i| n[i]), &p),
             (None, Some(c)) => c.get(ti).copied().unwrap_or_default(),
             _ => [[0.0; 3]; 3],
         };
         let uvset = self.mat.tex.as_ref().and_then(|t| prim.uvs.get(t.1.tex_coord as usize));
         let uvset2 = self.mat.alpha_tex.as_ref().and_then(|t| prim.uvs.get(t.1.tex_coord as usize));
         Tri {
-            p: vi.map(|i| self.pos[i]),
+            p,
             n,
             c: vi.map(|i| prim.colors.as_ref().map_or([1.0; 4], |c| c[i])),
             uv: vi.map(|i| uvset.map_or([0.0; 2], |s| s[i])),
             uv2: vi.map(|i| uvset2.map_or([0.0; 2], |s| s[i])),
         }
     }
+}
+
+/// The file's corner normals `n` of the triangle `p`, each turned to the side its winding
+/// calls the front. Renderers cull one-sided trees by the samples' normals while the mesh
+/// reference (and every mesh renderer) culls by winding: a file whose normals point inward
+/// would otherwise show a closed model's inside (the far wall, mirrored) where its front
+/// should be. Two-sided trees light by |n·l|, so the sign changes nothing there.
+fn front_facing(mut n: [[f32; 3]; 3], p: &[[f64; 3]; 3]) -> [[f32; 3]; 3] {
+    let f = cross(sub(p[1], p[0]), sub(p[2], p[0]));
+    for c in &mut n {
+        if f64::from(c[0]) * f[0] + f64::from(c[1]) * f[1] + f64::from(c[2]) * f[2] < 0.0 {
+            *c = c.map(|x| -x);
+        }
+    }
+    n
 }
 
 /// A triangle's computed corner normals as [`Prepared::tri`] gives them: in the winding of

@@ -21,11 +21,17 @@ pub(super) fn vertex_patches(
     let mut radius = vec![0.0f64; nv];
     let mut area = vec![0.0f64; nv];
     let mut nacc = vec![[0.0f64; 3]; nv];
+    // Area-weighted face normals around each vertex: the side a file's normal must face.
+    let mut front = vec![[0.0f64; 3]; nv];
     let mut used = vec![false; nv];
     for (ti, t) in prim.triangles.iter().enumerate() {
         let v = t.map(|i| i as usize);
-        let fa = 0.5 * norm(cross(sub(pos[v[1]], pos[v[0]]), sub(pos[v[2]], pos[v[0]])));
+        let fnrm = cross(sub(pos[v[1]], pos[v[0]]), sub(pos[v[2]], pos[v[0]]));
+        let fa = 0.5 * norm(fnrm);
         for e in 0..3 {
+            for k in 0..3 {
+                front[v[e]][k] += fnrm[k];
+            }
             let (i, j) = (v[e], v[(e + 1) % 3]);
             let l = norm(sub(pos[i], pos[j]));
             radius[i] = radius[i].max(l);
@@ -48,6 +54,8 @@ pub(super) fn vertex_patches(
             continue;
         }
         let n = match nrm {
+            // Turned to the winding's front, as the other samplers do (`prepare::front_facing`).
+            Some(n) if (0..3).map(|k| f64::from(n[i][k]) * front[i][k]).sum::<f64>() < 0.0 => n[i].map(|x| -x),
             Some(n) => n[i],
             None => nacc[i].map(|x| x as f32),
         };
