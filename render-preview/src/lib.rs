@@ -66,7 +66,7 @@ pub enum LodSize {
     Sphere,
 }
 
-/// Internal splats are drawn with at most this multiple of the radius of the disc whose
+/// Splats are drawn with at most this multiple of the radius of the disc whose
 /// area equals the node's surface area (see `lod::decide`).
 pub const AREA_COVER: f32 = 1.3;
 
