@@ -28,7 +28,7 @@ impl<const D: usize> Emitter<'_, '_, D> {
     /// axes (D + 1, D + 2, D), lying within `reach` of its centroid.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    pub(super) fn emit(&mut self, out: &mut Vec<Rec>, ia: i64, ib: i64, k: i64, area2: f64, cen: [f64; 2], dc: f64, reach: f64) {
+    pub(super) fn emit(&mut self, out: &mut Vec<Rec>, ia: i64, ib: i64, k: i64, area2: f64, cen: [f64; 2], dc: f64, reach: f64, piece: Piece) {
         let mut key = [0i64; 3];
         key[(D + 1) % 3] = ia;
         key[(D + 2) % 3] = ib;
@@ -39,6 +39,7 @@ impl<const D: usize> Emitter<'_, '_, D> {
         }
         match self.planes.shade(cen) {
             (Some(color), normal) => {
+                let color = if self.planes.flat_c.is_some() { color } else { piece_color(self.planes, cen, color, piece) };
                 // The key range holds every piece with a voxel to spare, so the clamp leaves
                 // the voxel as it is; the offset is taken from the voxel of the key all the same.
                 let v = self.kp.clamp(key);
@@ -50,6 +51,52 @@ impl<const D: usize> Emitter<'_, '_, D> {
             (None, _) => self.dropped += 1,
         }
     }
+}
+
+/// Where a piece lies, for [`piece_color`]: the unit square of an interior column (its
+/// centre is the centroid), or a polygon.
+#[derive(Clone, Copy)]
+pub(super) enum Piece<'a> {
+    Square,
+    Poly(&'a Poly2),
+}
+
+/// The mean colour of a piece whose colour varies (a texture, vertex colours): the
+/// centroid's colour `at_cen` with four more points of the piece (halfway from the centroid
+/// to the square's corners, or to the polygon's vertices — inside the piece, so inside the
+/// triangle and its texture chart). One lookup at the centroid point-samples a texture at
+/// the voxel's spacing and aliases its fine detail (thin lines break up, small text
+/// scrambles); the mean over the piece is what the piece shows from afar. Points that the
+/// alpha mode drops count as nothing; whether the sample is dropped stays the centroid's
+/// decision.
+#[inline(always)]
+fn piece_color(planes: &Planes, cen: [f64; 2], at_cen: [f32; 4], piece: Piece) -> [f32; 4] {
+    let mut sum = at_cen;
+    let mut n = 1.0f32;
+    let mut add = |p: [f64; 2]| {
+        if let (Some(c), _) = planes.shade(p) {
+            for k in 0..4 {
+                sum[k] += c[k];
+            }
+            n += 1.0;
+        }
+    };
+    match piece {
+        Piece::Square => {
+            for (da, db) in [(-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)] {
+                add([cen[0] + da, cen[1] + db]);
+            }
+        }
+        Piece::Poly(poly) => {
+            // At most four of the vertices, spread around the polygon.
+            let m = poly.n.min(MAXV);
+            let step = m.div_ceil(4).max(1);
+            for v in poly.v[..m].iter().step_by(step) {
+                add([0.5 * (cen[0] + v[0]), 0.5 * (cen[1] + v[1])]);
+            }
+        }
+    }
+    sum.map(|x| x / n)
 }
 
 /// Largest distance from the point (`c`, depth `dc`) to the vertices of `poly` lifted onto
@@ -254,7 +301,7 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
             if kmin == kmax {
                 if d != 0 || (xr.0..=xr.1).contains(&kmin) {
                     let reach = if interior { reach_interior } else { reach2.sqrt() };
-                    em.emit(out, ia, ib, kmin, area2, cen, dc, reach);
+                    em.emit(out, ia, ib, kmin, area2, cen, dc, reach, if interior { Piece::Square } else { Piece::Poly(&col) });
                 }
                 continue;
             }
@@ -280,7 +327,7 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
                 let keep = |k: i64| d != 0 || (xr.0..=xr.1).contains(&k);
                 if al > 0.0 && keep(kmin) {
                     let dc = depth(&cl);
-                    em.emit(out, ia, ib, kmin, al, cl, dc, reach(&lower, cl, dc, |i, _| dl[i]));
+                    em.emit(out, ia, ib, kmin, al, cl, dc, reach(&lower, cl, dc, |i, _| dl[i]), Piece::Poly(&lower));
                 }
                 if au > 0.0 && keep(kmax) {
                     let (ad, cd) = if upper.n >= 3 { upper.area_centroid() } else { (0.0, cen) };
@@ -288,7 +335,7 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
                     let dc = depth(&cu);
                     // A part too thin for its own polygon lies in the piece.
                     let reach = if upper.n >= 3 { reach(&upper, cu, dc, |i, _| du[i]) } else { reach(poly, cu, dc, |i, _| dv[i]) };
-                    em.emit(out, ia, ib, kmax, au, cu, dc, reach);
+                    em.emit(out, ia, ib, kmax, au, cu, dc, reach, Piece::Poly(if upper.n >= 3 { &upper } else { poly }));
                 }
                 continue;
             }
@@ -304,7 +351,7 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
                 let (ar, cen) = sub.area_centroid();
                 if ar > 0.0 {
                     let dc = depth(&cen);
-                    em.emit(out, ia, ib, k, ar, cen, dc, reach(sub, cen, dc, |_, p| depth(p)));
+                    em.emit(out, ia, ib, k, ar, cen, dc, reach(sub, cen, dc, |_, p| depth(p)), Piece::Poly(sub));
                 }
             }
         }
