@@ -21,6 +21,7 @@ pub const SCHEMA: &str = "sct-inspect/1";
 
 pub mod export;
 pub mod coverage;
+pub mod many;
 
 pub use coverage::{coverage_against, AgainstOptions, CoverageReport};
 

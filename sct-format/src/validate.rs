@@ -334,7 +334,7 @@ fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, room: usize, issues: 
         let probs = match n {
             GraphNode::Instance { transform, .. } => transform_problems(transform),
             GraphNode::Inline { bound, .. } if !bound.is_finite() => {
-                vec![(CheckId::NonFinite, format!("inline bound has non-finite attributes: {bound:?}"))]
+                vec![(CheckId::NonFinite, format!("inline bound has non-finite attributes: {bound}"))]
             }
             _ => continue,
         };
@@ -1006,7 +1006,7 @@ impl<'o> Validator<'o> {
                 && cone_contains(bound.normal, bound.cone, r.normal, r.cone, cone_tolerance(Profile::Raw))
                 && color_ok(bound.color, r.color, color_tolerance(Profile::Raw));
             if !ok {
-                self.issue(p, CheckId::InlineBound, label, format!("graph node {n}: recorded bound {bound:?} does not match the root of {rel}: {r:?}"));
+                self.issue(p, CheckId::InlineBound, label, format!("graph node {n}: recorded bound ({bound}) does not match the root of {rel} ({r})"));
             }
         }
     }

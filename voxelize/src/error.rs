@@ -23,6 +23,17 @@ pub enum LoadError {
         /// The file.
         path: PathBuf,
     },
+    /// The content is not a mesh this tool reads (STL, FBX, an SCT file, …), named by
+    /// what it is.
+    #[error("{}: this is {found}; {hint}", path.display())]
+    UnsupportedFormat {
+        /// The file.
+        path: PathBuf,
+        /// What the content is ("an STL file").
+        found: &'static str,
+        /// What to do about it.
+        hint: &'static str,
+    },
     /// The file is not valid in its format.
     #[error("{}: {format} parse error at {location}: {message}", path.display())]
     Parse {

@@ -15,6 +15,7 @@
 
 pub mod args;
 pub mod error;
+pub mod interrupt;
 pub mod load;
 pub mod mesh;
 pub mod polygon;

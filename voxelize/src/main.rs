@@ -47,6 +47,7 @@ struct Cli {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    voxelize::interrupt::remove_temp_files_on_signal("sct-voxelize");
     if let Some(t) = cli.threads {
         if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(t).build_global() {
             eprintln!("sct-voxelize: cannot set threads: {e}");
