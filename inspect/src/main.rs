@@ -32,6 +32,9 @@ Examples:
   sct-inspect bunny.sct --against bunny.ply --min-coverage 0.99
                                          fraction of 10^5 random surface points of the mesh inside
                                          some leaf sphere (exit 1 below the threshold)
+  sct-inspect leaf.sct --against leaf.glb --exclude-alpha-dropped
+                                         the same for an alpha-masked asset: only surfaces the
+                                         voxelizer keeps are tested
   sct-inspect bunny.samples --export-ply samples.ply
   sct-inspect bunny.sct --export-ply level12.ply --export-level 12
                                          PLY point clouds for MeshLab / CloudCompare";
@@ -66,9 +69,15 @@ struct Cli {
     /// Coverage of a source mesh (OBJ, glTF/GLB, PLY): the fraction of random surface points
     /// inside some leaf sphere, leaves in world space (instances and inlines applied). Points
     /// are drawn on every triangle, including surfaces the voxelizer drops by alpha (glTF MASK
-    /// below the cutoff, fully transparent BLEND): such models cover less than 100 %.
+    /// below the cutoff, fully transparent BLEND): such models cover less than 100 % unless
+    /// --exclude-alpha-dropped leaves those out.
     #[arg(long, value_name = "MESH", conflicts_with_all = ["dump", "export_ply"])]
     against: Option<PathBuf>,
+    /// With --against: draw points only where the voxelizer keeps samples, leaving out
+    /// surfaces it drops by alpha (MASK below the cutoff, fully transparent BLEND), so
+    /// alpha-masked assets can be gated at full coverage too.
+    #[arg(long, requires = "against")]
+    exclude_alpha_dropped: bool,
     /// Surface points tested by --against (at least 1).
     #[arg(long, value_name = "N", default_value_t = DEFAULT_POINTS, requires = "against", value_parser = positive)]
     points: usize,
@@ -182,6 +191,7 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
                     min_coverage: cli.min_coverage,
                     limits: limits.clone(),
                     allow_outside_inlines: cli.allow_outside_inlines,
+                    exclude_alpha_dropped: cli.exclude_alpha_dropped,
                     ..Default::default()
                 };
                 s.coverage = Some(coverage_against(file, mesh, &opts)?);
