@@ -516,7 +516,7 @@ fn run_one(opts: &BatchOptions, key: &str, rel: &Path, out_rel: &Path) -> (JobRe
         build: opts.build,
     };
     let tag = BatchTag { key, root: &opts.input_dir, sidecar: &sidecar };
-    let job = match convert_meshes_checked(&[input.clone()], &sampling, &cfg, Some(tag), opts.deny_warnings, &mut |_| {}) {
+    let job = match convert_meshes_checked(std::slice::from_ref(&input), &sampling, &cfg, Some(tag), opts.deny_warnings, &mut |_| {}) {
         Ok(rep) => JobResult {
             input: slash(rel),
             output: slash(out_rel),

@@ -27,7 +27,7 @@ pub struct BatchProgress<'a> {
 /// `elapsed` seconds, `remaining` bytes of inputs still to convert (running or queued).
 /// `None` before anything was converted (no rate yet).
 pub fn eta_seconds(elapsed: f64, done: u64, remaining: u64) -> Option<f64> {
-    if done == 0 || !(elapsed > 0.0) {
+    if done == 0 || elapsed.is_nan() || elapsed <= 0.0 {
         return None;
     }
     Some(remaining as f64 * elapsed / done as f64)
