@@ -43,7 +43,11 @@ pub fn write_rgb_image(path: &Path, img: &image::RgbImage) -> Result<()> {
             ImageKind::Jpeg => image::codecs::jpeg::JpegEncoder::new_with_quality(w, JPEG_QUALITY).encode_image(img).map_err(io),
         }
     })
-    .map_err(|e| fail(e.to_string()))
+    .map_err(|e| match e {
+        // "invalid argument: " adds nothing to "PATH: names a directory; …".
+        sct_format::Error::Misuse(m) => fail(m),
+        e => fail(e.to_string()),
+    })
 }
 
 #[cfg(test)]

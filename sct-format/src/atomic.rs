@@ -225,11 +225,11 @@ pub fn process_is_gone(pid: u32, hostrand: &str) -> bool {
 /// missing, is not a directory, or is not writable.
 fn output_dir_error(dir: &Path, target: &Path, e: std::io::Error) -> Error {
     let why = match std::fs::metadata(dir) {
-        Err(m) if m.kind() == std::io::ErrorKind::NotFound => "the directory does not exist".to_string(),
-        Ok(m) if !m.is_dir() => "is not a directory".to_string(),
-        _ => e.to_string(),
+        Err(m) if m.kind() == std::io::ErrorKind::NotFound => format!("its directory {} does not exist", dir.display()),
+        Ok(m) if !m.is_dir() => format!("{} is not a directory", dir.display()),
+        _ => format!("cannot create a file in {}: {e}", dir.display()),
     };
-    Error::io(dir, std::io::Error::new(e.kind(), format!("cannot write {} here: {why}", target.display())))
+    Error::io(target, std::io::Error::new(e.kind(), why))
 }
 
 /// 64 unpredictable bits without a dependency: std's `RandomState` keys come from the OS's

@@ -163,7 +163,7 @@ pub enum Error {
     #[error("{0}")]
     Sampling(String),
     /// Writing the output failed (I/O: exit status 2).
-    #[error("{}: cannot write: {source}", path.display())]
+    #[error("{}", write_message(path, source))]
     Write {
         /// Output path.
         path: PathBuf,
@@ -181,5 +181,18 @@ impl Error {
             Error::Load(_) | Error::Sampling(_) => 1,
             Error::Usage(_) | Error::Write { .. } => 2,
         }
+    }
+}
+
+/// `PATH: cannot write: CAUSE`, the path once: the writer's own messages often name it.
+fn write_message(path: &std::path::Path, source: &sct_format::Error) -> String {
+    let cause = match source {
+        sct_format::Error::Misuse(m) => m.clone(),
+        other => other.to_string(),
+    };
+    if cause.contains(&path.display().to_string()) {
+        format!("cannot write: {cause}")
+    } else {
+        format!("{}: cannot write: {cause}", path.display())
     }
 }

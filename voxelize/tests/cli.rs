@@ -177,3 +177,20 @@ fn an_interrupted_run_leaves_no_temporary_file() {
         assert!(left.is_empty(), "left behind: {left:?}");
     }
 }
+
+/// `-o DIR/` and `-o missing/x.samples`: usage/I/O errors (2) that say what is wrong with
+/// the output path, naming it once and never the hidden temporary file.
+#[test]
+fn output_path_errors_say_what_is_wrong_once() {
+    let Some(bx) = model("gltf/Box/glTF-Binary/Box.glb") else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let slash = format!("{}/", dir.path().join("od").display());
+    let missing = dir.path().join("missing/x.samples");
+    for (out, want) in [(slash.clone(), "names a directory"), (missing.display().to_string(), "does not exist")] {
+        let st = bin().arg(&bx).args(["-o", &out, "--voxel-size", "0.1"]).output().unwrap();
+        let err = String::from_utf8_lossy(&st.stderr);
+        assert_eq!(st.status.code(), Some(2), "{err}");
+        assert!(err.contains(want) && !err.contains(".x.samples.") && !err.contains("Not a directory"), "{err}");
+        assert_eq!(err.matches(out.trim_end_matches('/')).count(), 1 + usize::from(out.ends_with('/')), "{err}");
+    }
+}
