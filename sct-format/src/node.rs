@@ -57,5 +57,7 @@ mod tests {
         let n = super::Node { center: [1e30, 0.0, 2.5], radius: f32::INFINITY, color: [255, 0, 16, 255], ..Default::default() };
         let s = n.to_string();
         assert_eq!(s, "centre (1000000000000000000000000000000, 0, 2.5), radius inf, normal (0, 0, 0) ± 0 rad, area 0, colour #ff0010ff");
+        let t = crate::Similarity { translation: [1.0, f64::NAN, 0.0], rotation: [0.0, 0.0, 0.0, 1.0], scale: 2.0 };
+        assert_eq!(t.to_string(), "translation (1, NaN, 0), rotation (0, 0, 0, 1), scale 2");
     }
 }

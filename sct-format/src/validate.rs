@@ -295,7 +295,7 @@ struct Graph {
 fn transform_problems(t: &Similarity) -> Vec<Problem> {
     let finite = t.translation.iter().chain(t.rotation.iter()).all(|v| v.is_finite()) && t.scale.is_finite();
     if !finite {
-        return vec![(CheckId::NonFinite, format!("instance transform has a non-finite component: {t:?}"))];
+        return vec![(CheckId::NonFinite, format!("instance transform has a non-finite component: {t}"))];
     }
     let mut out = Vec::new();
     let len = t.rotation.iter().map(|v| v * v).sum::<f64>().sqrt();

@@ -279,6 +279,17 @@ mod tests {
         Node { center: c, radius: r, normal: [0.0, 0.6, 0.8], cone: 0.1, area: 2.5, color: [200, 100, 50, 255] }
     }
 
+    /// Coordinates of 1e30 (areas overflow to infinity): the refusal names the attribute and
+    /// the cause in words, not a Rust `Node { … }` structure.
+    #[test]
+    fn unusable_children_are_described_in_words() {
+        let mut c = node([1e30, 0.0, 0.0], 1e30);
+        c.area = f32::INFINITY;
+        let e = check_child(&c, 3, CodecParams { alpha: false }).unwrap_err().to_string();
+        assert!(e.contains("area inf") && e.contains("child node 3") && e.contains("scale the model down"), "{e}");
+        assert!(!e.contains("Node {") && !e.contains("center:"), "{e}");
+    }
+
     #[test]
     fn round_trip_pair() {
         let p = node([0.0; 3], 1.0);
