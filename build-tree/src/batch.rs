@@ -3,11 +3,16 @@
 //!
 //! - **Parallel**: `jobs` files at a time, each conversion itself parallel (rayon).
 //! - **Incremental**: an output is up to date when its own provenance (`GENR`) records this
-//!   tool version, the same job key (a hash of every sampling and build parameter) and
-//!   sources whose current BLAKE3 hashes still match; such files are skipped.
+//!   tool version, the same job key (a hash of every sampling and build parameter), sources
+//!   whose current BLAKE3 hashes still match and referenced files that were missing and
+//!   still are (a texture added later makes the output stale); such files are skipped and
+//!   report the warnings of the conversion that made them.
+//! - **Per asset**: `NAME.EXT.options.json` beside an asset sets its own options
+//!   ([`crate::sidecar`]); `--texture` for the whole library is refused.
 //! - **Robust**: a failing input is reported and the batch goes on; outputs are written
-//!   atomically, so an interrupted run leaves only whole files (and stale temporary files,
-//!   which the next run removes) and simply resumes.
+//!   atomically, so an interrupted run leaves only whole files and simply resumes. Temporary
+//!   files of interrupted runs are removed: at once when their process (on this host) is
+//!   gone, else after [`STALE_TEMP_AGE`].
 //! - **Shardable**: `shard` picks a deterministic subset by a hash of each relative path, so
 //!   N machines each run `--shard k/N` with no coordination (see the README).
 
@@ -20,9 +25,10 @@ use std::time::Instant;
 use sct_format::{Limits, Profile, SctReader};
 use voxelize::args::SamplingArgs;
 
-use crate::convert::{convert_meshes, is_mesh_path, BatchTag};
+use crate::convert::{convert_meshes_checked, is_mesh_path, BatchTag, ConvertError};
 use crate::error::BuildError;
 use crate::pipeline::Config;
+use crate::progress::{BatchProgress, Tracker};
 use crate::tree::{BuildOptions, Weld};
 
 /// Version of the `--json` batch report layout.
@@ -51,8 +57,11 @@ impl std::str::FromStr for Shard {
         let (k, n) = s.split_once('/').ok_or_else(|| format!("expected K/N (e.g. 0/8), got {s:?}"))?;
         let index: u32 = k.trim().parse().map_err(|_| format!("bad shard index {k:?}"))?;
         let count: u32 = n.trim().parse().map_err(|_| format!("bad shard count {n:?}"))?;
-        if count == 0 || index >= count {
-            return Err(format!("shard index must be in 0..{count}, got {index}"));
+        if count == 0 {
+            return Err(format!("the shard count N must be at least 1 (K/N with 0 <= K < N, e.g. 0/8), got {s:?}"));
+        }
+        if index >= count {
+            return Err(format!("the shard index K counts from 0 and must be below N = {count} (K/N with 0 <= K < N), got {s:?}"));
         }
         Ok(Shard { index, count })
     }
@@ -95,6 +104,9 @@ pub struct BatchOptions {
     pub shard: Option<Shard>,
     /// Files converted at the same time (each conversion is itself parallel).
     pub jobs: usize,
+    /// A conversion that warns fails (`--strict`), and so does an up-to-date output whose
+    /// conversion warned.
+    pub deny_warnings: bool,
 }
 
 /// Outcome of one input.
@@ -288,24 +300,42 @@ fn slash(p: &Path) -> String {
 
 /// Whether `output` was made by this tool version with `key` from sources that are
 /// unchanged; relative source paths are relative to the library `root` (as
-/// [`convert_meshes`] records them in batch mode). Any doubt (unreadable, invalid, other
+/// [`crate::convert::convert_meshes`] records them in batch mode). Any doubt (unreadable, invalid, other
 /// parameters, a source gone or changed) means "convert again".
 pub fn is_up_to_date(output: &Path, key: &str, root: &Path) -> bool {
-    let Ok(reader) = SctReader::open(output, &Limits::default()) else {
-        return false;
-    };
+    up_to_date_warnings(output, key, root).is_some()
+}
+
+/// [`is_up_to_date`], returning the warnings its conversion recorded when it is: an
+/// up-to-date output reports them again, as its first conversion did. Stale as well: a
+/// file the sources referenced that was missing then and exists now (a texture added
+/// since, an options file created).
+pub fn up_to_date_warnings(output: &Path, key: &str, root: &Path) -> Option<Vec<String>> {
+    let reader = SctReader::open(output, &Limits::default()).ok()?;
     let g = reader.generator();
-    let recorded = g.parameters.get("sampling").and_then(|s| s.get("parameters")).and_then(|p| p.get("job_key"));
-    if g.tool != "sct-build-tree" || g.version != env!("CARGO_PKG_VERSION") || recorded.and_then(|v| v.as_str()) != Some(key) {
-        return false;
+    let params = g.parameters.get("sampling").and_then(|s| s.get("parameters"))?;
+    let recorded = params.get("job_key").and_then(|v| v.as_str());
+    if g.tool != "sct-build-tree" || g.version != env!("CARGO_PKG_VERSION") || recorded != Some(key) {
+        return None;
     }
-    !g.sources.is_empty()
-        && g.sources.iter().all(|s| sct_format::atomic::hash_file(&root.join(&s.path)).is_ok_and(|h| h == s.blake3))
+    // Outputs of older runs lack the list: they cannot tell, so they are converted again.
+    let missing = params.get("missing_sources")?.as_array()?;
+    if missing.iter().any(|m| m.as_str().is_none_or(|p| root.join(p).exists())) {
+        return None;
+    }
+    let fresh = !g.sources.is_empty()
+        && g.sources.iter().all(|s| sct_format::atomic::hash_file(&root.join(&s.path)).is_ok_and(|h| h == s.blake3));
+    let warnings = params.get("warnings").and_then(|w| w.as_array()).map_or_else(Vec::new, |w| {
+        w.iter().filter_map(|s| s.as_str().map(str::to_string)).collect()
+    });
+    fresh.then_some(warnings)
 }
 
 /// Removes temporary files (`.NAME.PID.RANDOM.tmp`, see `sct_format::atomic`, and the older
-/// `.NAME.PID.tmp`) that an interrupted run left beside `output` at least [`STALE_TEMP_AGE`]
-/// ago. Returns how many were removed.
+/// `.NAME.PID.tmp`) that an interrupted run left beside `output`: at once when the name says
+/// it was written on this host by a process that is gone
+/// ([`sct_format::atomic::process_is_gone`]), else once at least [`STALE_TEMP_AGE`] old.
+/// Returns how many were removed.
 fn remove_stale_temp_files(output: &Path) -> u64 {
     let (Some(dir), Some(name)) = (output.parent(), output.file_name()) else {
         return 0;
@@ -328,7 +358,8 @@ fn remove_stale_temp_files(output: &Path) -> u64 {
         let pid_ok = !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit());
         let random_ok = random.is_empty() || (random.len() == 16 && random.bytes().all(|b| b.is_ascii_hexdigit()));
         let old = e.metadata().and_then(|m| m.modified()).ok().and_then(|t| t.elapsed().ok()).is_some_and(|age| age >= STALE_TEMP_AGE);
-        if pid_ok && random_ok && pid != own_pid && old && std::fs::remove_file(e.path()).is_ok() {
+        let gone = pid.parse::<u32>().is_ok_and(|p| sct_format::atomic::process_is_gone(p, random));
+        if pid_ok && random_ok && pid != own_pid && (old || gone) && std::fs::remove_file(e.path()).is_ok() {
             removed += 1;
         }
     }
@@ -337,10 +368,16 @@ fn remove_stale_temp_files(output: &Path) -> u64 {
 
 /// Converts the library. Per-input failures are in the report (the batch goes on); only a
 /// failure of the batch itself (an unreadable library root, an output root that cannot be
-/// created) is an error. `done(job, finished, total)` is called once per finished input
-/// (for progress display), from worker threads.
-pub fn run_batch(opts: &BatchOptions, done: &(dyn Fn(&JobResult, usize, usize) + Sync)) -> Result<BatchReport, BuildError> {
+/// created) is an error. `progress` is called when an input starts and when it finishes
+/// (for a progress display), from worker threads.
+pub fn run_batch(opts: &BatchOptions, progress: &(dyn Fn(&BatchProgress<'_>) + Sync)) -> Result<BatchReport, BuildError> {
     let t0 = Instant::now();
+    if opts.output_dir.exists() && !opts.output_dir.is_dir() {
+        return Err(BuildError::Io(format!(
+            "{}: exists and is not a directory; with a directory as input (batch mode), -o names the output directory",
+            opts.output_dir.display()
+        )));
+    }
     std::fs::create_dir_all(&opts.output_dir).map_err(|e| BuildError::Io(format!("{}: {e}", opts.output_dir.display())))?;
     if opts.output_dir.canonicalize().ok().is_some_and(|o| opts.input_dir.canonicalize().ok() == Some(o)) {
         return Err(BuildError::Io(format!(
@@ -360,18 +397,19 @@ pub fn run_batch(opts: &BatchOptions, done: &(dyn Fn(&JobResult, usize, usize) +
     let total = mine.len();
     let results: Vec<Mutex<Option<(JobResult, u64)>>> = (0..total).map(|_| Mutex::new(None)).collect();
     let next = AtomicUsize::new(0);
-    let finished = AtomicUsize::new(0);
+    let sizes: Vec<u64> = mine.iter().map(|(rel, _)| std::fs::metadata(opts.input_dir.join(rel)).map_or(0, |m| m.len())).collect();
+    let tracker = Tracker::new(total, sizes.iter().sum());
     let workers = opts.jobs.clamp(1, total.max(1));
     std::thread::scope(|scope| {
         for _ in 0..workers {
             scope.spawn(|| loop {
                 let i = next.fetch_add(1, Ordering::Relaxed);
                 let Some((rel, out_rel)) = mine.get(i) else { break };
+                tracker.started(i, slash(rel), progress);
                 // A bug that panics on one input must not take the rest of the batch down.
                 let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run_one(opts, &key, rel, out_rel)))
                     .unwrap_or_else(|_| (failed(rel, out_rel, "internal error: the conversion panicked (a bug; please report it)".into(), 2, 0.0), 0));
-                let n = finished.fetch_add(1, Ordering::Relaxed) + 1;
-                done(&r.0, n, total);
+                tracker.finished(i, sizes[i], &r.0, progress);
                 if let Ok(mut slot) = results[i].lock() {
                     *slot = Some(r);
                 }
@@ -435,7 +473,14 @@ fn run_one(opts: &BatchOptions, key: &str, rel: &Path, out_rel: &Path) -> (JobRe
     let input = opts.input_dir.join(rel);
     let output = opts.output_dir.join(out_rel);
     let removed = remove_stale_temp_files(&output);
-    if !opts.force && is_up_to_date(&output, key, &opts.input_dir) {
+    let up_to_date = if opts.force { None } else { up_to_date_warnings(&output, key, &opts.input_dir) };
+    if let Some(warnings) = up_to_date {
+        if opts.deny_warnings && !warnings.is_empty() {
+            let e = format!("{} warning(s) with --strict (recorded when the output was made; fix them or use --force): {}", warnings.len(), warnings.join("; "));
+            let mut job = failed(rel, out_rel, e, 1, t.elapsed().as_secs_f64());
+            job.warnings = warnings;
+            return (job, removed);
+        }
         let bytes = std::fs::metadata(&output).map(|m| m.len()).unwrap_or(0);
         let job = JobResult {
             input: slash(rel),
@@ -447,10 +492,16 @@ fn run_one(opts: &BatchOptions, key: &str, rel: &Path, out_rel: &Path) -> (JobRe
             leaves: 0,
             bytes,
             seconds: t.elapsed().as_secs_f64(),
-            warnings: Vec::new(),
+            warnings,
         };
         return (job, removed);
     }
+    let sampling = match crate::sidecar::read_asset_options(&input) {
+        Ok(Some(o)) => o.apply(&opts.sampling, &input),
+        Ok(None) => opts.sampling.clone(),
+        Err(e) => return (failed(rel, out_rel, e, 1, t.elapsed().as_secs_f64()), removed),
+    };
+    let sidecar = crate::sidecar::sidecar_path(&input);
     if let Some(parent) = output.parent() {
         if let Err(e) = std::fs::create_dir_all(parent) {
             return (failed(rel, out_rel, format!("{}: {e}", parent.display()), 2, t.elapsed().as_secs_f64()), removed);
@@ -464,7 +515,8 @@ fn run_one(opts: &BatchOptions, key: &str, rel: &Path, out_rel: &Path) -> (JobRe
         compression_level: opts.compression_level,
         build: opts.build,
     };
-    let job = match convert_meshes(&[input], &opts.sampling, &cfg, Some(BatchTag { key, root: &opts.input_dir }), &mut |_| {}) {
+    let tag = BatchTag { key, root: &opts.input_dir, sidecar: &sidecar };
+    let job = match convert_meshes_checked(std::slice::from_ref(&input), &sampling, &cfg, Some(tag), opts.deny_warnings, &mut |_| {}) {
         Ok(rep) => JobResult {
             input: slash(rel),
             output: slash(out_rel),
@@ -477,7 +529,13 @@ fn run_one(opts: &BatchOptions, key: &str, rel: &Path, out_rel: &Path) -> (JobRe
             seconds: t.elapsed().as_secs_f64(),
             warnings: rep.sampling.warnings,
         },
-        Err(e) => failed(rel, out_rel, e.to_string(), e.exit_code(), t.elapsed().as_secs_f64()),
+        Err(e) => {
+            let mut job = failed(rel, out_rel, e.to_string(), e.exit_code(), t.elapsed().as_secs_f64());
+            if let ConvertError::Warnings(w) = e {
+                job.warnings = w;
+            }
+            job
+        }
     };
     (job, removed)
 }
@@ -541,7 +599,10 @@ mod tests {
     fn shard_parsing_and_partition() {
         assert_eq!("1/4".parse::<Shard>(), Ok(Shard { index: 1, count: 4 }));
         assert!("4/4".parse::<Shard>().is_err());
-        assert!("0/0".parse::<Shard>().is_err());
+        let e = "0/0".parse::<Shard>().unwrap_err();
+        assert!(e.contains("at least 1") && !e.contains("0..0"), "{e}");
+        let e = "4/4".parse::<Shard>().unwrap_err();
+        assert!(e.contains("below N = 4"), "{e}");
         assert!("x".parse::<Shard>().is_err());
         // Every path lands in exactly one shard.
         let shards: Vec<Shard> = (0..3).map(|index| Shard { index, count: 3 }).collect();

@@ -30,6 +30,10 @@ pub enum ConvertError {
     /// Building or writing the SCT file failed.
     #[error(transparent)]
     Build(#[from] BuildError),
+    /// The sampling step warned and warnings were to fail the conversion (`--strict`);
+    /// nothing was written.
+    #[error("{} warning(s) with --strict, nothing written: {}", .0.len(), .0.join("; "))]
+    Warnings(Vec<String>),
 }
 
 impl ConvertError {
@@ -38,6 +42,7 @@ impl ConvertError {
         match self {
             ConvertError::Sample(e) => e.exit_code(),
             ConvertError::Build(e) => e.exit_code(),
+            ConvertError::Warnings(_) => 1,
         }
     }
 }
@@ -60,6 +65,9 @@ pub struct BatchTag<'a> {
     /// The library root: sources below it are recorded relative to it, so the up-to-date
     /// check does not depend on the directory the batch is run from.
     pub root: &'a Path,
+    /// The asset's options file ([`crate::sidecar`]): a source when it exists, else a
+    /// missing file whose appearance makes the output stale.
+    pub sidecar: &'a Path,
 }
 
 /// Samples `inputs` in one grid with `sampling`'s options and builds `cfg.output` from the
@@ -73,6 +81,24 @@ pub fn convert_meshes(
     batch: Option<BatchTag<'_>>,
     phase: &mut dyn FnMut(&str),
 ) -> Result<ConvertReport, ConvertError> {
+    convert_meshes_checked(inputs, sampling, cfg, batch, false, phase)
+}
+
+/// [`convert_meshes`], failing with [`ConvertError::Warnings`] before anything is written
+/// when `deny_warnings` is set and the sampling step warned (`--strict`).
+///
+/// In batch mode the provenance also records, under the sampling step's parameters, the
+/// conversion's `warnings` (so an up-to-date output reports them again) and the
+/// `missing_sources`: files the asset references that were not found, and its absent
+/// options file (so that one appearing makes the output stale).
+pub fn convert_meshes_checked(
+    inputs: &[PathBuf],
+    sampling: &SamplingArgs,
+    cfg: &Config,
+    batch: Option<BatchTag<'_>>,
+    deny_warnings: bool,
+    phase: &mut dyn FnMut(&str),
+) -> Result<ConvertReport, ConvertError> {
     let t0 = Instant::now();
     phase("sampling meshes");
     let opts = voxelize::Options {
@@ -82,15 +108,27 @@ pub fn convert_meshes(
         sample: sampling.sample_options(),
     };
     let (samples, summary) = voxelize::sample_in_memory(&opts, &|_, _| {})?;
+    if deny_warnings && !summary.warnings.is_empty() {
+        return Err(ConvertError::Warnings(summary.warnings));
+    }
     let mut generator = samples.generator.clone();
     if let Some(tag) = batch {
+        let relative = |p: &str| match Path::new(p).strip_prefix(tag.root) {
+            Ok(rel) => rel.components().map(|c| c.as_os_str().to_string_lossy()).collect::<Vec<_>>().join("/"),
+            Err(_) => p.to_string(),
+        };
+        let mut missing: Vec<String> = summary.missing_inputs.iter().map(|p| relative(p)).collect();
+        match sct_format::atomic::hash_file(tag.sidecar) {
+            Ok(blake3) => generator.sources.push(sct_format::SourceRef { path: tag.sidecar.display().to_string(), blake3 }),
+            Err(_) => missing.push(relative(&tag.sidecar.display().to_string())),
+        }
         if let Some(map) = generator.parameters.as_object_mut() {
             map.insert("job_key".into(), serde_json::Value::String(tag.key.to_string()));
+            map.insert("missing_sources".into(), serde_json::json!(missing));
+            map.insert("warnings".into(), serde_json::json!(summary.warnings));
         }
         for s in &mut generator.sources {
-            if let Ok(rel) = Path::new(&s.path).strip_prefix(tag.root) {
-                s.path = rel.components().map(|c| c.as_os_str().to_string_lossy()).collect::<Vec<_>>().join("/");
-            }
+            s.path = relative(&s.path);
         }
     }
     let build = run_samples(cfg, samples, Upstream::Sampled(generator), t0, phase)?;

@@ -24,10 +24,7 @@ impl BuildError {
     pub fn exit_code(&self) -> i32 {
         match self {
             BuildError::Input(_) => 1,
-            BuildError::Format(e) => match e {
-                sct_format::Error::Io { .. } => 2,
-                _ => 1,
-            },
+            BuildError::Format(e) if e.is_invalid_input() => 1,
             _ => 2,
         }
     }

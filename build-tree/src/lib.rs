@@ -14,4 +14,6 @@ pub use tree::{build_tree, build_tree_owned, build_tree_with_map, BuildOptions, 
 pub mod batch;
 pub mod convert;
 pub mod pipeline;
+pub mod progress;
 pub mod scene;
+pub mod sidecar;

@@ -7,8 +7,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
-use build_tree::batch::{self, run_batch, BatchOptions, JobResult, Shard};
-use build_tree::convert::{convert_meshes, is_mesh_path, ConvertReport};
+use build_tree::batch::{self, run_batch, BatchOptions, Shard};
+use build_tree::progress::{format_duration, BatchProgress};
+use build_tree::convert::{convert_meshes_checked, is_mesh_path, ConvertReport};
 use build_tree::pipeline::{run, run_samples, Config, Report, Upstream};
 use build_tree::{BuildOptions, Weld};
 use clap::{Args, CommandFactory, FromArgMatches, Parser};
@@ -25,10 +26,12 @@ const EXAMPLES: &str = "Examples:
   sct-build-tree bunny.samples -o bunny.sct --profile canopy --json
   sct-build-tree bunny.samples -o grid.sct --scene grid.json
   sct-build-tree --scene shards.json -o city.sct             # a scene of inlines only
+  sct-build-tree assets/ -o sct/ --strict --json             # CI: a warning (missing texture) fails its asset
+  echo '{\"texture\": \"spot.png\"}' > assets/spot.obj.options.json   # batch: one asset's own options
 
-Input: mesh files (.obj .gltf .glb .ply by extension, sampled in one grid with the
-sampling options below), a samples file (any other name), or a directory (batch mode: -o
-is a directory).
+Input: mesh files (OBJ, glTF/GLB, PLY, by extension or content, sampled in one grid with
+the sampling options below), a samples file, or a directory (batch mode: -o is a
+directory). STL, FBX and SCT scene files are refused, naming what they are.
 
 Exit status: 0 success, 1 bad input (mesh, samples, scene or inlined file; in batch mode:
 any input failed), 2 usage or I/O error.";
@@ -77,6 +80,10 @@ struct Cli {
     /// Print a JSON summary on stdout (batch: schema sct-build-tree-batch/1).
     #[arg(long)]
     json: bool,
+    /// Fail on warnings (a missing texture or MTL, a mesh left out, skipped primitives):
+    /// nothing is written and the exit status is 1; in batch mode the asset fails.
+    #[arg(long, visible_alias = "deny-warnings")]
+    strict: bool,
     // Last, so its help heading does not swallow the options above.
     #[command(flatten)]
     sampling: SamplingArgs,
@@ -97,17 +104,51 @@ enum Mode {
     SceneOnly,
 }
 
-fn mode(inputs: &[PathBuf]) -> Result<Mode, String> {
+/// A usage or input error found before any work: its message and exit status.
+type Refusal = (String, u8);
+
+/// Whether `path` is read as a mesh: by extension, or else by content (an extension-less
+/// GLB, PLY or OBJ). Other content is refused naming what it is (STL, FBX, an SCT scene
+/// file), except a samples file (`Ok(false)`) or a file that cannot be read (`Ok(false)`:
+/// the samples reader says why).
+fn is_mesh_input(path: &std::path::Path, several: bool) -> Result<bool, Refusal> {
+    use voxelize::load::sniff::{sniff_path, FileKind};
+    if is_mesh_path(path) {
+        return Ok(true);
+    }
+    let refuse = |what: String| Err((format!("{}: {what}", path.display()), 1));
+    match sniff_path(path) {
+        None => Ok(false),
+        Some(k) if k.is_mesh() => Ok(true),
+        Some(FileKind::SctSamples) if !several => Ok(false),
+        Some(FileKind::SctSamples) => refuse("a samples file cannot be combined with other inputs; give it alone".into()),
+        Some(FileKind::SctScene) => refuse(
+            "this is an SCT scene file, not a samples file; to place it in a new scene, name it as an inline in a --scene file (spec/scene-json.md)".into(),
+        ),
+        Some(k) => match k.unsupported_mesh_hint() {
+            Some(hint) => refuse(format!("this is {}; {hint}", k.describe())),
+            None if k == FileKind::Unknown => {
+                refuse("neither a samples file (from sct-voxelize) nor a mesh this tool reads (OBJ, glTF/GLB or PLY, by extension or content)".into())
+            }
+            None => refuse(format!("this is {}, neither a samples file (from sct-voxelize) nor a mesh", k.describe())),
+        },
+    }
+}
+
+fn mode(inputs: &[PathBuf]) -> Result<Mode, Refusal> {
     match inputs {
         [] => Ok(Mode::SceneOnly),
         [one] if one.is_dir() => Ok(Mode::Batch(one.clone())),
-        [one] if !is_mesh_path(one) => Ok(Mode::Samples(one.clone())),
+        [one] if !is_mesh_input(one, false)? => Ok(Mode::Samples(one.clone())),
+        [one] => Ok(Mode::Meshes(vec![one.clone()])),
         many => {
-            if let Some(bad) = many.iter().find(|p| p.is_dir() || !is_mesh_path(p)) {
-                return Err(format!(
-                    "{}: with several inputs every one must be a mesh (.obj .gltf .glb .ply)",
-                    bad.display()
-                ));
+            if let Some(dir) = many.iter().find(|p| p.is_dir()) {
+                return Err((format!("{}: a directory (batch mode) must be the only input", dir.display()), 2));
+            }
+            for p in many {
+                if !is_mesh_input(p, true)? {
+                    return Err((format!("{}: with several inputs every one must be a mesh (OBJ, glTF/GLB or PLY)", p.display()), 2));
+                }
             }
             Ok(Mode::Meshes(many.to_vec()))
         }
@@ -136,6 +177,7 @@ fn print_build(rep: &Report) {
 
 fn main() -> ExitCode {
     let matches = Cli::command().get_matches();
+    voxelize::interrupt::remove_temp_files_on_signal("sct-build-tree");
     let cli = match Cli::from_arg_matches(&matches) {
         Ok(c) => c,
         Err(e) => e.exit(),
@@ -151,9 +193,9 @@ fn main() -> ExitCode {
     };
     let mode = match mode(&cli.inputs) {
         Ok(m) => m,
-        Err(e) => {
+        Err((e, code)) => {
             eprintln!("error: {e}");
-            return ExitCode::from(2);
+            return ExitCode::from(code);
         }
     };
     // Sampling flags on a samples-file input would be silently ignored: refuse them.
@@ -179,6 +221,16 @@ fn main() -> ExitCode {
             eprintln!("error: --scene does not apply to a directory of meshes");
             return ExitCode::from(2);
         }
+        // One texture for a whole library re-textures every asset: per asset, an options
+        // file says it.
+        if cli.sampling.texture.is_some() {
+            eprintln!(
+                "error: --texture does not apply to a directory (it would texture every asset); give the asset its own options file, e.g. {}",
+                dir.join("spot.obj.options.json").display()
+            );
+            eprintln!("       holding {{\"texture\": \"spot_texture.png\"}} (paths relative to the asset's folder)");
+            return ExitCode::from(2);
+        }
         // A library holds assets far finer than any view needs: each gets a sample budget
         // unless one is given, and every asset it coarsens is named in a warning.
         let mut sampling = cli.sampling.clone();
@@ -193,6 +245,7 @@ fn main() -> ExitCode {
             force: cli.force,
             shard: cli.shard,
             jobs: cli.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
+            deny_warnings: cli.strict,
         };
         return run_batch_cli(&opts, cli.json);
     }
@@ -219,7 +272,7 @@ fn main() -> ExitCode {
         }
     };
     let result = match mode {
-        Mode::Meshes(meshes) => convert_meshes(&meshes, &cli.sampling, &cfg, None, &mut phase)
+        Mode::Meshes(meshes) => convert_meshes_checked(&meshes, &cli.sampling, &cfg, None, cli.strict, &mut phase)
             .map(|c| Outcome::Converted(Box::new(c)))
             .map_err(|e| (e.to_string(), e.exit_code())),
         Mode::SceneOnly => run_samples(&cfg, SamplesFile::default(), Upstream::None, Instant::now(), &mut phase)
@@ -266,23 +319,36 @@ enum Outcome {
     Converted(Box<ConvertReport>),
 }
 
+/// `ETA 3 min · converting a.glb, b.obj (+2)`: the time left and the inputs running now.
+fn progress_message(p: &BatchProgress<'_>) -> String {
+    let eta = p.eta_seconds.map_or_else(|| "ETA …".to_string(), |s| format!("ETA {}", format_duration(s)));
+    let mut names: Vec<&str> = p.running.iter().take(3).map(String::as_str).collect();
+    let more = p.running.len().saturating_sub(names.len());
+    if names.is_empty() {
+        names.push("-");
+    }
+    let more = if more > 0 { format!(" (+{more})") } else { String::new() };
+    format!("{eta} · converting {}{more}", names.join(", "))
+}
+
 fn run_batch_cli(opts: &BatchOptions, json: bool) -> ExitCode {
     let bar = std::io::stderr().is_terminal().then(|| {
         let b = indicatif::ProgressBar::new(0);
         b.set_style(
-            indicatif::ProgressStyle::with_template("{spinner} {pos}/{len} files [{bar:40}] {eta} {msg}")
+            indicatif::ProgressStyle::with_template("{spinner} {pos}/{len} files [{bar:30}] {msg}")
                 .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
         );
+        b.enable_steady_tick(std::time::Duration::from_millis(200));
         b
     });
-    let done = |job: &JobResult, n: usize, total: usize| {
+    let show = |p: &BatchProgress<'_>| {
         if let Some(b) = &bar {
-            b.set_length(total as u64);
-            b.set_position(n as u64);
-            b.set_message(job.input.clone());
+            b.set_length(p.total as u64);
+            b.set_position(p.finished as u64);
+            b.set_message(progress_message(p));
         }
     };
-    let result = run_batch(opts, &done);
+    let result = run_batch(opts, &show);
     if let Some(b) = &bar {
         b.finish_and_clear();
     }

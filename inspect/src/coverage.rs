@@ -44,6 +44,10 @@ pub struct AgainstOptions {
     pub max_uses: u64,
     /// Follow inlines whose target lies outside the scene file's directory.
     pub allow_outside_inlines: bool,
+    /// Draw the test points only where the voxelizer keeps samples: surfaces it drops by
+    /// alpha (glTF MASK below the cutoff, fully transparent BLEND, textures' alpha) are
+    /// left out, so alpha-masked assets can be held to full coverage.
+    pub exclude_alpha_dropped: bool,
 }
 
 /// Default [`AgainstOptions::max_uses`]. Uses are not deduplicated (each is a placement), so
@@ -63,7 +67,7 @@ pub const DEFAULT_MIN_COVERAGE: f64 = 0.999;
 
 impl Default for AgainstOptions {
     fn default() -> Self {
-        AgainstOptions { points: DEFAULT_POINTS, seed: DEFAULT_SEED, min_coverage: DEFAULT_MIN_COVERAGE, limits: Limits::default(), max_uses: MAX_USES, allow_outside_inlines: false }
+        AgainstOptions { points: DEFAULT_POINTS, seed: DEFAULT_SEED, min_coverage: DEFAULT_MIN_COVERAGE, limits: Limits::default(), max_uses: MAX_USES, allow_outside_inlines: false, exclude_alpha_dropped: false }
     }
 }
 
@@ -388,9 +392,14 @@ impl Errors {
 
 /// Loads `mesh` and draws the test points.
 fn mesh_points(mesh: &Path, opts: &AgainstOptions) -> Result<Vec<[f64; 3]>, InspectError> {
-    let load = voxelize::LoadOptions { load_textures: false, ..Default::default() };
+    // Texture alpha matters only when alpha-dropped surfaces are left out.
+    let load = voxelize::LoadOptions { load_textures: opts.exclude_alpha_dropped, ..Default::default() };
     let scene = voxelize::load(mesh, &load)?;
-    let mut pts = voxelize::mesh::surface_points(&scene, opts.points, opts.seed);
+    let mut pts = if opts.exclude_alpha_dropped {
+        voxelize::alpha::visible_surface_points(&scene, opts.points, opts.seed).0
+    } else {
+        voxelize::mesh::surface_points(&scene, opts.points, opts.seed)
+    };
     if pts.is_empty() {
         // A point cloud (PLY without faces): its points are the surface.
         if let Some(pc) = scene.points.as_ref().filter(|pc| !pc.positions.is_empty()) {

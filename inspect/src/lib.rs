@@ -21,6 +21,7 @@ pub const SCHEMA: &str = "sct-inspect/1";
 
 pub mod export;
 pub mod coverage;
+pub mod many;
 
 pub use coverage::{coverage_against, AgainstOptions, CoverageReport};
 
@@ -632,7 +633,12 @@ pub fn dump(file: &Path, path: &str, levels: usize, limits: &Limits, allow_outsi
         reached.tree,
         reached.graph_node,
         reached.inline_depth,
-        if reached.state == Default::default() { String::new() } else { format!(", world transform {:?}", reached.state) }
+        if reached.state == Default::default() {
+            String::new()
+        } else {
+            let [r, g, b, a] = reached.state.tint;
+            format!(", world transform {}, tint ({r}, {g}, {b}, {a})", reached.state.transform)
+        }
     )?;
     let mut stack = vec![(at, path.trim_end_matches('/').to_string(), 0usize)];
     while let Some((i, p, d)) = stack.pop() {

@@ -7,8 +7,9 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::Parser;
+use clap::{CommandFactory, Parser};
 use inspect::coverage::{DEFAULT_MIN_COVERAGE, DEFAULT_POINTS, DEFAULT_SEED};
+use inspect::many::{validate_many, write_many_text};
 use inspect::{
     coverage_against, dump, summarize_with, validate_file, write_coverage, write_json, write_text, write_validation, AgainstOptions, InspectError,
     ValidateOptions,
@@ -21,11 +22,19 @@ Examples:
   sct-inspect bunny.sct --json           the same as JSON (schema sct-inspect/1, spec/inspect-json.md)
   sct-inspect bunny.sct --validate       quick structural validation (exit 1 when invalid)
   sct-inspect bunny.sct --deep --json    decode every block and check hierarchical consistency
+  sct-inspect a.sct b.sct out/ --validate --quiet
+                                         CI: validate files and every .sct below out/, one
+                                         verdict per file (--quiet: only failures) and a summary;
+                                         exit 1 if any is invalid, 2 if one cannot be read
+  sct-inspect out/ --deep --json         the same as one JSON document (sct-inspect-validate/1)
   sct-inspect bunny.sct --dump root/0/1 --levels 2
                                          print the graph and two levels below node root/0/1
   sct-inspect bunny.sct --against bunny.ply --min-coverage 0.99
                                          fraction of 10^5 random surface points of the mesh inside
                                          some leaf sphere (exit 1 below the threshold)
+  sct-inspect leaf.sct --against leaf.glb --exclude-alpha-dropped
+                                         the same for an alpha-masked asset: only surfaces the
+                                         voxelizer keeps are tested
   sct-inspect bunny.samples --export-ply samples.ply
   sct-inspect bunny.sct --export-ply level12.ply --export-level 12
                                          PLY point clouds for MeshLab / CloudCompare";
@@ -34,11 +43,17 @@ Examples:
 #[derive(Parser, Debug)]
 #[command(name = "sct-inspect", version, after_help = EXAMPLES)]
 struct Cli {
-    /// The SCT file (or, with --export-ply, a samples file).
-    file: PathBuf,
-    /// Print the report as JSON.
+    /// The SCT file (or, with --export-ply, a samples file). With --validate or --deep:
+    /// any number of files and directories (every *.sct file below a directory).
+    #[arg(required = true, value_name = "FILE")]
+    files: Vec<PathBuf>,
+    /// Print the report as JSON (errors too: `{"error": …}` on stdout).
     #[arg(long)]
     json: bool,
+    /// Print only the validation verdict and issues (several files: only the files that
+    /// fail, and the summary); no statistics.
+    #[arg(long, short)]
+    quiet: bool,
     /// Quick validation: structure, checksums, graph, transforms, inline targets.
     #[arg(long)]
     validate: bool,
@@ -54,9 +69,15 @@ struct Cli {
     /// Coverage of a source mesh (OBJ, glTF/GLB, PLY): the fraction of random surface points
     /// inside some leaf sphere, leaves in world space (instances and inlines applied). Points
     /// are drawn on every triangle, including surfaces the voxelizer drops by alpha (glTF MASK
-    /// below the cutoff, fully transparent BLEND): such models cover less than 100 %.
+    /// below the cutoff, fully transparent BLEND): such models cover less than 100 % unless
+    /// --exclude-alpha-dropped leaves those out.
     #[arg(long, value_name = "MESH", conflicts_with_all = ["dump", "export_ply"])]
     against: Option<PathBuf>,
+    /// With --against: draw points only where the voxelizer keeps samples, leaving out
+    /// surfaces it drops by alpha (MASK below the cutoff, fully transparent BLEND), so
+    /// alpha-masked assets can be gated at full coverage too.
+    #[arg(long, requires = "against")]
+    exclude_alpha_dropped: bool,
     /// Surface points tested by --against (at least 1).
     #[arg(long, value_name = "N", default_value_t = DEFAULT_POINTS, requires = "against", value_parser = positive)]
     points: usize,
@@ -97,11 +118,51 @@ fn positive(s: &str) -> Result<usize, String> {
     }
 }
 
+/// `sct-inspect A B DIR/ --validate`: one result per file and a summary.
+fn run_many(cli: &Cli) -> Result<i32, InspectError> {
+    let opts = ValidateOptions { deep: cli.deep, limits: Limits::default(), allow_outside_inlines: cli.allow_outside_inlines };
+    let report = validate_many(&cli.files, &opts);
+    let mut out = std::io::stdout().lock();
+    if cli.json {
+        serde_json::to_writer_pretty(&mut out, &report).map_err(std::io::Error::from)?;
+        writeln!(out)?;
+    } else {
+        write_many_text(&report, cli.quiet, &mut out)?;
+    }
+    out.flush()?;
+    Ok(report.exit_code())
+}
+
+/// Flag combinations clap cannot express: several inputs only for validation, --quiet
+/// only where there is a verdict.
+fn check_usage(cli: &Cli) -> Result<(), String> {
+    let validating = cli.validate || cli.deep;
+    let many = cli.files.len() > 1 || cli.files.iter().any(|f| f.is_dir());
+    if many && !validating {
+        let what = match cli.files.iter().find(|f| f.is_dir()) {
+            Some(d) => format!("{} is a directory", d.display()),
+            None => format!("{} files were given", cli.files.len()),
+        };
+        return Err(format!("{what}: add --validate (or --deep) to validate every SCT file; statistics, dumps and exports take one file"));
+    }
+    if many && (cli.dump.is_some() || cli.against.is_some() || cli.export_ply.is_some()) {
+        return Err("--dump, --against and --export-ply take one file".into());
+    }
+    if cli.quiet && !validating && cli.against.is_none() {
+        return Err("--quiet applies to --validate, --deep and --against (it prints only their verdicts)".into());
+    }
+    Ok(())
+}
+
 fn run(cli: &Cli) -> Result<i32, InspectError> {
+    if cli.files.len() > 1 || cli.files.iter().any(|f| f.is_dir()) {
+        return run_many(cli);
+    }
+    let file = &cli.files[0];
     let limits = Limits::default();
     let mut out = std::io::stdout().lock();
     if let Some(ply) = &cli.export_ply {
-        let e = inspect::export::export_ply(&cli.file, ply, cli.export_level, cli.max_points, &limits, cli.allow_outside_inlines)?;
+        let e = inspect::export::export_ply(file, ply, cli.export_level, cli.max_points, &limits, cli.allow_outside_inlines)?;
         if cli.json {
             serde_json::to_writer_pretty(&mut out, &e).map_err(std::io::Error::from)?;
             writeln!(out)?;
@@ -111,16 +172,16 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
         return Ok(0);
     }
     if let Some(p) = &cli.dump {
-        dump(&cli.file, p, cli.levels, &limits, cli.allow_outside_inlines, &mut out)?;
+        dump(file, p, cli.levels, &limits, cli.allow_outside_inlines, &mut out)?;
         return Ok(0);
     }
     let validation = if cli.validate || cli.deep {
-        Some(validate_file(&cli.file, &ValidateOptions { deep: cli.deep, limits: limits.clone(), allow_outside_inlines: cli.allow_outside_inlines })?)
+        Some(validate_file(file, &ValidateOptions { deep: cli.deep, limits: limits.clone(), allow_outside_inlines: cli.allow_outside_inlines })?)
     } else {
         None
     };
     let invalid = validation.as_ref().is_some_and(|v| !v.is_valid());
-    match summarize_with(&cli.file, &limits, cli.allow_outside_inlines) {
+    match summarize_with(file, &limits, cli.allow_outside_inlines) {
         Ok(mut s) => {
             s.validation = validation;
             if let Some(mesh) = &cli.against {
@@ -130,14 +191,17 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
                     min_coverage: cli.min_coverage,
                     limits: limits.clone(),
                     allow_outside_inlines: cli.allow_outside_inlines,
+                    exclude_alpha_dropped: cli.exclude_alpha_dropped,
                     ..Default::default()
                 };
-                s.coverage = Some(coverage_against(&cli.file, mesh, &opts)?);
+                s.coverage = Some(coverage_against(file, mesh, &opts)?);
             }
             if cli.json {
                 write_json(&s, &mut out)?;
             } else {
-                write_text(&s, &mut out)?;
+                if !cli.quiet {
+                    write_text(&s, &mut out)?;
+                }
                 if let Some(v) = &s.validation {
                     write_validation(v, &mut out)?;
                 }
@@ -153,7 +217,7 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
         Err(e) if e.exit_code() == 1 && validation.is_some() => {
             let v = validation.clone().unwrap_or_default();
             if cli.json {
-                serde_json::to_writer_pretty(&mut out, &serde_json::json!({"schema": inspect::SCHEMA, "file": cli.file, "error": e.to_string(), "validation": v})).map_err(std::io::Error::from)?;
+                serde_json::to_writer_pretty(&mut out, &serde_json::json!({"schema": inspect::SCHEMA, "file": file, "error": e.to_string(), "validation": v})).map_err(std::io::Error::from)?;
                 writeln!(out)?;
             } else {
                 write_validation(&v, &mut out)?;
@@ -164,13 +228,40 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
     }
 }
 
+/// The error and its causes on one line, each once (an I/O error's message already holds
+/// its source's).
+fn one_line(e: &anyhow::Error) -> String {
+    let mut msg = String::new();
+    for cause in e.chain() {
+        let s = cause.to_string();
+        if !msg.contains(&s) {
+            if !msg.is_empty() {
+                msg.push_str(": ");
+            }
+            msg.push_str(&s);
+        }
+    }
+    msg.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    voxelize::interrupt::remove_temp_files_on_signal("sct-inspect");
+    if let Err(e) = check_usage(&cli) {
+        let mut cmd = Cli::command();
+        cmd.error(clap::error::ErrorKind::ArgumentConflict, e).exit();
+    }
     match run(&cli) {
         Ok(code) => ExitCode::from(code as u8),
         Err(e) => {
             let code = e.exit_code();
-            eprintln!("sct-inspect: {:#}", anyhow::Error::new(e));
+            let message = one_line(&anyhow::Error::new(e));
+            eprintln!("sct-inspect: {message}");
+            if cli.json {
+                // A pipeline reading stdout gets a JSON answer whatever happened.
+                let doc = serde_json::json!({"schema": inspect::SCHEMA, "file": cli.files.first(), "error": message, "exit_code": code});
+                println!("{}", serde_json::to_string_pretty(&doc).unwrap_or_default());
+            }
             ExitCode::from(code as u8)
         }
     }

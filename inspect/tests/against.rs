@@ -263,3 +263,22 @@ fn errors_of_a_shared_missing_inline_are_capped() {
     assert_eq!(r.errors.len(), max + 1);
     assert_eq!(r.errors[max], format!("... and {} more errors, not listed", (1 << depth) - max));
 }
+
+/// An alpha-masked asset (glTF AlphaBlendModeTest: MASK and fully transparent BLEND
+/// surfaces) covers less than its whole mesh; leaving out what the voxelizer drops by alpha
+/// lets it be gated like any other asset.
+#[test]
+fn alpha_dropped_surfaces_can_be_left_out() {
+    let mesh = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models/gltf/AlphaBlendModeTest/glTF-Binary/AlphaBlendModeTest.glb");
+    if !mesh.exists() {
+        return;
+    }
+    let d = tmp();
+    let sct = build_mesh(d.path(), &mesh, "alpha", Profile::Default);
+    let all = inspect::coverage_against(&sct, &mesh, &inspect::AgainstOptions { points: 20_000, ..Default::default() }).expect("coverage");
+    let kept = inspect::coverage_against(&sct, &mesh, &inspect::AgainstOptions { points: 20_000, exclude_alpha_dropped: true, ..Default::default() })
+        .expect("coverage");
+    assert!(!all.passed, "every triangle: {}", all.fraction);
+    assert!(kept.fraction > all.fraction && kept.fraction >= 0.99, "kept {} vs all {}", kept.fraction, all.fraction);
+    assert_eq!(kept.points, 20_000);
+}

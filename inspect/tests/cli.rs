@@ -113,3 +113,71 @@ fn help_states_the_alpha_limitation_of_against() {
     let s = stdout(&o);
     assert!(s.contains("drops by alpha") && s.contains("less than 100 %"), "{s}");
 }
+
+/// CI: many files and directories in one run, one result per file and a summary; exit 1
+/// when one is invalid, 2 when one cannot be read; `--quiet` lists only failures; `--json`
+/// is one document, errors included.
+#[test]
+fn validates_many_files_and_directories() {
+    let d = tmp();
+    let dir = d.path().join("lib");
+    std::fs::create_dir_all(dir.join("sub")).unwrap();
+    let good = dir.join("good.sct");
+    write_single(&good, bunny_tree(), Profile::Raw);
+    let mut bytes = std::fs::read(&good).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x55;
+    std::fs::write(dir.join("sub/bad.sct"), &bytes).unwrap();
+    std::fs::write(dir.join("notes.txt"), b"not an SCT file, not looked at").unwrap();
+    let extra = d.path().join("extra.sct");
+    std::fs::copy(&good, &extra).unwrap();
+    let (g, e, l) = (good.to_str().unwrap(), extra.to_str().unwrap(), dir.to_str().unwrap());
+
+    let o = run(&[e, l, "--validate"]);
+    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = stdout(&o);
+    assert_eq!(text.lines().filter(|l| l.starts_with("valid ")).count(), 2, "{text}");
+    assert!(text.lines().any(|l| l.starts_with("INVALID") && l.contains("bad.sct")), "{text}");
+    assert!(text.trim_end().ends_with("3 file(s) validated (quick): 2 valid, 1 invalid, 0 unreadable: FAILED"), "{text}");
+
+    let o = run(&[l, "--deep", "--quiet"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(!stdout(&o).contains("valid    "), "--quiet lists only failures: {}", stdout(&o));
+
+    let o = run(&[g, e, "--validate", "--json"]);
+    assert_eq!(o.status.code(), Some(0));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["schema"], "sct-inspect-validate/1");
+    assert_eq!(v["summary"]["valid"], 2);
+    assert_eq!(v["results"][0]["verdict"], "valid");
+
+    let missing = d.path().join("missing.sct");
+    let o = run(&[g, missing.to_str().unwrap(), "--validate", "--json"]);
+    assert_eq!(o.status.code(), Some(2));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["results"][1]["verdict"], "error");
+    let empty = d.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    assert_eq!(run(&[empty.to_str().unwrap(), "--validate"]).status.code(), Some(2), "an empty folder is not a pass");
+
+    // A directory without --validate: a usage error that says what to do, not "No such device".
+    let o = run(&[l]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("is a directory") && err.contains("--validate"), "{err}");
+
+    // --json also for errors: a single file that cannot be read.
+    let o = run(&[missing.to_str().unwrap(), "--json"]);
+    assert_eq!(o.status.code(), Some(2));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["error"].as_str().unwrap().contains("missing.sct"), "{v}");
+    assert_eq!(v["exit_code"], 2);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.matches("No such file").count(), 1, "the cause once: {err}");
+
+    // --quiet on one file: the verdict only, no statistics.
+    let o = run(&[g, "--validate", "--quiet"]);
+    assert_eq!(o.status.code(), Some(0));
+    assert_eq!(stdout(&o).lines().count(), 1, "{}", stdout(&o));
+    assert!(stdout(&o).contains("valid"));
+}

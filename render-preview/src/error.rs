@@ -52,7 +52,7 @@ pub enum Error {
     #[error("invalid input: {0}")]
     Invalid(String),
     /// Writing an output failed.
-    #[error("cannot write {}: {message}", path.display())]
+    #[error("{}", if message.contains(&path.display().to_string()) { format!("cannot write: {message}") } else { format!("cannot write {}: {message}", path.display()) })]
     Output {
         /// The output file.
         path: PathBuf,

@@ -19,6 +19,7 @@
 
 pub mod camera;
 pub mod error;
+pub mod image_file;
 mod lod;
 pub mod metrics;
 pub mod provenance;
@@ -352,19 +353,17 @@ pub fn render_file(path: &Path, opts: &RenderOptions) -> Result<Rendered> {
     Ok(out)
 }
 
-/// Writes a frame as PNG, atomically (a temporary file renamed over `path`).
+/// Writes a frame atomically (a temporary file renamed over `path`), as PNG or JPEG by
+/// the extension (see [`write_rgb_png`]).
 pub fn write_png(path: &Path, frame: &Frame) -> Result<()> {
     write_rgb_png(path, &frame.to_rgb_image())
 }
 
-/// Writes an RGB image as PNG, atomically.
+/// Writes an RGB image atomically, in the format the path's extension names: PNG (`.png`
+/// or none) or JPEG (`.jpg`, `.jpeg`); other extensions are refused
+/// ([`image_file::write_rgb_image`]).
 pub fn write_rgb_png(path: &Path, img: &image::RgbImage) -> Result<()> {
-    let fail = |m: String| Error::Output { path: path.to_path_buf(), message: m };
-    sct_format::atomic::write_atomic(path, |w| {
-        img.write_to(w, image::ImageFormat::Png)
-            .map_err(|e| sct_format::Error::Io { path: Some(path.to_path_buf()), source: std::io::Error::other(e) })
-    })
-    .map_err(|e| fail(e.to_string()))
+    image_file::write_rgb_image(path, img)
 }
 
 /// The splats a render would rasterize (for benchmarks and tests).

@@ -35,8 +35,8 @@ struct Cli {
     /// SCT file to render.
     #[arg(required = true)]
     file: Option<PathBuf>,
-    /// Output PNG (written atomically).
-    #[arg(short, long, required = true)]
+    /// Output image (written atomically): PNG (.png) or JPEG (.jpg, .jpeg), by extension.
+    #[arg(short, long, required = true, value_parser = parse_image_output)]
     output: Option<PathBuf>,
     #[command(flatten)]
     render: RenderArgs,
@@ -67,11 +67,11 @@ struct Cli {
 
 #[derive(Args, Debug, Clone)]
 struct RenderArgs {
-    /// Image width.
-    #[arg(long, default_value_t = view::DEFAULT_WIDTH)]
+    /// Image width in pixels (1 to 16384).
+    #[arg(long, default_value_t = view::DEFAULT_WIDTH, value_parser = clap::value_parser!(u32).range(1..=i64::from(render_preview::camera::MAX_SIDE)))]
     width: u32,
-    /// Image height.
-    #[arg(long, default_value_t = view::DEFAULT_HEIGHT)]
+    /// Image height in pixels (1 to 16384).
+    #[arg(long, default_value_t = view::DEFAULT_HEIGHT, value_parser = clap::value_parser!(u32).range(1..=i64::from(render_preview::camera::MAX_SIDE)))]
     height: u32,
     /// Viewing direction when no --eye is given: front (eye on +Z), back, left (eye on
     /// -X), right, top (eye on +Y) or iso (eye along +X+Y+Z), named for a +Y-up world and
@@ -91,13 +91,13 @@ struct RenderArgs {
     #[arg(long, value_parser = parse_up, allow_hyphen_values = true)]
     up: Option<Up>,
     /// Fraction of the frame (its tighter dimension) the model's projected extent fills.
-    #[arg(long, default_value_t = view::DEFAULT_FILL)]
+    #[arg(long, default_value_t = view::DEFAULT_FILL, value_parser = positive_f64)]
     fill: f64,
-    /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = view::DEFAULT_FOV_Y_DEG)]
+    /// Vertical field of view in degrees, in (0.01, 179).
+    #[arg(long, default_value_t = view::DEFAULT_FOV_Y_DEG, value_parser = fov_degrees)]
     fov: f64,
     /// LOD threshold: largest projected splat radius in pixels (see --lod-size).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = positive_f32)]
     pixel_error: f32,
     /// Lambert + ambient headlight, or the stored colour only.
     #[arg(long, value_enum, default_value_t = Shading::Lambert)]
@@ -188,6 +188,39 @@ enum Command {
         #[arg(long, default_value = "default")]
         profile: sct_format::Profile,
     },
+}
+
+/// `--pixel-error`: a finite number above 0 (0 would refine to every leaf and draw nothing
+/// coarser; a usage error, exit 2).
+fn positive_f32(s: &str) -> Result<f32, String> {
+    match s.trim().parse::<f32>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) => Err(format!("must be a finite number above 0, got {v}")),
+        Err(e) => Err(format!("{s:?}: {e}")),
+    }
+}
+
+/// `--fill`: a finite number above 0.
+fn positive_f64(s: &str) -> Result<f64, String> {
+    positive_f32(s)?;
+    s.trim().parse::<f64>().map_err(|e| e.to_string())
+}
+
+/// `--fov`: degrees in (0.01, 179), as the camera accepts.
+fn fov_degrees(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v > 0.01 && v < 179.0 => Ok(v),
+        Ok(v) => Err(format!("must lie in (0.01, 179) degrees, got {v}")),
+        Err(e) => Err(format!("{s:?}: {e}")),
+    }
+}
+
+/// `-o`: the image format must follow from the extension (PNG or JPEG), checked before
+/// anything is rendered.
+fn parse_image_output(s: &str) -> Result<PathBuf, String> {
+    let p = PathBuf::from(s);
+    render_preview::image_file::image_kind(&p)?;
+    Ok(p)
 }
 
 fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
@@ -385,6 +418,7 @@ fn one_line(e: &anyhow::Error) -> String {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    voxelize::interrupt::remove_temp_files_on_signal("sct-render-preview");
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

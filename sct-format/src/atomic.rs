@@ -22,9 +22,12 @@ use crate::error::{Error, Result};
 /// - a directory, a block device, a socket or a dangling symlink: refused
 ///   ([`Error::Misuse`]), nothing written.
 ///
-/// The temporary file is `.NAME.PID.RANDOM.tmp` (RANDOM: 16 hex digits), created
+/// The temporary file is `.NAME.PID.HOSTRAND.tmp` (HOSTRAND: 16 hex digits, the first 8
+/// naming this host and PID namespace ([`host_tag`]), the last 8 random), created
 /// exclusively: two writers never share one, even with equal PIDs (containers on shared
-/// storage). Batch mode removes stale ones by that pattern.
+/// storage). While it exists it is listed in this process's registry
+/// ([`remove_pending_temp_files`], for a signal handler). Batch mode removes stale ones by
+/// that pattern, at once when the host tag is this host's and the PID is gone.
 pub fn write_atomic<T>(path: &Path, fill: impl FnOnce(&mut BufWriter<File>) -> Result<T>) -> Result<T> {
     write_atomic_with(path, fill)
 }
@@ -50,6 +53,7 @@ pub fn write_atomic_with<T, E: From<Error>>(path: &Path, fill: impl FnOnce(&mut 
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
+    unregister(&tmp);
     result
 }
 
@@ -63,9 +67,16 @@ enum Output {
 
 fn output_kind(path: &Path) -> Result<Output> {
     let refuse = |what: &str| Err(Error::Misuse(format!("{}: is {what}; not written (give a regular file as output)", path.display())));
+    // `out/` names a directory whatever exists: never write `out` (or a temporary file
+    // beside it) instead.
+    if path.as_os_str().as_encoded_bytes().ends_with(b"/") || path.file_name().is_none() {
+        return Err(Error::Misuse(format!("{}: names a directory; give the output file's name (e.g. {})", path.display(), path.join("model.sct").display())));
+    }
     let link = match std::fs::symlink_metadata(path) {
         Ok(m) => m,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Output::Atomic(path.to_path_buf())),
+        // A missing file, or a parent that is not a directory: creating the temporary file
+        // beside it reports which.
+        Err(e) if matches!(e.kind(), std::io::ErrorKind::NotFound | std::io::ErrorKind::NotADirectory) => return Ok(Output::Atomic(path.to_path_buf())),
         Err(e) => return Err(Error::io(path, e)),
     };
     let meta = if link.file_type().is_symlink() {
@@ -123,15 +134,102 @@ fn create_temp(target: &Path) -> Result<(File, PathBuf)> {
     for _ in 0..16 {
         let mut tmp_name = std::ffi::OsString::from(".");
         tmp_name.push(name);
-        tmp_name.push(format!(".{}.{:016x}.tmp", std::process::id(), random_u64()));
+        tmp_name.push(format!(".{}.{}{:08x}.tmp", std::process::id(), host_tag(), random_u64() as u32));
         let tmp = dir.join(tmp_name);
+        // Created and registered under the registry's lock: a signal handler emptying the
+        // registry sees every temporary file that exists, and none is created after it.
+        let mut pending = lock_pending();
+        if pending.closed {
+            return Err(Error::io(target, std::io::Error::new(std::io::ErrorKind::Interrupted, "interrupted; not written")));
+        }
         match std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp) {
-            Ok(f) => return Ok((f, tmp)),
+            Ok(f) => {
+                pending.paths.push(tmp.clone());
+                return Ok((f, tmp));
+            }
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last = Some(Error::io(&tmp, e)),
-            Err(e) => return Err(Error::io(&tmp, e)),
+            // Name the directory and the output, not the hidden temporary file.
+            Err(e) => return Err(output_dir_error(dir, target, e)),
         }
     }
     Err(last.unwrap_or_else(|| Error::Misuse("no temporary file name could be created".into())))
+}
+
+/// Temporary files this process is writing now (see [`remove_pending_temp_files`]).
+struct Pending {
+    paths: Vec<PathBuf>,
+    /// Set by [`remove_pending_temp_files`]: no temporary file is created after it.
+    closed: bool,
+}
+
+static PENDING: std::sync::Mutex<Pending> = std::sync::Mutex::new(Pending { paths: Vec::new(), closed: false });
+
+fn lock_pending() -> std::sync::MutexGuard<'static, Pending> {
+    PENDING.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+fn unregister(tmp: &Path) {
+    lock_pending().paths.retain(|x| x != tmp);
+}
+
+/// Removes every temporary file this process is writing now, refuses to create new ones
+/// from then on, and returns how many it removed: for a SIGINT/SIGTERM handler, so an
+/// interrupted run leaves nothing behind. Writers whose files vanish fail; the process is
+/// expected to exit.
+pub fn remove_pending_temp_files() -> usize {
+    let paths = {
+        let mut p = lock_pending();
+        p.closed = true;
+        std::mem::take(&mut p.paths)
+    };
+    paths.iter().filter(|p| std::fs::remove_file(p).is_ok()).count()
+}
+
+/// The temporary files this process is writing now.
+pub fn pending_temp_files() -> Vec<PathBuf> {
+    lock_pending().paths.clone()
+}
+
+/// 8 hex digits naming this host and PID namespace: temporary files whose name carries it
+/// were written by a process whose PID can be checked here (see [`process_is_gone`]).
+/// Hash of the host name and, on Linux, the PID namespace's inode; "00000000" when neither
+/// is known.
+pub fn host_tag() -> &'static str {
+    static TAG: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    TAG.get_or_init(|| {
+        let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+            .or_else(|_| std::fs::read_to_string("/etc/hostname"))
+            .or_else(|_| std::env::var("HOSTNAME").map_err(std::io::Error::other))
+            .unwrap_or_default();
+        let ns = std::fs::read_link("/proc/self/ns/pid").map(|p| p.display().to_string()).unwrap_or_default();
+        if host.trim().is_empty() && ns.is_empty() {
+            return "00000000".into();
+        }
+        let h = blake3::hash(format!("{}\0{ns}", host.trim()).as_bytes());
+        h.to_hex()[..8].to_string()
+    })
+}
+
+/// Whether the temporary file named `.NAME.PID.HOSTRAND.tmp` was written on this host (its
+/// host tag is [`host_tag`]) by a process that no longer runs. `false` whenever it cannot
+/// tell (another host, an older name without a host tag, no `/proc`).
+pub fn process_is_gone(pid: u32, hostrand: &str) -> bool {
+    let tag = host_tag();
+    if tag == "00000000" || hostrand.len() != 16 || &hostrand[..8] != tag || !Path::new("/proc/self").exists() {
+        return false;
+    }
+    pid != std::process::id() && !Path::new("/proc").join(pid.to_string()).exists()
+}
+
+/// Why a temporary file could not be created in `dir`, for the user: the directory is
+/// missing, is not a directory, or is not writable.
+fn output_dir_error(dir: &Path, target: &Path, e: std::io::Error) -> Error {
+    let why = match std::fs::metadata(dir) {
+        Err(m) if m.kind() == std::io::ErrorKind::NotFound => format!("its directory {} does not exist", dir.display()),
+        Ok(m) if !m.is_dir() => format!("{} is not a directory", dir.display()),
+        _ => format!("cannot create a file in {}: {e}", dir.display()),
+    };
+    Error::io(target, std::io::Error::new(e.kind(), why))
 }
 
 /// 64 unpredictable bits without a dependency: std's `RandomState` keys come from the OS's
@@ -314,5 +412,47 @@ mod tests {
         for len in [0, 1, 1024, 1025, 1 << 20, (1 << 20) + 1, (2 << 20) + 1024, (3 << 20) + 7, 4 << 20, data.len()] {
             assert_eq!(super::hash_bytes(&data[..len]), blake3::hash(&data[..len]).to_hex().to_string(), "{len}");
         }
+    }
+
+    /// `-o out/` and `-o missing/dir/x.sct` say what is wrong with the output path: no
+    /// "Not a directory" from a rename, no hidden temporary file's name.
+    #[test]
+    fn output_path_errors_name_the_output() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let slash = format!("{}/", dir.path().join("out").display());
+        let e = put(Path::new(&slash), b"x").unwrap_err().to_string();
+        assert!(e.contains("names a directory"), "{e}");
+        assert!(!dir.path().join("out").exists(), "nothing written");
+        let missing = dir.path().join("missing/dir/x.sct");
+        let e = put(&missing, b"x").unwrap_err().to_string();
+        assert!(e.contains("does not exist") && e.contains("x.sct") && !e.contains(".x.sct."), "{e}");
+        let file = dir.path().join("file");
+        put(&file, b"x").expect("write");
+        let e = put(&file.join("x.sct"), b"x").unwrap_err().to_string();
+        assert!(e.contains("not a directory") && !e.contains(".x.sct."), "{e}");
+    }
+
+    /// A file being written is in the registry a signal handler empties; once published
+    /// (or failed) it is not.
+    #[test]
+    fn temporary_files_are_registered_while_written() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("r.sct");
+        put(&path, b"x").expect("write");
+        let seen = write_atomic(&path, |_| {
+            let tmp = pending_temp_files().into_iter().find(|p| p.parent() == Some(dir.path()));
+            Ok(tmp)
+        })
+        .expect("write");
+        let tmp = seen.expect("registered while written");
+        assert!(tmp.file_name().expect("name").to_string_lossy().contains(host_tag()));
+        assert!(!pending_temp_files().contains(&tmp), "unregistered once published");
+        assert!(!tmp.exists());
+        // A PID that never ran here, with this host's tag, is gone; another host's is unknown.
+        let ours = format!("{}{:08x}", host_tag(), 7);
+        if Path::new("/proc/self").exists() && host_tag() != "00000000" {
+            assert!(process_is_gone(u32::MAX - 1, &ours));
+        }
+        assert!(!process_is_gone(std::process::id(), &ours), "this process runs");
     }
 }

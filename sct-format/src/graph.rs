@@ -41,6 +41,16 @@ pub struct Similarity {
     pub scale: f64,
 }
 
+/// For messages: `translation (x, y, z), rotation (x, y, z, w), scale s`, never a Rust
+/// debug structure.
+impl std::fmt::Display for Similarity {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let [x, y, z] = self.translation;
+        let [qx, qy, qz, qw] = self.rotation;
+        write!(f, "translation ({x}, {y}, {z}), rotation ({qx}, {qy}, {qz}, {qw}), scale {}", self.scale)
+    }
+}
+
 impl Default for Similarity {
     fn default() -> Self {
         Similarity::IDENTITY

@@ -34,3 +34,30 @@ impl Node {
             && (0.0..=std::f32::consts::PI).contains(&self.cone)
     }
 }
+
+/// For messages: `centre (x, y, z), radius r, normal (x, y, z) ± c rad, area a, colour
+/// #rrggbbaa`, never a Rust debug structure.
+impl std::fmt::Display for Node {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let [x, y, z] = self.center;
+        let [nx, ny, nz] = self.normal;
+        let [r, g, b, a] = self.color;
+        write!(
+            f,
+            "centre ({x}, {y}, {z}), radius {}, normal ({nx}, {ny}, {nz}) ± {} rad, area {}, colour #{r:02x}{g:02x}{b:02x}{a:02x}",
+            self.radius, self.cone, self.area
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn nodes_print_as_text() {
+        let n = super::Node { center: [1e30, 0.0, 2.5], radius: f32::INFINITY, color: [255, 0, 16, 255], ..Default::default() };
+        let s = n.to_string();
+        assert_eq!(s, "centre (1000000000000000000000000000000, 0, 2.5), radius inf, normal (0, 0, 0) ± 0 rad, area 0, colour #ff0010ff");
+        let t = crate::Similarity { translation: [1.0, f64::NAN, 0.0], rotation: [0.0, 0.0, 0.0, 1.0], scale: 2.0 };
+        assert_eq!(t.to_string(), "translation (1, NaN, 0), rotation (0, 0, 0, 1), scale 2");
+    }
+}

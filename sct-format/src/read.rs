@@ -704,7 +704,7 @@ pub(crate) fn parse_graph(
                 if matches!(on_problem, OnProblem::Fail) && !transform.is_valid(1e-6) {
                     // At the instance's own offset, not the section's, so the bad bytes
                     // can be found.
-                    return Err(Error::malformed(at, format!("instance {i} transform is not finite, not unit or not positive: {transform:?}")));
+                    return Err(Error::malformed(at, format!("instance {i} transform is not finite, not unit or not positive: {transform}")));
                 }
                 let prop = |bit: u8| if flags & bit != 0 { Propagation::PushDown } else { Propagation::PullUp };
                 let attrs = InstanceAttrs { size: prop(1), color: prop(2), tint: (flags & 4 != 0).then_some(tint) };

@@ -295,7 +295,7 @@ struct Graph {
 fn transform_problems(t: &Similarity) -> Vec<Problem> {
     let finite = t.translation.iter().chain(t.rotation.iter()).all(|v| v.is_finite()) && t.scale.is_finite();
     if !finite {
-        return vec![(CheckId::NonFinite, format!("instance transform has a non-finite component: {t:?}"))];
+        return vec![(CheckId::NonFinite, format!("instance transform has a non-finite component: {t}"))];
     }
     let mut out = Vec::new();
     let len = t.rotation.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -334,7 +334,7 @@ fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, room: usize, issues: 
         let probs = match n {
             GraphNode::Instance { transform, .. } => transform_problems(transform),
             GraphNode::Inline { bound, .. } if !bound.is_finite() => {
-                vec![(CheckId::NonFinite, format!("inline bound has non-finite attributes: {bound:?}"))]
+                vec![(CheckId::NonFinite, format!("inline bound has non-finite attributes: {bound}"))]
             }
             _ => continue,
         };
@@ -1006,7 +1006,7 @@ impl<'o> Validator<'o> {
                 && cone_contains(bound.normal, bound.cone, r.normal, r.cone, cone_tolerance(Profile::Raw))
                 && color_ok(bound.color, r.color, color_tolerance(Profile::Raw));
             if !ok {
-                self.issue(p, CheckId::InlineBound, label, format!("graph node {n}: recorded bound {bound:?} does not match the root of {rel}: {r:?}"));
+                self.issue(p, CheckId::InlineBound, label, format!("graph node {n}: recorded bound ({bound}) does not match the root of {rel} ({r})"));
             }
         }
     }

@@ -298,7 +298,7 @@ fn check_graph(scene: &Scene) -> Result<()> {
             GraphNode::Instance { child, transform, .. } => {
                 earlier(*child)?;
                 if !transform.is_valid(1e-6) {
-                    return Err(Error::Misuse(format!("instance {i} has an invalid transform {transform:?}")));
+                    return Err(Error::Misuse(format!("instance {i} has an invalid transform ({transform})")));
                 }
             }
             GraphNode::Inline { path, .. } => {

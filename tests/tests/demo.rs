@@ -57,3 +57,44 @@ fn readme_demo_command_produces_valid_accurate_outputs() {
     assert!(psnr >= 21.0, "foreground PSNR {psnr} dB against the mesh reference");
     assert!(iou >= 0.97, "silhouette IoU {iou}");
 }
+
+/// `demo.sh` takes the tools from `CARGO_TARGET_DIR` when it is set (as many users' shells
+/// do), not from `target/`. A stand-in `cargo` (build: nothing to do) and wrapper tools
+/// that record their use show which directory it ran them from.
+#[cfg(unix)]
+#[test]
+fn demo_honours_cargo_target_dir() {
+    use std::os::unix::fs::PermissionsExt;
+    let Some(real) = built_binaries() else {
+        eprintln!("skipped: the release binaries are not built beside this test");
+        return;
+    };
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let path_dir = tmp.path().join("path");
+    let target = tmp.path().join("elsewhere");
+    let release = target.join("release");
+    std::fs::create_dir_all(&path_dir).expect("mkdir");
+    std::fs::create_dir_all(&release).expect("mkdir");
+    let marks = tmp.path().join("marks");
+    let script = |p: &Path, body: String| {
+        std::fs::write(p, body).expect("write script");
+        std::fs::set_permissions(p, std::fs::Permissions::from_mode(0o755)).expect("chmod");
+    };
+    script(&path_dir.join("cargo"), "#!/bin/sh\nexit 0\n".into());
+    for tool in ["sct-voxelize", "sct-build-tree", "sct-inspect", "sct-render-preview"] {
+        let body = format!("#!/bin/sh\necho {tool} >> '{}'\nexec '{}' \"$@\"\n", marks.display(), real.join(tool).display());
+        script(&release.join(tool), body);
+    }
+    let path = format!("{}:{}", path_dir.display(), std::env::var("PATH").unwrap_or_default());
+    let run = Command::new("bash")
+        .arg(repo().join("demo.sh"))
+        .env("OUT", tmp.path().join("out"))
+        .env("CARGO_TARGET_DIR", &target)
+        .env("PATH", path)
+        .env_remove("SCT_BIN_DIR")
+        .output()
+        .expect("run demo.sh");
+    assert!(run.status.success(), "demo.sh failed:\n{}", String::from_utf8_lossy(&run.stderr));
+    let used = std::fs::read_to_string(&marks).unwrap_or_default();
+    assert_eq!(used.lines().count(), 4, "the tools under CARGO_TARGET_DIR ran: {used:?}");
+}

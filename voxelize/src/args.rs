@@ -93,7 +93,9 @@ pub struct SamplingArgs {
     /// Crease angle (degrees) for normals computed when a mesh has none.
     #[arg(long, value_name = "DEG", default_value_t = 60.0)]
     pub crease: f32,
-    /// Bind this image as the base-colour texture (OBJ without MTL, e.g. spot).
+    /// Bind this image as the base-colour texture of the primitives that have texture
+    /// coordinates but no texture of their own (an OBJ without MTL, e.g. spot); textures
+    /// the model brings are kept. Not in batch mode (see NAME.EXT.options.json there).
     #[arg(long, value_name = "IMAGE")]
     pub texture: Option<PathBuf>,
     /// Ignore textures (colours from factors and vertex colours).

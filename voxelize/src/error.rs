@@ -23,6 +23,17 @@ pub enum LoadError {
         /// The file.
         path: PathBuf,
     },
+    /// The content is not a mesh this tool reads (STL, FBX, an SCT file, …), named by
+    /// what it is.
+    #[error("{}: this is {found}; {hint}", path.display())]
+    UnsupportedFormat {
+        /// The file.
+        path: PathBuf,
+        /// What the content is ("an STL file").
+        found: &'static str,
+        /// What to do about it.
+        hint: &'static str,
+    },
     /// The file is not valid in its format.
     #[error("{}: {format} parse error at {location}: {message}", path.display())]
     Parse {
@@ -152,7 +163,7 @@ pub enum Error {
     #[error("{0}")]
     Sampling(String),
     /// Writing the output failed (I/O: exit status 2).
-    #[error("{}: cannot write: {source}", path.display())]
+    #[error("{}", write_message(path, source))]
     Write {
         /// Output path.
         path: PathBuf,
@@ -170,5 +181,18 @@ impl Error {
             Error::Load(_) | Error::Sampling(_) => 1,
             Error::Usage(_) | Error::Write { .. } => 2,
         }
+    }
+}
+
+/// `PATH: cannot write: CAUSE`, the path once: the writer's own messages often name it.
+fn write_message(path: &std::path::Path, source: &sct_format::Error) -> String {
+    let cause = match source {
+        sct_format::Error::Misuse(m) => m.clone(),
+        other => other.to_string(),
+    };
+    if cause.contains(&path.display().to_string()) {
+        format!("cannot write: {cause}")
+    } else {
+        format!("{}: cannot write: {cause}", path.display())
     }
 }

@@ -13,8 +13,10 @@
 // `!(x > 0.0)` is the deliberate NaN-rejecting test throughout (NaN fails every comparison).
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod alpha;
 pub mod args;
 pub mod error;
+pub mod interrupt;
 pub mod load;
 pub mod mesh;
 pub mod polygon;

@@ -23,7 +23,11 @@ use voxelize::Options;
   sct-voxelize city.gltf -o city.samples --screen-error 1 --resolution 1920 --distance 50
   sct-voxelize dragon.ply -o dragon.samples --method vertex --json
 
-EXIT STATUS: 0 success, 1 bad input (unreadable mesh, unsupported extension), 2 usage or I/O error.")]
+Inputs are recognised by extension or content (a GLB, PLY or OBJ without its extension loads);
+STL, FBX and SCT files are refused, naming what they are. Ctrl-C or SIGTERM removes the
+temporary output file before exiting (status 130 or 143).
+
+EXIT STATUS: 0 success, 1 bad input (unreadable mesh, a file that is not a mesh), 2 usage or I/O error.")]
 struct Cli {
     /// Input mesh files (.obj, .gltf, .glb, .ply); several are sampled in one grid.
     #[arg(required = true)]
@@ -47,6 +51,7 @@ struct Cli {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    voxelize::interrupt::remove_temp_files_on_signal("sct-voxelize");
     if let Some(t) = cli.threads {
         if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(t).build_global() {
             eprintln!("sct-voxelize: cannot set threads: {e}");

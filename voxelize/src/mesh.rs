@@ -192,6 +192,10 @@ pub struct LoadedScene {
     pub stats: LoadStats,
     /// Files read (the input and every resource it referenced that was found).
     pub files: Vec<PathBuf>,
+    /// Files a source references that were not found (an MTL, a texture): each one's
+    /// appearance would change the result, so batch mode records them and converts again
+    /// when one appears.
+    pub missing: Vec<PathBuf>,
     /// The format says per material which surfaces are seen from both sides (glTF
     /// `doubleSided`); otherwise sidedness comes from topology (see [`crate::sides`]).
     pub declares_sides: bool,

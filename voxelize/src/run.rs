@@ -87,6 +87,9 @@ pub struct Summary {
     pub samples_per_second: f64,
     /// Non-fatal problems.
     pub warnings: Vec<String>,
+    /// Files the inputs reference that were not found (a missing MTL or texture; see
+    /// [`crate::mesh::LoadedScene::missing`]).
+    pub missing_inputs: Vec<String>,
 }
 
 /// Loads every input into one scene (indices offset so meshes, materials and images stay
@@ -144,7 +147,10 @@ pub fn load_all(inputs: &[PathBuf], opts: &LoadOptions) -> Result<LoadedScene, E
         all.stats.polygons_triangulated += s.stats.polygons_triangulated;
         all.stats.skipped_primitives += s.stats.skipped_primitives;
         all.files.extend(s.files);
+        all.missing.extend(s.missing);
     }
+    all.missing.sort();
+    all.missing.dedup();
     Ok(all)
 }
 
@@ -434,6 +440,7 @@ pub fn sample_into(
         seconds_total: t0.elapsed().as_secs_f64(),
         samples_per_second: if t_sample > 0.0 { n_samples as f64 / t_sample } else { 0.0 },
         warnings,
+        missing_inputs: scene.missing.iter().map(|p| p.display().to_string()).collect(),
     };
     Ok((tables, summary))
 }

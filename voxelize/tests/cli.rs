@@ -112,3 +112,85 @@ fn stacked_surfaces_meet_the_default_budget() {
     let st = bin().arg(&obj).args(["--dry-run", "--json", "--voxel-size", "1e-5"]).output().unwrap();
     assert_eq!(st.status.code(), Some(1), "refused by --max-samples: {}", String::from_utf8_lossy(&st.stderr));
 }
+
+/// A file that is not a mesh is named by what it is (STL, FBX, an SCT file), not by its
+/// magic bytes; a GLB without its extension still loads.
+#[test]
+fn inputs_are_named_by_their_content() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.samples");
+    let stl = dir.path().join("tri.stl");
+    std::fs::write(&stl, "solid t\n facet normal 0 0 1\n  outer loop\n   vertex 0 0 0\n   vertex 1 0 0\n   vertex 0 1 0\n  endloop\n endfacet\nendsolid t\n").unwrap();
+    let fbx = dir.path().join("x.fbx");
+    std::fs::write(&fbx, b"Kaydara FBX Binary  \x00\x1a\x00").unwrap();
+    let sct = dir.path().join("scene.sct");
+    std::fs::write(&sct, sct_format::raw::SCT_MAGIC).unwrap();
+    for (input, want) in [(&stl, "STL is not supported"), (&fbx, "FBX is not supported"), (&sct, "this is an SCT scene file")] {
+        let st = bin().arg(input).arg("-o").arg(&out).output().unwrap();
+        let err = String::from_utf8_lossy(&st.stderr);
+        assert_eq!(st.status.code(), Some(1), "{err}");
+        assert!(err.contains(want) && !err.contains("magic"), "{err}");
+        assert_eq!(err.lines().count(), 1, "said once: {err}");
+    }
+    let Some(glb) = model("gltf/Box/glTF-Binary/Box.glb") else { return };
+    let bare = dir.path().join("box");
+    std::fs::copy(glb, &bare).unwrap();
+    let st = bin().arg(&bare).arg("-o").arg(&out).args(["--voxel-size", "0.1"]).output().unwrap();
+    assert_eq!(st.status.code(), Some(0), "{}", String::from_utf8_lossy(&st.stderr));
+}
+
+/// A sample count over --max-samples with an explicit --voxel-size suggests what applies to
+/// it (a larger voxel size), not the other density rules' knobs.
+#[test]
+fn a_rejected_voxel_size_suggests_a_larger_one() {
+    let Some(bx) = model("gltf/Box/glTF-Binary/Box.glb") else { return };
+    let st = bin().arg(&bx).args(["--dry-run", "--voxel-size", "0.0005", "--max-samples", "1000"]).output().unwrap();
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert_ne!(st.status.code(), Some(0), "{err}");
+    assert!(err.contains("larger --voxel-size"), "{err}");
+    assert!(!err.contains("screen-error") && !err.contains('γ') && !err.contains("gamma"), "{err}");
+}
+
+/// Ctrl-C (SIGINT) or SIGTERM while a samples file is written: the hidden temporary file
+/// is removed, the exit status is 128 + signal, and no output appears.
+#[cfg(unix)]
+#[test]
+fn an_interrupted_run_leaves_no_temporary_file() {
+    let Some(dragon) = model("scans/stanford-dragon-100k/dragon.ply") else { return };
+    for (signal, code) in [("-INT", 130), ("-TERM", 143)] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("dragon.samples");
+        let mut child = bin().arg(&dragon).arg("-o").arg(&out).args(["--voxel-size", "0.0002", "--threads", "1"]).stderr(std::process::Stdio::piped()).spawn().unwrap();
+        let tmp_exists = || std::fs::read_dir(dir.path()).unwrap().flatten().any(|e| e.file_name().to_string_lossy().ends_with(".tmp"));
+        let t0 = std::time::Instant::now();
+        while !tmp_exists() && t0.elapsed().as_secs() < 60 && child.try_wait().unwrap().is_none() {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        assert!(tmp_exists(), "the run finished before it could be interrupted; make it longer");
+        let k = Command::new("kill").arg(signal).arg(child.id().to_string()).status().unwrap();
+        assert!(k.success());
+        let o = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(code), "{err}");
+        assert!(err.contains("temporary file(s) removed"), "{err}");
+        let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().flatten().map(|e| e.file_name()).collect();
+        assert!(left.is_empty(), "left behind: {left:?}");
+    }
+}
+
+/// `-o DIR/` and `-o missing/x.samples`: usage/I/O errors (2) that say what is wrong with
+/// the output path, naming it once and never the hidden temporary file.
+#[test]
+fn output_path_errors_say_what_is_wrong_once() {
+    let Some(bx) = model("gltf/Box/glTF-Binary/Box.glb") else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let slash = format!("{}/", dir.path().join("od").display());
+    let missing = dir.path().join("missing/x.samples");
+    for (out, want) in [(slash.clone(), "names a directory"), (missing.display().to_string(), "does not exist")] {
+        let st = bin().arg(&bx).args(["-o", &out, "--voxel-size", "0.1"]).output().unwrap();
+        let err = String::from_utf8_lossy(&st.stderr);
+        assert_eq!(st.status.code(), Some(2), "{err}");
+        assert!(err.contains(want) && !err.contains(".x.samples.") && !err.contains("Not a directory"), "{err}");
+        assert_eq!(err.matches(out.trim_end_matches('/')).count(), 1 + usize::from(out.ends_with('/')), "{err}");
+    }
+}

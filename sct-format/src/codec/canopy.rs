@@ -66,8 +66,8 @@ pub fn node_bytes(params: CodecParams) -> usize {
 pub(super) fn check_parent(p: &Node, k: usize) -> Result<()> {
     if !(p.center.iter().all(|v| v.is_finite()) && p.radius.is_finite() && p.radius > 0.0) {
         return Err(Error::Misuse(format!(
-            "parent {k} has a non-finite centre or a radius that is not positive ({:?}, {})",
-            p.center, p.radius
+            "parent {k} has a non-finite centre or a radius that is not positive (centre ({}, {}, {}), radius {})",
+            p.center[0], p.center[1], p.center[2], p.radius
         )));
     }
     Ok(())
@@ -103,7 +103,26 @@ fn attributes_usable(c: &Node) -> bool {
 #[inline(never)]
 fn child_error(c: &Node, i: usize, params: CodecParams) -> Result<()> {
     if !attributes_usable(c) {
-        return Err(Error::Misuse(format!("child {i} has a non-finite or negative attribute: {c:?}")));
+        let mut bad = Vec::new();
+        if !c.center.iter().all(|v| v.is_finite()) {
+            bad.push(format!("centre ({}, {}, {})", c.center[0], c.center[1], c.center[2]));
+        }
+        if !(c.radius.is_finite() && c.radius >= 0.0) {
+            bad.push(format!("radius {}", c.radius));
+        }
+        if !(c.area.is_finite() && c.area >= 0.0) {
+            bad.push(format!("area {}", c.area));
+        }
+        if !c.normal.iter().all(|v| v.is_finite()) || !c.cone.is_finite() {
+            bad.push(format!("normal cone ({}, {}, {}; {} rad)", c.normal[0], c.normal[1], c.normal[2], c.cone));
+        }
+        return Err(Error::Misuse(format!(
+            "child node {i} at ({}, {}, {}) has {}: coordinates this large overflow single precision; scale the model down",
+            c.center[0],
+            c.center[1],
+            c.center[2],
+            if bad.is_empty() { "an unusable attribute".to_string() } else { bad.join(", ") }
+        )));
     }
     if !params.alpha && c.color[3] != 255 {
         return Err(Error::Misuse(format!(
@@ -126,9 +145,9 @@ pub(super) fn sphere_ties(p: &Node, c: &Node, i: usize) -> Result<posrad::Ties> 
 
 fn too_far(p: &Node, c: &Node, i: usize) -> Error {
     Error::Misuse(format!(
-        "child {i} (centre {:?}, radius {}) lies too far outside its decoded parent (centre {:?}, radius {}) \
+        "child {i} (centre ({}, {}, {}), radius {}) lies too far outside its decoded parent (centre ({}, {}, {}), radius {}) \
          for any position/radius state to contain it",
-        c.center, c.radius, p.center, p.radius
+        c.center[0], c.center[1], c.center[2], c.radius, p.center[0], p.center[1], p.center[2], p.radius
     ))
 }
 
@@ -258,6 +277,17 @@ mod tests {
 
     fn node(c: [f32; 3], r: f32) -> Node {
         Node { center: c, radius: r, normal: [0.0, 0.6, 0.8], cone: 0.1, area: 2.5, color: [200, 100, 50, 255] }
+    }
+
+    /// Coordinates of 1e30 (areas overflow to infinity): the refusal names the attribute and
+    /// the cause in words, not a Rust `Node { … }` structure.
+    #[test]
+    fn unusable_children_are_described_in_words() {
+        let mut c = node([1e30, 0.0, 0.0], 1e30);
+        c.area = f32::INFINITY;
+        let e = check_child(&c, 3, CodecParams { alpha: false }).unwrap_err().to_string();
+        assert!(e.contains("area inf") && e.contains("child node 3") && e.contains("scale the model down"), "{e}");
+        assert!(!e.contains("Node {") && !e.contains("center:"), "{e}");
     }
 
     #[test]

@@ -132,6 +132,11 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
                 // Like a missing texture, a refused one (outside the model's directory, not
                 // a regular file) is a warning: the base colour factor still applies.
                 external(path, base, uri, &format!("image {}", img.index()), opts)
+                    .inspect(|file| {
+                        if !file.exists() {
+                            scene.missing.push(file.clone());
+                        }
+                    })
                     .and_then(|file| super::read_file(&file, opts.max_file_bytes))
                     .map_err(|e| e.to_string())
                     .and_then(|b| image::load_from_memory(&b).map_err(|e| e.to_string()))

@@ -5,6 +5,7 @@ pub mod fsio;
 mod gltf_load;
 mod obj;
 mod ply;
+pub mod sniff;
 
 use std::path::{Path, PathBuf};
 
@@ -14,8 +15,9 @@ use crate::mesh::{is_degenerate, Image, LoadStats, LoadedScene, Primitive};
 /// Options for [`load`].
 #[derive(Clone, Debug)]
 pub struct LoadOptions {
-    /// Bind this image as the base-colour texture of every material (for OBJ files shipped
-    /// without an MTL, such as spot). Applied to primitives that have UVs.
+    /// Bind this image as the base-colour texture of the primitives that have UVs but no
+    /// texture of their own (for OBJ files shipped without an MTL, such as spot); a texture
+    /// the model brings is kept.
     pub texture_override: Option<PathBuf>,
     /// Decode textures (false: colours come from factors and vertex colours only).
     pub load_textures: bool,
@@ -52,13 +54,28 @@ impl Default for LoadOptions {
 pub fn load(path: &Path, opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
     let bytes = read_file(path, opts.max_file_bytes)?;
     let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    let kind = match ext.as_deref() {
-        Some("obj") => Kind::Obj,
-        Some("gltf") | Some("glb") => Kind::Gltf,
-        Some("ply") => Kind::Ply,
-        _ if bytes.starts_with(b"glTF") => Kind::Gltf,
-        _ if bytes.starts_with(b"ply") => Kind::Ply,
-        _ => return Err(LoadError::UnknownFormat { path: path.to_path_buf() }),
+    let sniffed = sniff::sniff(&bytes[..bytes.len().min(sniff::SNIFF_BYTES)], bytes.len() as u64);
+    // The content wins over a misleading extension only where it is unambiguous (a GLB
+    // named .gltf); a text file is read by its extension.
+    let kind = match (ext.as_deref(), sniffed) {
+        (_, sniff::FileKind::GltfBinary) => Kind::Gltf,
+        (Some("obj"), _) => Kind::Obj,
+        (Some("gltf") | Some("glb"), _) => Kind::Gltf,
+        (Some("ply"), _) => Kind::Ply,
+        (_, sniff::FileKind::GltfJson) => Kind::Gltf,
+        (_, sniff::FileKind::Ply) => Kind::Ply,
+        (_, sniff::FileKind::Obj) => Kind::Obj,
+        (_, found) => {
+            return Err(LoadError::UnsupportedFormat {
+                path: path.to_path_buf(),
+                found: found.describe(),
+                hint: found.unsupported_mesh_hint().unwrap_or(match found {
+                    sniff::FileKind::SctScene => "it is an output of sct-build-tree, not a mesh; view it with sct-render-preview or inspect it with sct-inspect",
+                    sniff::FileKind::SctSamples => "it is an output of sct-voxelize, not a mesh; build a tree from it with sct-build-tree",
+                    _ => "the supported meshes are OBJ (.obj), glTF (.gltf, .glb) and PLY (.ply)",
+                }),
+            })
+        }
     };
     // Third-party parsers are not all panic-free on hostile input; a panic becomes a typed
     // error naming the file instead of aborting the tool.
@@ -147,14 +164,21 @@ fn bind_texture_override(scene: &mut LoadedScene, tex: &Path, opts: &LoadOptions
         wrap_s: crate::mesh::Wrap::Repeat,
         wrap_t: crate::mesh::Wrap::Repeat,
     };
-    // Every primitive gets a textured material: its own with the texture bound, or a white
-    // one (the texture alone decides the colour, as the model's author intended).
+    // Every primitive with UVs and no texture of its own gets a textured material: its own
+    // with the texture bound, or a white one (the texture alone decides the colour, as the
+    // model's author intended). A texture the model brings is never replaced.
     let mut rebound = std::collections::HashMap::new();
+    let (mut bound, mut kept) = (0usize, 0usize);
     for mesh in &mut scene.meshes {
         for p in &mut mesh.primitives {
             if p.uvs.is_empty() {
                 continue;
             }
+            if p.material.and_then(|k| scene.materials.get(k)).is_some_and(|m| m.texture.is_some()) {
+                kept += 1;
+                continue;
+            }
+            bound += 1;
             let key = p.material;
             let new = *rebound.entry(key).or_insert_with(|| {
                 let mut m = key
@@ -166,6 +190,10 @@ fn bind_texture_override(scene: &mut LoadedScene, tex: &Path, opts: &LoadOptions
             });
             p.material = Some(new);
         }
+    }
+    if bound == 0 {
+        let why = if kept > 0 { "every primitive with texture coordinates has a texture of its own" } else { "no primitive has texture coordinates" };
+        scene.warnings.push(format!("--texture {} was not used: {why}", tex.display()));
     }
     Ok(())
 }

@@ -17,6 +17,7 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let warnings = RefCell::new(Vec::<String>::new());
     let files = RefCell::new(Vec::<PathBuf>::new());
+    let missing = RefCell::new(Vec::<PathBuf>::new());
     // Material name -> directory of the MTL that defined it (texture paths are relative to
     // the MTL, not the OBJ).
     let mtl_dirs = RefCell::new(HashMap::<String, PathBuf>::new());
@@ -24,6 +25,7 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
     let mut reader = std::io::Cursor::new(text.as_bytes());
     let result = tobj::load_obj_buf(&mut reader, &load_opts, |mtl: &Path| {
         let Some(found) = resolve(&dir, &mtl.to_string_lossy()) else {
+            missing.borrow_mut().extend(candidates(&dir, &mtl.to_string_lossy()));
             warnings.borrow_mut().push(format!("{}: material library {} not found; using default colour", path.display(), mtl.display()));
             return Err(tobj::LoadError::OpenFileFailed);
         };
@@ -55,7 +57,7 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
         r
     });
     let (models, mats) = result.map_err(|e| LoadError::parse(path, "OBJ", "face or vertex line", e.to_string()))?;
-    let mut scene = LoadedScene { warnings: warnings.into_inner(), files: files.into_inner(), ..Default::default() };
+    let mut scene = LoadedScene { warnings: warnings.into_inner(), files: files.into_inner(), missing: missing.into_inner(), ..Default::default() };
     let mtl_dirs = mtl_dirs.into_inner();
     let mats = mats.unwrap_or_default();
     let mut image_cache: HashMap<PathBuf, Option<usize>> = HashMap::new();
@@ -77,6 +79,7 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
                 return None;
             }
             let Some(file) = resolve(&mdir, name) else {
+                scene.missing.extend(candidates(&mdir, name));
                 scene.warnings.push(format!("{}: {what} texture {name:?} of material {} not found; using the material colour", path.display(), m.name));
                 return None;
             };
@@ -280,9 +283,14 @@ pub(super) fn join_continuations(text: &str) -> Cow<'_, str> {
 /// the last token (dropping `-o u v`-style options), and finally the bare file name in
 /// `dir` (exporters often write absolute paths from the author's machine).
 pub(super) fn resolve(dir: &Path, name: &str) -> Option<PathBuf> {
+    candidates(dir, name).into_iter().find(|full| full.is_file())
+}
+
+/// The paths [`resolve`] tries for `name`, in order, without repeats.
+pub(super) fn candidates(dir: &Path, name: &str) -> Vec<PathBuf> {
     let name = name.trim();
     if name.is_empty() {
-        return None;
+        return Vec::new();
     }
     let slashed = name.replace('\\', "/");
     let mut cands: Vec<String> = vec![name.to_string(), slashed.clone()];
@@ -292,12 +300,13 @@ pub(super) fn resolve(dir: &Path, name: &str) -> Option<PathBuf> {
     if let Some(base) = slashed.rsplit('/').next() {
         cands.push(base.to_string());
     }
+    let mut out: Vec<PathBuf> = Vec::new();
     for c in cands {
         let p = Path::new(&c);
         let full = if p.is_absolute() { p.to_path_buf() } else { dir.join(p) };
-        if full.is_file() {
-            return Some(full);
+        if !out.contains(&full) {
+            out.push(full);
         }
     }
-    None
+    out
 }

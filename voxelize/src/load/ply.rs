@@ -322,7 +322,10 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
     let fixed = sanitize_header(bytes);
     let bytes: &[u8] = fixed.as_deref().unwrap_or(bytes);
     let mut cur = Cursor::new(bytes);
-    let header = parser.read_header(&mut cur).map_err(|e| perr("header".into(), e.to_string()))?;
+    let header = parser.read_header(&mut cur).map_err(|e| {
+        let (loc, msg) = header_error(&e.to_string());
+        perr(loc, msg)
+    })?;
     let start = usize::try_from(cur.position()).unwrap_or(usize::MAX).min(bytes.len());
     let binary = header.encoding != Encoding::Ascii;
     // A declared count can never exceed what the bytes left can hold (a binary record takes
@@ -451,7 +454,12 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
                     material = Some(0);
                     colors = None;
                 }
-                Err(e) => scene.warnings.push(format!("{}: TextureFile {name:?}: {e}; using vertex colours", path.display())),
+                Err(e) => {
+                    if !file.exists() {
+                        scene.missing.push(file.clone());
+                    }
+                    scene.warnings.push(format!("{}: TextureFile {name:?}: {e}; using vertex colours", path.display()))
+                }
             }
         }
     }
@@ -763,5 +771,52 @@ mod tests {
         let b = b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty uchar x\nproperty uchar y\nproperty uchar z\nelement blob 1\nproperty list uint double d\nend_header\n\x00\x00\x00\xff\xff\xff\xff";
         let e = load(path, b, &opts).expect_err("list past the end");
         assert!(matches!(&e, LoadError::Parse { location, .. } if location.contains("blob 0")), "{e}");
+    }
+}
+
+/// The PLY parser's header error (`Line 6: Couldn't parse line.\n\tString: '…'\n\tError:
+/// ParseError { location: LineCol { … column: 10 … }, expected: ExpectedSet { … } }`) as a
+/// location and one readable sentence: the line, what it says, and what was expected.
+fn header_error(raw: &str) -> (String, String) {
+    let Some(rest) = raw.strip_prefix("Line ") else {
+        return ("header".into(), raw.split_whitespace().collect::<Vec<_>>().join(" "));
+    };
+    let line = rest.split(':').next().unwrap_or("?").trim().to_string();
+    let text = raw.split_once("String: '").and_then(|(_, r)| r.split_once('\'')).map(|(t, _)| t.trim().to_string());
+    let column = raw.split_once("column: ").and_then(|(_, r)| r.split(|c: char| !c.is_ascii_digit()).next()).filter(|c| !c.is_empty());
+    let expected: Vec<String> = raw
+        .split_once("expected: {")
+        .map(|(_, r)| r.split('}').next().unwrap_or(""))
+        .map(|set| {
+            set.split(", ")
+                .map(|t| t.trim().trim_matches('"').trim_matches('\\').trim_matches('"').to_string())
+                .filter(|t| !t.is_empty() && !t.starts_with('['))
+                .collect()
+        })
+        .unwrap_or_default();
+    let mut msg = match &text {
+        Some(t) => format!("cannot parse {t:?}"),
+        None => "cannot parse the line".to_string(),
+    };
+    if let Some(c) = column {
+        msg.push_str(&format!(" at column {c}"));
+    }
+    if !expected.is_empty() {
+        msg.push_str(&format!("; expected one of: {}", expected.join(", ")));
+    }
+    (format!("header line {line}"), msg)
+}
+
+#[cfg(test)]
+mod header_error_tests {
+    /// No Rust debug structure reaches the user: the line, its text, the column and the
+    /// expected keywords.
+    #[test]
+    fn header_errors_read_as_sentences() {
+        let raw = "Line 6: Couldn't parse line.\n\tString: 'property floot z\n'\n\tError: ParseError { location: LineCol { line: 1, column: 10, offset: 9 }, expected: ExpectedSet { expected: {\"\\\"char\\\"\", \"\\\"float\\\"\", \"[' '|'\\\\t']\"} } }";
+        let (loc, msg) = super::header_error(raw);
+        assert_eq!(loc, "header line 6");
+        assert_eq!(msg, "cannot parse \"property floot z\" at column 10; expected one of: char, float");
+        assert!(!msg.contains("ParseError") && !msg.contains('{'));
     }
 }

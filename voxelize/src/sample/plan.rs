@@ -135,10 +135,13 @@ pub(super) fn plan_sampling(scene: &LoadedScene, opts: &SampleOptions) -> Result
     }
     let estimate = est.at(h);
     if estimate > opts.max_samples as f64 {
-        return Err(format!(
-            "voxel size {h} would make about {estimate:.0} samples, more than --max-samples {}; use a larger --voxel-size or --screen-error, or --sample-budget",
-            opts.max_samples
-        ));
+        // Suggest what applies to the density rule in use.
+        let fix = match opts.density {
+            crate::Density::VoxelSize(_) => "give a larger --voxel-size, or raise --max-samples",
+            crate::Density::Auto { .. } => "use a smaller --gamma or a larger --k, set --sample-budget, or raise --max-samples",
+            _ => "use a larger --screen-error, set --sample-budget, or raise --max-samples",
+        };
+        return Err(format!("voxel size {h} would make about {estimate:.0} samples, more than --max-samples {}; {fix}", opts.max_samples));
     }
     Ok((voxel, stats, units))
 }
