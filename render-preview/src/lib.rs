@@ -19,7 +19,9 @@
 
 pub mod camera;
 pub mod error;
+pub mod gauss;
 mod lod;
+pub mod method;
 pub mod metrics;
 pub mod provenance;
 pub mod raster;
@@ -34,6 +36,8 @@ use std::time::Instant;
 
 pub use camera::{Camera, UpAxis, View, ViewPreset};
 pub use error::{Error, Result};
+pub use gauss::{GaussOptions, Weighting};
+pub use method::{Method, Work};
 pub use lod::LodStats;
 pub use raster::{Frame, Splat};
 pub use scene::SceneFiles;
@@ -73,6 +77,10 @@ pub const AREA_COVER: f32 = 1.3;
 /// Everything that controls a render.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RenderOptions {
+    /// How the LOD cut is drawn.
+    pub method: Method,
+    /// Settings of [`Method::Gauss`].
+    pub gauss: GaussOptions,
     /// Image width in pixels.
     pub width: u32,
     /// Image height in pixels.
@@ -116,6 +124,8 @@ pub struct RenderOptions {
 impl Default for RenderOptions {
     fn default() -> Self {
         RenderOptions {
+            method: Method::Zbuffer,
+            gauss: GaussOptions::default(),
             width: view::DEFAULT_WIDTH,
             height: view::DEFAULT_HEIGHT,
             view: ViewPreset::Front,
@@ -213,8 +223,10 @@ pub struct Phases {
     pub frame: f64,
     /// Refinement, block decoding and splat setup.
     pub traverse: f64,
-    /// Rasterization.
+    /// Rasterization (for `gauss`: compositing, the depth sort included).
     pub raster: f64,
+    /// The per-frame depth sort (`gauss`; 0 for `zbuffer`), part of `raster`.
+    pub sort: f64,
     /// Everything, PNG encoding excluded.
     pub total: f64,
 }
@@ -222,6 +234,10 @@ pub struct Phases {
 /// Counters of a render.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct RenderStats {
+    /// The method that drew the frame.
+    pub method: Method,
+    /// Work counters comparable across methods.
+    pub work: Work,
     /// Splats rasterized.
     pub splats: u64,
     /// Refinement counters.
@@ -307,6 +323,7 @@ fn setup(files: &SceneFiles, opts: &RenderOptions) -> Result<(Camera, f64, View,
         max_radius: 2.0 * opts.width.max(opts.height) as f32,
         area_cover: AREA_COVER,
         lod_size: opts.lod_size,
+        kernel: (opts.method == Method::Gauss).then(|| gauss::Kernel::new(&opts.gauss)),
     };
     Ok((camera, near, view, params, up, t0.elapsed().as_secs_f64()))
 }
@@ -320,22 +337,49 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     if !(opts.fill.is_finite() && opts.fill > 0.0) {
         return Err(Error::Invalid(format!("fill {} must be a positive number (0.9: the model fills 90 % of the frame)", opts.fill)));
     }
+    if opts.method == Method::Gauss {
+        let g = &opts.gauss;
+        if !(g.alpha_min > 0.0 && g.alpha_min <= 0.5) {
+            return Err(Error::Invalid(format!("gauss alpha_min {} must lie in (0, 0.5]", g.alpha_min)));
+        }
+        if !(g.lowpass.is_finite() && g.lowpass >= 0.0) {
+            return Err(Error::Invalid(format!("gauss low-pass variance {} must be a finite number ≥ 0", g.lowpass)));
+        }
+    }
     let (camera, near, view, params, up_axis, frame_secs) = setup(files, opts)?;
     let (splats, lod) = files.collect(&view, &params)?;
     let t1 = Instant::now();
     let [r, g, b] = opts.background;
     let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
-    raster::rasterize(&mut frame, &splats);
-    raster::fill_holes(&mut frame);
+    let mut sort = 0.0;
+    let fragments = match opts.method {
+        Method::Zbuffer => {
+            raster::rasterize(&mut frame, &splats);
+            raster::fill_holes(&mut frame);
+            None
+        }
+        Method::Gauss => {
+            let ts = Instant::now();
+            let order = gauss::depth_order(&splats);
+            sort = ts.elapsed().as_secs_f64();
+            Some(gauss::composite(&mut frame, &splats, &order, &opts.gauss, view.focal).fragments)
+        }
+    };
     let t2 = Instant::now();
+    // The depth buffer's fragments are counted after the clock stops (the tuned
+    // rasterizer does not count them).
+    let fragments = fragments.unwrap_or_else(|| method::count_fragments(&splats, frame.width, frame.height));
+    let covered = frame.covered() as u64;
     let stats = RenderStats {
+        method: opts.method,
+        work: Work::new(lod.nodes_visited, splats.len() as u64, fragments, covered, files.bytes_read()),
         splats: splats.len() as u64,
         lod,
         bytes_read: files.bytes_read(),
         file_size: files.file_len(),
         files: files.file_count(),
-        covered_pixels: frame.covered() as u64,
-        seconds: Phases { open: 0.0, frame: frame_secs, traverse: (t1 - t0).as_secs_f64(), raster: (t2 - t1).as_secs_f64(), total: (t2 - t0).as_secs_f64() },
+        covered_pixels: covered,
+        seconds: Phases { open: 0.0, frame: frame_secs, traverse: (t1 - t0).as_secs_f64(), raster: (t2 - t1).as_secs_f64(), sort, total: (t2 - t0).as_secs_f64() },
     };
     Ok(Rendered { frame, camera, stats, near, up_axis, provenance: files.provenance() })
 }

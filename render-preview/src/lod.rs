@@ -200,6 +200,9 @@ pub(crate) struct LodParams {
     pub area_cover: f32,
     /// What the threshold is compared with.
     pub lod_size: LodSize,
+    /// Draw each node as this Gaussian kernel's support ellipse (the `gauss` method)
+    /// instead of the opaque splat.
+    pub kernel: Option<crate::gauss::Kernel>,
 }
 
 /// Counters of one render.
@@ -297,6 +300,11 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
         color = shade::apply(color, shade::lambert(nrm, l));
     }
     let [x, y] = view.project(c);
+    if let Some(k) = &p.kernel {
+        // The opaque splat's disc (the leaf's covering radius, an internal node's
+        // AREA_COVER × equal-area radius) is the kernel's half-opacity contour.
+        return Decision::Draw(k.splat(c, nrm, r * shrink, n.cone, view.focal, x, y, color));
+    }
     if p.ellipses && n.cone < std::f32::consts::FRAC_PI_2 {
         // The node's surface is a patch with normals inside the cone: seen at angle γ it
         // projects to an ellipse whose minor axis shrinks by |cos γ| (widened by the cone).

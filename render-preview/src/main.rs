@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::builder::TypedValueParser;
 use clap::{Args, Parser, Subcommand};
-use render_preview::{metrics, reference, sweep, synth, Error, LodSize, RenderOptions, Shading, SplatShape, UpAxis, ViewPreset};
+use render_preview::{metrics, reference, sweep, synth, Error, GaussOptions, LodSize, Method, RenderOptions, Shading, SplatShape, UpAxis, ViewPreset, Weighting};
 use sct_format::view;
 
 const EXAMPLES: &str = "\
@@ -15,6 +15,8 @@ Examples:
   sct-render-preview bunny.sct -o iso.png --view iso --width 640 --height 480 --pixel-error 2
   sct-render-preview scene.sct -o close.png --eye 0.1,0.2,0.3 --target 0,0.1,0 --fov 30
   sct-render-preview bunny.sct -o b.png --reference bun_zipper.ply --json
+  sct-render-preview duck.sct -o g.png --method gauss --reference Duck.glb --json
+  sct-render-preview duck.sct -o g.png --method gauss --gauss-weighting normalized --gauss-lowpass 0
   sct-render-preview spot.sct -o s.png --reference spot_triangulated.obj --min-psnr 30 --min-iou 0.97
   sct-render-preview scan.sct -o scan.png --up z --view iso
   sct-render-preview sweep --model bunny.sct=bun_zipper.ply --pixel-errors 0.5,1,2,4,8 -o chart
@@ -67,6 +69,21 @@ struct Cli {
 
 #[derive(Args, Debug, Clone)]
 struct RenderArgs {
+    /// Preview method: zbuffer (opaque splats, depth buffer) or gauss (elliptical Gaussian
+    /// splats blended back to front, no depth buffer; Coconu & Hege). Both refine the same
+    /// LOD cut, whose knob is --pixel-error.
+    #[arg(long, value_enum, default_value_t = Method::Zbuffer)]
+    method: Method,
+    /// gauss: blend (alpha blending back to front, EQ 1) or normalized (EQ 2 over the
+    /// front surface found by a per-pixel visibility pass).
+    #[arg(long, value_enum, default_value_t = Weighting::Blend)]
+    gauss_weighting: Weighting,
+    /// gauss: isotropic low-pass variance added to every kernel, px² (0: none).
+    #[arg(long, default_value_t = render_preview::gauss::DEFAULT_LOWPASS)]
+    gauss_lowpass: f32,
+    /// gauss: opacity at the edge of a kernel's support (the alpha test), in (0, 0.5].
+    #[arg(long, default_value_t = render_preview::gauss::DEFAULT_ALPHA_MIN)]
+    gauss_alpha_min: f32,
     /// Image width.
     #[arg(long, default_value_t = view::DEFAULT_WIDTH)]
     width: u32,
@@ -123,6 +140,8 @@ struct RenderArgs {
 impl RenderArgs {
     fn options(&self) -> RenderOptions {
         RenderOptions {
+            method: self.method,
+            gauss: GaussOptions { weighting: self.gauss_weighting, lowpass: self.gauss_lowpass, alpha_min: self.gauss_alpha_min },
             width: self.width,
             height: self.height,
             view: self.view,
@@ -285,6 +304,9 @@ fn preview(cli: &Cli, file: &Path, output: &Path) -> anyhow::Result<()> {
         "width": opts.width,
         "height": opts.height,
         "pixel_error": opts.pixel_error,
+        "method": opts.method,
+        "gauss": (opts.method == Method::Gauss).then_some(opts.gauss),
+        "work": out.stats.work,
         "splats": out.stats.splats,
         "nodes_visited": out.stats.lod.nodes_visited,
         "lod": out.stats.lod,
@@ -320,6 +342,7 @@ fn preview(cli: &Cli, file: &Path, output: &Path) -> anyhow::Result<()> {
             "reference": mesh_path,
             "reference_load": load,
             "pixel_error": opts.pixel_error,
+            "method": opts.method,
             "metrics": m,
             "reference_seconds": ref_secs,
             "difference_image": dp,
