@@ -89,7 +89,7 @@ pub fn count_fragments(splats: &[Splat], w: usize, h: usize) -> u64 {
         .map(|chunk| {
             let mut n = 0u64;
             for s in chunk {
-                if !(s.z < f32::INFINITY) {
+                if s.z.is_nan() || s.z == f32::INFINITY {
                     continue;
                 }
                 let [x0, x1, y0, y1] = s.bounds.map(i32::from);
