@@ -18,6 +18,8 @@
 //! ```
 
 pub mod camera;
+pub mod compare;
+pub mod compare_chart;
 pub mod error;
 pub mod gauss;
 mod lod;
@@ -27,6 +29,7 @@ pub mod provenance;
 pub mod raster;
 pub mod reference;
 pub mod scene;
+pub mod scenes;
 pub mod shade;
 pub mod sweep;
 pub mod synth;

@@ -20,6 +20,8 @@ Examples:
   sct-render-preview spot.sct -o s.png --reference spot_triangulated.obj --min-psnr 30 --min-iou 0.97
   sct-render-preview scan.sct -o scan.png --up z --view iso
   sct-render-preview sweep --model bunny.sct=bun_zipper.ply --pixel-errors 0.5,1,2,4,8 -o chart
+  sct-render-preview compare --scene one:Duck.glb --scene pair:bun_zipper.ply,dragon.ply -o cmp
+  sct-render-preview compare --scene block:bun_zipper_res4.ply:8 --knobs 1,2,4 --orbit 16 -o dense
   sct-render-preview synth bun_zipper.ply -o bunny.sct --spacing 0.0005
 
 The default camera looks at the model's front (+Z; with --up z, from -Y), upright, at the
@@ -189,6 +191,42 @@ enum Command {
         #[command(flatten)]
         render: RenderArgs,
     },
+    /// Compare every method over a sweep of its knob on scenes built from meshes: time per
+    /// frame against foreground PSNR and SSIM with the Pareto front (OUTPUT.png, OUTPUT.svg),
+    /// the error split, orbit stability and work counters (OUTPUT.json,
+    /// spec/render-preview-compare-json.md), a table on stdout.
+    Compare {
+        /// Scene: one:MESH, pair:FRONT,BACK (FRONT in front of BACK), grid:MESH:N (jittered
+        /// N×N instances) or block:MESH:N (dense N×N×N instances); repeat per scene.
+        #[arg(long = "scene", required = true)]
+        scenes: Vec<render_preview::scenes::SceneSpec>,
+        /// Methods to compare (zbuffer is always rendered: it is the ordering baseline).
+        #[arg(long, value_delimiter = ',', default_values_t = [Method::Zbuffer, Method::Gauss])]
+        methods: Vec<Method>,
+        /// Knob values (--pixel-error for zbuffer and gauss).
+        #[arg(long, value_delimiter = ',', default_values_t = [0.5f32, 1.0, 2.0, 4.0])]
+        knobs: Vec<f32>,
+        /// Timed frames per point after a warm-up frame (the median counts).
+        #[arg(long, default_value_t = 3)]
+        repeat: u32,
+        /// Frames of the stability orbit per method (0: none).
+        #[arg(long, default_value_t = 0)]
+        orbit: usize,
+        /// Degrees between orbit frames.
+        #[arg(long, default_value_t = 1.0)]
+        orbit_step: f64,
+        /// Leaves per model radius when sampling the scenes.
+        #[arg(long, default_value_t = 200.0)]
+        density: f64,
+        /// Directory for the scenes' SCT files (default: OUTPUT.scenes/).
+        #[arg(long)]
+        work_dir: Option<PathBuf>,
+        /// Output path without extension.
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        render: RenderArgs,
+    },
     /// Make a test SCT file from a mesh: one leaf per sub-triangle of side ≤ --spacing,
     /// median-split tree (a stand-in for sct-voxelize + sct-build-tree).
     Synth {
@@ -253,6 +291,25 @@ fn run(mut cli: Cli) -> anyhow::Result<()> {
             let result = sweep::run(&models, &pixel_errors, repeat.max(1), &render.options())?;
             sweep::write_outputs(&result, &output)?;
             println!("{}", serde_json::to_string_pretty(&result)?);
+            Ok(())
+        }
+        Some(Command::Compare { scenes, methods, knobs, repeat, orbit, orbit_step, density, work_dir, output, render }) => {
+            let base = render.options();
+            let o = render_preview::compare::CompareOptions {
+                scenes,
+                methods,
+                knobs,
+                repeat: repeat.max(1),
+                orbit_frames: orbit,
+                orbit_step_deg: orbit_step,
+                orbit_knob: base.pixel_error,
+                density,
+                work_dir: work_dir.unwrap_or_else(|| sibling(&output, "scenes")),
+                base,
+            };
+            let result = render_preview::compare::run(&o, |line| eprintln!("{line}"))?;
+            render_preview::compare::write_outputs(&result, &output)?;
+            print!("{}", render_preview::compare::table(&result));
             Ok(())
         }
         Some(Command::Synth { mesh, output, spacing, grid, profile }) => {
