@@ -409,8 +409,8 @@ mod tests {
     #[test]
     fn back_to_front_blending_lets_the_near_kernel_win_at_its_centre() {
         let k = kernel();
-        let far = k.splat([0.0, 0.0, 20.0], [0.0, 0.0, -1.0], 2.0, 0.0, 100.0, 10.0, 10.0, [255, 0, 0, 255]);
-        let near = k.splat([0.0, 0.0, 10.0], [0.0, 0.0, -1.0], 1.0, 0.0, 100.0, 10.0, 10.0, [0, 0, 255, 255]);
+        let far = k.splat([0.0, 0.0, 20.0], [0.0, 0.0, -1.0], 2.0, 0.0, 100.0, 10.5, 10.5, [255, 0, 0, 255]);
+        let near = k.splat([0.0, 0.0, 10.0], [0.0, 0.0, -1.0], 1.0, 0.0, 100.0, 10.5, 10.5, [0, 0, 255, 255]);
         // Given near first: the order still draws it last.
         let splats = [near, far];
         let order = depth_order(&splats);

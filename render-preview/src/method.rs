@@ -124,7 +124,7 @@ mod tests {
     fn fragments_of_a_disc() {
         // Pixel centres within 3 px of (8, 8), as the rasterizer's own test counts them.
         let mut f = crate::Frame::new(16, 16, [0; 4]);
-        let s = [Splat::disc(8.0, 8.0, 1.0, 3.0, [1; 4])];
+        let s = [Splat::disc(8.0, 8.0, 1.0, 3.0, [1, 1, 1, 255])];
         crate::raster::rasterize(&mut f, &s);
         assert_eq!(count_fragments(&s, 16, 16), f.covered() as u64);
         assert_eq!(count_fragments(&[s[0], s[0]], 16, 16), 2 * f.covered() as u64);
