@@ -6,9 +6,9 @@
 //! Error split, per point:
 //! - representation: `zbuffer` at the same knob against the mesh (the `zbuffer` points'
 //!   `metrics`);
-//! - ordering: the method against the same LOD cut drawn by `zbuffer` (`vs_zbuffer`);
-//! - culling: with against without occlusion culling — no method here culls by occlusion yet,
-//!   so it is null.
+//! - ordering: `gauss` against the same LOD cut drawn by `zbuffer`, `canopy` against its own
+//!   discs drawn through a depth buffer (`vs_zbuffer`);
+//! - culling: `canopy` against the same frame without occlusion culling (`culling`).
 
 use std::path::{Path, PathBuf};
 
@@ -62,10 +62,11 @@ pub struct Point {
     pub raster_seconds: f64,
     /// Against the mesh reference.
     pub metrics: Metrics,
-    /// Against `zbuffer` drawing the same cut (the ordering and compositing error); null for
-    /// `zbuffer` itself.
+    /// The ordering (and compositing) error: `gauss` against `zbuffer` drawing the same cut,
+    /// `canopy` against its discs through a depth buffer; null for `zbuffer`.
     pub vs_zbuffer: Option<Metrics>,
-    /// Culling error (with against without occlusion culling); null: no method culls yet.
+    /// The culling error: `canopy` against the same frame without occlusion culling; null for
+    /// the other methods.
     pub culling: Option<Metrics>,
     /// Work counters of the median frame.
     pub work: Work,
@@ -143,6 +144,17 @@ pub struct CompareResult {
     pub threads: usize,
     /// Per scene.
     pub scenes: Vec<SceneResult>,
+}
+
+/// `base` with method `m` at knob value `k` (`pixel_error`, or canopy's `t3`).
+fn with_knob(base: &RenderOptions, m: Method, k: f32) -> RenderOptions {
+    match m {
+        Method::Zbuffer | Method::Gauss => RenderOptions { method: m, pixel_error: k, ..base.clone() },
+        Method::Canopy => {
+            let c = base.canopy;
+            RenderOptions { method: m, canopy: crate::CanopyOptions { t3: k, t2: c.t2.max(k), t1: c.t1.max(k), ..c }, ..base.clone() }
+        }
+    }
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -245,10 +257,21 @@ pub fn run(o: &CompareOptions, mut progress: impl FnMut(&str)) -> Result<Compare
         for m in order {
             let mut points = Vec::new();
             for (ki, &k) in o.knobs.iter().enumerate() {
-                let opts = RenderOptions { method: m, pixel_error: k, ..base.clone() };
+                let opts = with_knob(&base, m, k);
                 let (r, secs, min, raster) = timed(&scene.sct, &opts, o.repeat)?;
                 let mt = metrics::compare(&r.frame, &refr);
-                let vs = if m == Method::Zbuffer { None } else { zframes[ki].as_ref().map(|z| metrics::compare(&r.frame, z)) };
+                let (vs, culling) = match m {
+                    Method::Zbuffer => (None, None),
+                    Method::Gauss => (zframes[ki].as_ref().map(|z| metrics::compare(&r.frame, z)), None),
+                    Method::Canopy => {
+                        // Ordering: the same discs through a depth buffer; culling: the same
+                        // frame without occlusion culling.
+                        let c = opts.canopy;
+                        let z = render_file(&scene.sct, &RenderOptions { canopy: crate::CanopyOptions { zbuffer: true, ..c }, ..opts.clone() })?;
+                        let all = render_file(&scene.sct, &RenderOptions { canopy: crate::CanopyOptions { occ_cull: f32::INFINITY, ..c }, ..opts.clone() })?;
+                        (Some(metrics::compare(&r.frame, &z.frame)), Some(metrics::compare(&r.frame, &all.frame)))
+                    }
+                };
                 progress(&format!(
                     "{:<28} {:<8} {}={:<5} {:>9.1} ms  PSNR {:>6}  SSIM {:>6}  IoU {:.4}  vs zbuffer {:>6}  overdraw {:>5.1}",
                     scene.name,
@@ -265,10 +288,10 @@ pub fn run(o: &CompareOptions, mut progress: impl FnMut(&str)) -> Result<Compare
                 if m == Method::Zbuffer {
                     zframes[ki] = Some(r.frame.clone());
                 }
-                points.push(Point { knob: k, seconds: secs, seconds_min: min, raster_seconds: raster, metrics: mt, vs_zbuffer: vs, culling: None, work: r.stats.work, pareto: false });
+                points.push(Point { knob: k, seconds: secs, seconds_min: min, raster_seconds: raster, metrics: mt, vs_zbuffer: vs, culling, work: r.stats.work, pareto: false });
             }
             let temporal = if o.orbit_frames >= 2 {
-                let opts = RenderOptions { method: m, pixel_error: o.orbit_knob, ..base.clone() };
+                let opts = with_knob(&base, m, o.orbit_knob);
                 let (d, dr) = temporal(&scene, &first.camera, first.near, &opts, o)?;
                 Some(Temporal { frames: o.orbit_frames, step_deg: o.orbit_step_deg, knob: o.orbit_knob, mean_abs_diff: d, reference_mean_abs_diff: dr, excess: d - dr })
             } else {

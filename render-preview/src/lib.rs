@@ -18,6 +18,7 @@
 //! ```
 
 pub mod camera;
+pub mod canopy;
 pub mod compare;
 pub mod compare_chart;
 pub mod error;
@@ -38,6 +39,7 @@ use std::path::Path;
 use std::time::Instant;
 
 pub use camera::{Camera, UpAxis, View, ViewPreset};
+pub use canopy::{CanopyOptions, CanopyStats};
 pub use error::{Error, Result};
 pub use gauss::{GaussOptions, Weighting};
 pub use method::{Method, Work};
@@ -84,6 +86,8 @@ pub struct RenderOptions {
     pub method: Method,
     /// Settings of [`Method::Gauss`].
     pub gauss: GaussOptions,
+    /// Settings of [`Method::Canopy`].
+    pub canopy: CanopyOptions,
     /// Image width in pixels.
     pub width: u32,
     /// Image height in pixels.
@@ -129,6 +133,7 @@ impl Default for RenderOptions {
         RenderOptions {
             method: Method::Zbuffer,
             gauss: GaussOptions::default(),
+            canopy: CanopyOptions::default(),
             width: view::DEFAULT_WIDTH,
             height: view::DEFAULT_HEIGHT,
             view: ViewPreset::Front,
@@ -241,6 +246,8 @@ pub struct RenderStats {
     pub method: Method,
     /// Work counters comparable across methods.
     pub work: Work,
+    /// The thesis's Table 14 columns (`canopy` only).
+    pub canopy: Option<CanopyStats>,
     /// Splats rasterized.
     pub splats: u64,
     /// Refinement counters.
@@ -349,14 +356,46 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             return Err(Error::Invalid(format!("gauss low-pass variance {} must be a finite number ≥ 0", g.lowpass)));
         }
     }
+    if opts.method == Method::Canopy {
+        let c = &opts.canopy;
+        if ![c.t1, c.t2, c.t3].iter().all(|t| t.is_finite() && *t > 0.0) || c.t2 > c.t1 || c.t3 > c.t2 {
+            return Err(Error::Invalid(format!("canopy thresholds t1 {} ≥ t2 {} ≥ t3 {} must be positive pixel sizes", c.t1, c.t2, c.t3)));
+        }
+        if c.occ_cull.is_nan() || !(c.occ_clip.is_finite() && c.occ_clip >= 0.0) {
+            return Err(Error::Invalid(format!("canopy t_OccCull {} and t_OccClip {} must be numbers (t_OccClip ≥ 0)", c.occ_cull, c.occ_clip)));
+        }
+    }
     let (camera, near, view, params, up_axis, frame_secs) = setup(files, opts)?;
+    if opts.method == Method::Canopy {
+        let [r, g, b] = opts.background;
+        let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
+        let t1 = Instant::now();
+        let (cs, lod, fragments) = canopy::render(files, &view, &params, &opts.canopy, &mut frame)?;
+        let t2 = Instant::now();
+        let covered = frame.covered() as u64;
+        let draw = cs.stage_seconds[3];
+        let stats = RenderStats {
+            method: opts.method,
+            work: Work::new(lod.nodes_visited, cs.nodes_rasterized, fragments, covered, files.bytes_read()),
+            canopy: Some(cs),
+            splats: cs.nodes_rasterized,
+            lod,
+            bytes_read: files.bytes_read(),
+            file_size: files.file_len(),
+            files: files.file_count(),
+            covered_pixels: covered,
+            seconds: Phases { open: 0.0, frame: frame_secs, traverse: (t2 - t0).as_secs_f64() - draw, raster: draw, sort: 0.0, total: (t2 - t0).as_secs_f64() },
+        };
+        let _ = t1;
+        return Ok(Rendered { frame, camera, stats, near, up_axis, provenance: files.provenance() });
+    }
     let (splats, lod) = files.collect(&view, &params)?;
     let t1 = Instant::now();
     let [r, g, b] = opts.background;
     let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
     let mut sort = 0.0;
     let fragments = match opts.method {
-        Method::Zbuffer => {
+        Method::Zbuffer | Method::Canopy => {
             raster::rasterize(&mut frame, &splats);
             raster::fill_holes(&mut frame);
             None
@@ -376,6 +415,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     let stats = RenderStats {
         method: opts.method,
         work: Work::new(lod.nodes_visited, splats.len() as u64, fragments, covered, files.bytes_read()),
+        canopy: None,
         splats: splats.len() as u64,
         lod,
         bytes_read: files.bytes_read(),

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::builder::TypedValueParser;
 use clap::{Args, Parser, Subcommand};
-use render_preview::{metrics, reference, sweep, synth, Error, GaussOptions, LodSize, Method, RenderOptions, Shading, SplatShape, UpAxis, ViewPreset, Weighting};
+use render_preview::{metrics, reference, sweep, synth, CanopyOptions, Error, GaussOptions, LodSize, Method, RenderOptions, Shading, SplatShape, UpAxis, ViewPreset, Weighting};
 use sct_format::view;
 
 const EXAMPLES: &str = "\
@@ -17,6 +17,7 @@ Examples:
   sct-render-preview bunny.sct -o b.png --reference bun_zipper.ply --json
   sct-render-preview duck.sct -o g.png --method gauss --reference Duck.glb --json
   sct-render-preview duck.sct -o g.png --method gauss --gauss-weighting normalized --gauss-lowpass 0
+  sct-render-preview pair.sct -o c.png --method canopy --canopy-t3 1.7 --canopy-occ-cull 1.9 --json
   sct-render-preview spot.sct -o s.png --reference spot_triangulated.obj --min-psnr 30 --min-iou 0.97
   sct-render-preview scan.sct -o scan.png --up z --view iso
   sct-render-preview sweep --model bunny.sct=bun_zipper.ply --pixel-errors 0.5,1,2,4,8 -o chart
@@ -71,9 +72,10 @@ struct Cli {
 
 #[derive(Args, Debug, Clone)]
 struct RenderArgs {
-    /// Preview method: zbuffer (opaque splats, depth buffer) or gauss (elliptical Gaussian
-    /// splats blended back to front, no depth buffer; Coconu & Hege). Both refine the same
-    /// LOD cut, whose knob is --pixel-error.
+    /// Preview method: zbuffer (opaque splats, depth buffer), gauss (elliptical Gaussian
+    /// splats blended back to front, no depth buffer; Coconu & Hege; both refine the LOD cut
+    /// of --pixel-error) or canopy (the thesis: image-graph occlusion culling, discs in
+    /// reverse occlusion-mask order; knobs --canopy-*).
     #[arg(long, value_enum, default_value_t = Method::Zbuffer)]
     method: Method,
     /// gauss: blend (alpha blending back to front, EQ 1) or normalized (EQ 2 over the
@@ -86,6 +88,26 @@ struct RenderArgs {
     /// gauss: opacity at the edge of a kernel's support (the alpha test), in (0, 0.5].
     #[arg(long, default_value_t = render_preview::gauss::DEFAULT_ALPHA_MIN)]
     gauss_alpha_min: f32,
+    /// canopy: stage-1 threshold, projected view-cone radius in px (default: the thesis's
+    /// 2.5° at the default camera).
+    #[arg(long, default_value_t = CanopyOptions::default().t1)]
+    canopy_t1: f32,
+    /// canopy: stage-2 (occlusion mask) threshold, px (default: 1.0°).
+    #[arg(long, default_value_t = CanopyOptions::default().t2)]
+    canopy_t2: f32,
+    /// canopy: stage-3 threshold, px, the method's quality knob (default: 0.1°).
+    #[arg(long, default_value_t = CanopyOptions::default().t3)]
+    canopy_t3: f32,
+    /// canopy: t_OccCull, the occlusion estimate above which a node is culled; "off" culls
+    /// nothing.
+    #[arg(long, default_value = "1.9", value_parser = parse_cull)]
+    canopy_occ_cull: f32,
+    /// canopy: t_OccClip, occluders weaker than this add no occlusion.
+    #[arg(long, default_value_t = 0.0)]
+    canopy_occ_clip: f32,
+    /// canopy: draw the stage-3 discs through a depth buffer instead of in reverse mask order.
+    #[arg(long)]
+    canopy_zbuffer: bool,
     /// Image width.
     #[arg(long, default_value_t = view::DEFAULT_WIDTH)]
     width: u32,
@@ -144,6 +166,14 @@ impl RenderArgs {
         RenderOptions {
             method: self.method,
             gauss: GaussOptions { weighting: self.gauss_weighting, lowpass: self.gauss_lowpass, alpha_min: self.gauss_alpha_min },
+            canopy: CanopyOptions {
+                t1: self.canopy_t1,
+                t2: self.canopy_t2,
+                t3: self.canopy_t3,
+                occ_cull: self.canopy_occ_cull,
+                occ_clip: self.canopy_occ_clip,
+                zbuffer: self.canopy_zbuffer,
+            },
             width: self.width,
             height: self.height,
             view: self.view,
@@ -200,10 +230,11 @@ enum Command {
         /// N×N instances) or block:MESH:N (dense N×N×N instances); repeat per scene.
         #[arg(long = "scene", required = true)]
         scenes: Vec<render_preview::scenes::SceneSpec>,
-        /// Methods to compare (zbuffer is always rendered: it is the ordering baseline).
-        #[arg(long, value_delimiter = ',', default_values_t = [Method::Zbuffer, Method::Gauss])]
+        /// Methods to compare: zbuffer, gauss, canopy (zbuffer is always rendered: it is the
+        /// ordering baseline of gauss).
+        #[arg(long, value_delimiter = ',', default_values_t = [Method::Zbuffer, Method::Gauss, Method::Canopy])]
         methods: Vec<Method>,
-        /// Knob values (--pixel-error for zbuffer and gauss).
+        /// Knob values (--pixel-error for zbuffer and gauss, --canopy-t3 for canopy).
         #[arg(long, value_delimiter = ',', default_values_t = [0.5f32, 1.0, 2.0, 4.0])]
         knobs: Vec<f32>,
         /// Timed frames per point after a warm-up frame (the median counts).
@@ -245,6 +276,13 @@ enum Command {
         #[arg(long, default_value = "default")]
         profile: sct_format::Profile,
     },
+}
+
+fn parse_cull(s: &str) -> Result<f32, String> {
+    if s == "off" {
+        return Ok(f32::INFINITY);
+    }
+    s.parse::<f32>().map_err(|e| format!("{s:?}: {e} (a number or off)"))
 }
 
 fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
@@ -363,6 +401,7 @@ fn preview(cli: &Cli, file: &Path, output: &Path) -> anyhow::Result<()> {
         "pixel_error": opts.pixel_error,
         "method": opts.method,
         "gauss": (opts.method == Method::Gauss).then_some(opts.gauss),
+        "canopy": (opts.method == Method::Canopy).then(|| serde_json::json!({ "options": opts.canopy, "stats": out.stats.canopy })),
         "work": out.stats.work,
         "splats": out.stats.splats,
         "nodes_visited": out.stats.lod.nodes_visited,

@@ -4,10 +4,11 @@
 //! |---|---|---|---|
 //! | `zbuffer` (default) | opaque elliptical splats of the LOD cut | depth buffer | `--pixel-error` |
 //! | `gauss` | elliptical Gaussian kernels of the same cut (Coconu & Hege) | per-frame depth sort, back to front, no depth buffer | `--pixel-error` (the sample spacing `d_t` on screen) |
+//! | `canopy` | EQ 46 discs of the nodes' spheres, cut at `t3`, after image-graph occlusion culling (thesis) | reverse occlusion-mask order, no depth buffer | `--canopy-t3` (px) |
 //!
-//! Every method refines the same scene graph (groups, instances, tints, inlines) with the
-//! same LOD test, so at equal `--pixel-error` both draw the same cut and differ only in how
-//! they composite it.
+//! Every method walks the same scene graph (groups, instances, tints, inlines). `zbuffer` and
+//! `gauss` refine it with the same LOD test, so at equal `--pixel-error` they draw the same cut
+//! and differ only in how they composite it; `canopy` has its own three-stage refinement.
 
 use rayon::prelude::*;
 
@@ -22,17 +23,21 @@ pub enum Method {
     Zbuffer,
     /// Elliptical Gaussian splats alpha-blended back to front, no depth buffer (Coconu & Hege).
     Gauss,
+    /// The thesis's image-graph occlusion culling and reverse-mask-order discs, no depth
+    /// buffer (§3.3, §5.4–5.8).
+    Canopy,
 }
 
 impl Method {
     /// Every method, in the order charts list them.
-    pub const ALL: [Method; 2] = [Method::Zbuffer, Method::Gauss];
+    pub const ALL: [Method; 3] = [Method::Zbuffer, Method::Gauss, Method::Canopy];
 
     /// The name used on the command line and in JSON.
     pub fn name(self) -> &'static str {
         match self {
             Method::Zbuffer => "zbuffer",
             Method::Gauss => "gauss",
+            Method::Canopy => "canopy",
         }
     }
 
@@ -40,6 +45,7 @@ impl Method {
     pub fn knob(self) -> &'static str {
         match self {
             Method::Zbuffer | Method::Gauss => "pixel_error",
+            Method::Canopy => "t3",
         }
     }
 }
@@ -53,7 +59,7 @@ impl std::fmt::Display for Method {
 impl std::str::FromStr for Method {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        Method::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| format!("unknown method {s:?} (zbuffer, gauss)"))
+        Method::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| format!("unknown method {s:?} (zbuffer, gauss, canopy)"))
     }
 }
 
