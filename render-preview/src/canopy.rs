@@ -37,7 +37,7 @@ use std::time::Instant;
 use crate::camera::View;
 use crate::error::Result;
 use crate::lod::{LodParams, LodStats};
-use crate::raster::{self, Frame, Splat, BAND};
+use crate::raster::{self, Frame, Splat};
 use crate::scene::{Item, SceneFiles};
 use crate::LodSize;
 
@@ -394,11 +394,11 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
         if node.occ > o.occ_cull {
             g.nodes[n as usize].st = St::Culled;
             g.stats.occluded += 1;
-            release(&mut g, n, &rel, &mut u, None, o);
+            release(&mut g, &rel, &mut u, None, o);
         } else if !node.refinable || node.size <= o.t2 {
             g.nodes[n as usize].st = St::InM;
             mask.push(n);
-            release(&mut g, n, &rel, &mut u, Some(n), o);
+            release(&mut g, &rel, &mut u, Some(n), o);
         } else {
             g.nodes[n as usize].st = St::Refined;
             let item = g.nodes[n as usize].item.clone();
@@ -474,7 +474,7 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
 
 /// Takes a culled or committed node out of its occludees' counts; a committed one
 /// (`occluder`) adds its occlusion to them.
-fn release(g: &mut Graph<'_>, n: u32, rel: &[(u32, Class, bool)], u: &mut Vec<u32>, occluder: Option<u32>, o: &CanopyOptions) {
+fn release(g: &mut Graph<'_>, rel: &[(u32, Class, bool)], u: &mut Vec<u32>, occluder: Option<u32>, o: &CanopyOptions) {
     for &(q, class, dom) in rel {
         if !dom || g.nodes[q as usize].st != St::Pending {
             continue;
@@ -489,7 +489,6 @@ fn release(g: &mut Graph<'_>, n: u32, rel: &[(u32, Class, bool)], u: &mut Vec<u3
             u.push(q);
         }
     }
-    let _ = n;
 }
 
 /// Opaque splats in the given order, each overwriting what is under it (no depth test).
@@ -517,7 +516,6 @@ fn paint(frame: &mut Frame, splats: &[Splat]) {
             }
         }
     }
-    let _ = BAND;
 }
 
 #[cfg(test)]

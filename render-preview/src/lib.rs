@@ -369,7 +369,6 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     if opts.method == Method::Canopy {
         let [r, g, b] = opts.background;
         let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
-        let t1 = Instant::now();
         let (cs, lod, fragments) = canopy::render(files, &view, &params, &opts.canopy, &mut frame)?;
         let t2 = Instant::now();
         let covered = frame.covered() as u64;
@@ -386,7 +385,6 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             covered_pixels: covered,
             seconds: Phases { open: 0.0, frame: frame_secs, traverse: (t2 - t0).as_secs_f64() - draw, raster: draw, sort: 0.0, total: (t2 - t0).as_secs_f64() },
         };
-        let _ = t1;
         return Ok(Rendered { frame, camera, stats, near, up_axis, provenance: files.provenance() });
     }
     let (splats, lod) = files.collect(&view, &params)?;
