@@ -168,7 +168,7 @@ pub fn depth_order(splats: &[Splat]) -> Vec<u32> {
     keys.into_iter().map(|k| k as u32).collect()
 }
 
-/// Composites `splats` (support ellipses from [`Kernel::splat`]) into `frame` in `order`
+/// Composites `splats` (support ellipses from `Kernel::splat`) into `frame` in `order`
 /// (far to near), blending over the frame's colours; `focal` (px) converts a kernel's
 /// screen support to a depth tolerance for [`Weighting::Normalized`]. Deterministic for
 /// any number of threads: each pixel sees its kernels in `order`.

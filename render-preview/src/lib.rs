@@ -6,9 +6,15 @@
 //! culling, lazy block decoding (only the blocks the view needs are read), and
 //! depth-tested elliptical splats rasterized in parallel screen tiles.
 //!
-//! [`reference`] renders the source mesh with a triangle rasterizer under the same camera
+//! [`method`] lists the preview methods behind [`RenderOptions::method`]: `zbuffer` (the
+//! above, the default), [`gauss`] (Coconu & Hege's elliptical Gaussian splats blended back
+//! to front) and [`canopy`] (the thesis's image-graph occlusion culling and depth-buffer-free
+//! order); each reports [`Work`] counters.
+//!
+//! [`reference`](mod@reference) renders the source mesh with a triangle rasterizer under the same camera
 //! and shading, and [`metrics`] compares the two (PSNR, SSIM, silhouette IoU, holes);
-//! [`sweep`] charts speed against accuracy over a range of thresholds.
+//! [`sweep`] charts speed against accuracy over a range of thresholds, and [`compare`] every
+//! method over its knob on [`scenes`] built from meshes, with the error split three ways.
 //!
 //! ```no_run
 //! use render_preview::{render_file, RenderOptions};

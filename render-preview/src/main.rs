@@ -33,7 +33,7 @@ Exit status: 0 success; 1 invalid input (malformed file, degenerate camera), not
 or I/O error.";
 
 #[derive(Parser, Debug)]
-#[command(name = "sct-render-preview", version, about = "Render a preview image of an SCT scene file on the CPU (LOD splatting).", after_help = EXAMPLES, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+#[command(name = "sct-render-preview", version, about = "Render a preview image of an SCT scene file on the CPU (LOD splatting: --method zbuffer, gauss or canopy).", after_help = EXAMPLES, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
