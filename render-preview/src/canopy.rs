@@ -296,7 +296,16 @@ impl Graph<'_> {
 }
 
 /// Stage 1 to 4 for one frame: draws into `frame` and returns the counters.
-pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &CanopyOptions, frame: &mut Frame) -> Result<(CanopyStats, LodStats, u64)> {
+/// What stage 4 draws the mask's sets with.
+pub(crate) enum Draw<'a> {
+    /// EQ 46 discs cut at `t3` (the `canopy` method).
+    Discs,
+    /// `gauss` kernels of the LOD cut of `p` (the `gauss` method in mask order), composited
+    /// in reverse mask order.
+    Gauss(&'a crate::gauss::GaussOptions),
+}
+
+pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &CanopyOptions, draw: Draw<'_>, frame: &mut Frame) -> Result<(CanopyStats, LodStats, u64)> {
     let t0 = Instant::now();
     let mut g = Graph { files, view, backface: p.backface, nodes: Vec::new(), stats: CanopyStats::default() };
     // Stage 1.
@@ -445,8 +454,12 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
     }
     g.stats.nodes_stage2 = mask.len() as u64;
     let t2 = Instant::now();
-    // Stage 3: each mask node refined to t3 with EQ 46 discs of its nodes' spheres.
-    let p3 = LodParams { pixel_error: o.t3, lod_size: LodSize::Sphere, ellipses: false, area_cover: f32::INFINITY, kernel: None, ..*p };
+    // Stage 3: each mask node refined to t3 with EQ 46 discs of its nodes' spheres (or to the
+    // kernels' LOD cut).
+    let p3 = match draw {
+        Draw::Discs => LodParams { pixel_error: o.t3, lod_size: LodSize::Sphere, ellipses: false, area_cover: f32::INFINITY, kernel: None, ..*p },
+        Draw::Gauss(_) => *p,
+    };
     let mut lod = LodStats::default();
     let mut sets: Vec<Vec<Splat>> = Vec::with_capacity(mask.len());
     for &m in &mask {
@@ -459,13 +472,21 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
     g.stats.nodes_rasterized = splats.len() as u64;
     let t3 = Instant::now();
     // Stage 4.
-    if o.zbuffer {
-        raster::rasterize(frame, &splats);
-    } else {
-        paint(frame, &splats);
-    }
-    raster::fill_holes(frame);
-    let fragments = crate::method::count_fragments(&splats, frame.width, frame.height);
+    let fragments = match draw {
+        Draw::Gauss(go) => {
+            let order: Vec<u32> = (0..splats.len() as u32).collect();
+            crate::gauss::composite(frame, &splats, &order, go, view.focal).fragments
+        }
+        Draw::Discs => {
+            if o.zbuffer {
+                raster::rasterize(frame, &splats);
+            } else {
+                paint(frame, &splats);
+            }
+            raster::fill_holes(frame);
+            crate::method::count_fragments(&splats, frame.width, frame.height)
+        }
+    };
     let t4 = Instant::now();
     g.stats.stage_seconds = [(t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), (t3 - t2).as_secs_f64(), (t4 - t3).as_secs_f64()];
     lod.nodes_visited += g.nodes.len() as u64;

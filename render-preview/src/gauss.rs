@@ -14,7 +14,8 @@
 //! α = `alpha_min`^q with `q` the squared normalised distance.
 //!
 //! Compositing follows EQ 1, `col = col_splat·α + col·(1 − α)`, in linear light, in a
-//! per-frame depth order (far to near; ties by cut order, so the image is repeatable). The
+//! per-frame depth order (far to near; ties by cut order, so the image is repeatable), or
+//! ([`Order::Mask`]) in the reverse order of the `canopy` occlusion mask. The
 //! option [`Weighting::Normalized`] is the ideal reconstruction of EQ 2 instead: a visibility
 //! pass finds the front surface per pixel, and the kernels within their own support depth of
 //! it are averaged with normalised weights (this needs a per-pixel depth, like an A-buffer);
@@ -45,11 +46,25 @@ pub enum Weighting {
     Normalized,
 }
 
+/// Where the back-to-front order comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Order {
+    /// A per-frame sort of the cut by depth (ties by cut order).
+    #[default]
+    Depth,
+    /// The `canopy` occlusion mask, reversed: each mask node's kernels in tree order (its
+    /// stages 1–2 run first, with their occlusion culling; see [`crate::canopy`]).
+    Mask,
+}
+
 /// The `gauss` method's settings.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct GaussOptions {
     /// Blending rule.
     pub weighting: Weighting,
+    /// Order source.
+    pub order: Order,
     /// Isotropic low-pass variance added to every kernel, px² (0: none).
     pub lowpass: f32,
     /// Opacity at the edge of a kernel's support (the alpha test).
@@ -58,7 +73,7 @@ pub struct GaussOptions {
 
 impl Default for GaussOptions {
     fn default() -> Self {
-        GaussOptions { weighting: Weighting::Blend, lowpass: DEFAULT_LOWPASS, alpha_min: DEFAULT_ALPHA_MIN }
+        GaussOptions { weighting: Weighting::Blend, order: Order::Depth, lowpass: DEFAULT_LOWPASS, alpha_min: DEFAULT_ALPHA_MIN }
     }
 }
 

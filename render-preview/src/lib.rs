@@ -47,7 +47,7 @@ use std::time::Instant;
 pub use camera::{Camera, UpAxis, View, ViewPreset};
 pub use canopy::{CanopyOptions, CanopyStats};
 pub use error::{Error, Result};
-pub use gauss::{GaussOptions, Weighting};
+pub use gauss::{GaussOptions, Order, Weighting};
 pub use method::{Method, Work};
 pub use lod::LodStats;
 pub use raster::{Frame, Splat};
@@ -362,7 +362,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             return Err(Error::Invalid(format!("gauss low-pass variance {} must be a finite number ≥ 0", g.lowpass)));
         }
     }
-    if opts.method == Method::Canopy {
+    if opts.method == Method::Canopy || (opts.method == Method::Gauss && opts.gauss.order == gauss::Order::Mask) {
         let c = &opts.canopy;
         if ![c.t1, c.t2, c.t3].iter().all(|t| t.is_finite() && *t > 0.0) || c.t2 > c.t1 || c.t3 > c.t2 {
             return Err(Error::Invalid(format!("canopy thresholds t1 {} ≥ t2 {} ≥ t3 {} must be positive pixel sizes", c.t1, c.t2, c.t3)));
@@ -372,10 +372,12 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         }
     }
     let (camera, near, view, params, up_axis, frame_secs) = setup(files, opts)?;
-    if opts.method == Method::Canopy {
+    let mask_order = opts.method == Method::Gauss && opts.gauss.order == gauss::Order::Mask;
+    if opts.method == Method::Canopy || mask_order {
         let [r, g, b] = opts.background;
         let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
-        let (cs, lod, fragments) = canopy::render(files, &view, &params, &opts.canopy, &mut frame)?;
+        let draw = if mask_order { canopy::Draw::Gauss(&opts.gauss) } else { canopy::Draw::Discs };
+        let (cs, lod, fragments) = canopy::render(files, &view, &params, &opts.canopy, draw, &mut frame)?;
         let t2 = Instant::now();
         let covered = frame.covered() as u64;
         let draw = cs.stage_seconds[3];

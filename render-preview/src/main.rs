@@ -82,6 +82,10 @@ struct RenderArgs {
     /// front surface found by a per-pixel visibility pass).
     #[arg(long, value_enum, default_value_t = Weighting::Blend)]
     gauss_weighting: Weighting,
+    /// gauss: the back-to-front order from a per-frame depth sort, or from canopy's occlusion
+    /// mask reversed (its stages 1–2 run first, with the --canopy-* settings).
+    #[arg(long, value_enum, default_value_t = render_preview::Order::Depth)]
+    gauss_order: render_preview::Order,
     /// gauss: isotropic low-pass variance added to every kernel, px² (0: none).
     #[arg(long, default_value_t = render_preview::gauss::DEFAULT_LOWPASS)]
     gauss_lowpass: f32,
@@ -165,7 +169,7 @@ impl RenderArgs {
     fn options(&self) -> RenderOptions {
         RenderOptions {
             method: self.method,
-            gauss: GaussOptions { weighting: self.gauss_weighting, lowpass: self.gauss_lowpass, alpha_min: self.gauss_alpha_min },
+            gauss: GaussOptions { weighting: self.gauss_weighting, order: self.gauss_order, lowpass: self.gauss_lowpass, alpha_min: self.gauss_alpha_min },
             canopy: CanopyOptions {
                 t1: self.canopy_t1,
                 t2: self.canopy_t2,
@@ -401,7 +405,7 @@ fn preview(cli: &Cli, file: &Path, output: &Path) -> anyhow::Result<()> {
         "pixel_error": opts.pixel_error,
         "method": opts.method,
         "gauss": (opts.method == Method::Gauss).then_some(opts.gauss),
-        "canopy": (opts.method == Method::Canopy).then(|| serde_json::json!({ "options": opts.canopy, "stats": out.stats.canopy })),
+        "canopy": out.stats.canopy.map(|s| serde_json::json!({ "options": opts.canopy, "stats": s })),
         "work": out.stats.work,
         "splats": out.stats.splats,
         "nodes_visited": out.stats.lod.nodes_visited,

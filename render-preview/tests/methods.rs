@@ -268,3 +268,32 @@ fn cli_method_flag_and_work_counters() {
     let o = run(&["--method", "gauss", "--gauss-alpha-min", "0.9"]);
     assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
 }
+
+/// `--gauss-order mask`: the kernels of each `canopy` mask node in reverse mask order instead
+/// of a per-frame depth sort. Bunny (res2), 384², front: measured when set, depth order
+/// 28.24 dB; mask order without culling 28.35 dB, with t_OccCull 1.9 27.78 dB (67 nodes
+/// occluded). Bounds: the
+/// unculled mask order within 0.5 dB of the depth order, culling costing at most 1 dB, and the
+/// same image on one thread.
+#[test]
+fn gauss_in_mask_order() {
+    let Some(path) = shared("scans/stanford-bunny-original-ply/bun_zipper_res2.ply") else { return };
+    let mesh = WorldMesh::load(&path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let sct = dir.path().join("b.sct");
+    let (_, r) = mesh.bound().unwrap();
+    synth::write_mesh_sct(&mesh, (r / 200.0) as f32, &sct, &WriteOptions::default()).unwrap();
+    let depth = gauss(small(384, 384));
+    let d = render_file(&sct, &depth).unwrap();
+    let refr = reference_for(&mesh, &d, &depth);
+    let mask = RenderOptions { gauss: render_preview::GaussOptions { order: render_preview::Order::Mask, ..depth.gauss }, ..depth.clone() };
+    let off = RenderOptions { canopy: render_preview::CanopyOptions { occ_cull: f32::INFINITY, ..mask.canopy }, ..mask.clone() };
+    let (m_on, m_off) = (render_file(&sct, &mask).unwrap(), render_file(&sct, &off).unwrap());
+    let (sd, son, soff) = (metrics::compare(&d.frame, &refr), metrics::compare(&m_on.frame, &refr), metrics::compare(&m_off.frame, &refr));
+    eprintln!("depth {:?} | mask {:?} (occluded {}) | mask, no culling {:?}", sd.fg_psnr_db, son.fg_psnr_db, m_on.stats.canopy.unwrap().occluded, soff.fg_psnr_db);
+    assert!(m_on.stats.canopy.is_some() && m_off.stats.canopy.unwrap().occluded == 0);
+    assert!(soff.fg_psnr_db.unwrap() >= sd.fg_psnr_db.unwrap() - 0.5, "{soff:?} vs {sd:?}");
+    assert!(son.fg_psnr_db.unwrap() >= soff.fg_psnr_db.unwrap() - 1.0 && son.silhouette_iou >= 0.99, "{son:?}");
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    assert_eq!(pool.install(|| render_file(&sct, &mask)).unwrap().frame, m_on.frame);
+}
