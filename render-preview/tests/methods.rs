@@ -272,9 +272,8 @@ fn cli_method_flag_and_work_counters() {
 /// `--gauss-order mask`: the kernels of each `canopy` mask node in reverse mask order instead
 /// of a per-frame depth sort. Bunny (res2), 384², front: measured when set, depth order
 /// 28.24 dB; mask order without culling 28.35 dB, with t_OccCull 1.9 27.78 dB (67 nodes
-/// occluded). Bounds: the
-/// unculled mask order within 0.5 dB of the depth order, culling costing at most 1 dB, and the
-/// same image on one thread.
+/// occluded). Bounds: the unculled mask order within 0.5 dB of the depth order, culling costing
+/// at most 1 dB, and the same image on one thread.
 #[test]
 fn gauss_in_mask_order() {
     let Some(path) = shared("scans/stanford-bunny-original-ply/bun_zipper_res2.ply") else { return };
