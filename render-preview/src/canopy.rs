@@ -295,6 +295,18 @@ impl Graph<'_> {
     }
 }
 
+/// Most image nodes in stages 1–2 (the thesis's frames hold a few thousand; Table 14).
+pub const MAX_IMAGE_NODES: usize = 1 << 21;
+
+fn too_big(o: &CanopyOptions) -> crate::Error {
+    crate::Error::Invalid(format!(
+        "canopy's image graph exceeds {MAX_IMAGE_NODES} nodes (or {} candidate relations) at t1 {} px, t2 {} px: raise --canopy-t1 / --canopy-t2",
+        MAX_IMAGE_NODES * 64,
+        o.t1,
+        o.t2
+    ))
+}
+
 /// Stage 1 to 4 for one frame: draws into `frame` and returns the counters.
 /// What stage 4 draws the mask's sets with.
 pub(crate) enum Draw<'a> {
@@ -312,6 +324,9 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
     let mut stack: Vec<Item> = g.files.root_items()?;
     stack.reverse();
     while let Some(it) = stack.pop() {
+        if g.nodes.len() + stack.len() > MAX_IMAGE_NODES {
+            return Err(too_big(o));
+        }
         let Some(n) = g.image(it)? else { continue };
         if n.refinable && n.size > o.t1 {
             let mut ch = g.files.item_children(&n.item)?;
@@ -361,6 +376,9 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
     }
     pairs.sort_unstable();
     pairs.dedup();
+    if pairs.len() > MAX_IMAGE_NODES * 64 {
+        return Err(too_big(o));
+    }
     for (a, b) in pairs {
         if let Some((class, a_dom)) = g.relate(a, b) {
             g.link(a, b, class, a_dom);
@@ -410,6 +428,9 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
             release(&mut g, &rel, &mut u, Some(n), o);
         } else {
             g.nodes[n as usize].st = St::Refined;
+            if g.nodes.len() > MAX_IMAGE_NODES {
+                return Err(too_big(o));
+            }
             let item = g.nodes[n as usize].item.clone();
             let mut kids = Vec::new();
             for it in g.files.item_children(&item)? {

@@ -296,3 +296,23 @@ fn gauss_in_mask_order() {
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     assert_eq!(pool.install(|| render_file(&sct, &mask)).unwrap().frame, m_on.frame);
 }
+
+/// Every method on an empty tree (background, no error), from inside a closed sphere (back
+/// faces culled: nothing drawn) and with a degenerate camera (an error).
+#[test]
+fn every_method_handles_empty_and_degenerate_views() {
+    let dir = tempfile::tempdir().unwrap();
+    let empty = dir.path().join("empty.sct");
+    let scene = Scene::single_tree(Default::default(), sct_format::SceneTree::from_bfs(Vec::new(), Vec::new()).unwrap());
+    write_scene_file(&empty, &scene, &WriteOptions::default()).unwrap();
+    let sphere = sphere_file(dir.path());
+    for method in Method::ALL {
+        let o = RenderOptions { method, ..small(48, 32) };
+        let out = render_file(&empty, &o).unwrap();
+        assert_eq!((out.frame.covered(), out.stats.splats), (0, 0), "{method}");
+        let inside = RenderOptions { eye: Some([0.0, 0.0, 0.2]), target: Some([0.0, 0.0, -1.0]), ..o.clone() };
+        assert_eq!(render_file(&sphere, &inside).unwrap().frame.covered(), 0, "{method}");
+        let bad = RenderOptions { eye: Some([0.0; 3]), target: Some([0.0; 3]), ..o.clone() };
+        assert!(matches!(render_file(&sphere, &bad), Err(render_preview::Error::Camera(_))), "{method}");
+    }
+}
