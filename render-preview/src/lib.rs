@@ -6,9 +6,15 @@
 //! culling, lazy block decoding (only the blocks the view needs are read), and
 //! depth-tested elliptical splats rasterized in parallel screen tiles.
 //!
-//! [`reference`] renders the source mesh with a triangle rasterizer under the same camera
+//! [`method`] lists the preview methods behind [`RenderOptions::method`]: `zbuffer` (the
+//! above, the default), [`gauss`] (Coconu & Hege's elliptical Gaussian splats blended back
+//! to front) and [`canopy`] (the thesis's image-graph occlusion culling and depth-buffer-free
+//! order); each reports [`Work`] counters.
+//!
+//! [`reference`](mod@reference) renders the source mesh with a triangle rasterizer under the same camera
 //! and shading, and [`metrics`] compares the two (PSNR, SSIM, silhouette IoU, holes);
-//! [`sweep`] charts speed against accuracy over a range of thresholds.
+//! [`sweep`] charts speed against accuracy over a range of thresholds, and [`compare`] every
+//! method over its knob on [`scenes`] built from meshes, with the error split three ways.
 //!
 //! ```no_run
 //! use render_preview::{render_file, RenderOptions};
@@ -18,14 +24,20 @@
 //! ```
 
 pub mod camera;
+pub mod canopy;
+pub mod compare;
+pub mod compare_chart;
 pub mod error;
+pub mod gauss;
 pub mod image_file;
 mod lod;
+pub mod method;
 pub mod metrics;
 pub mod provenance;
 pub mod raster;
 pub mod reference;
 pub mod scene;
+pub mod scenes;
 pub mod shade;
 pub mod sweep;
 pub mod synth;
@@ -34,7 +46,10 @@ use std::path::Path;
 use std::time::Instant;
 
 pub use camera::{Camera, UpAxis, View, ViewPreset};
+pub use canopy::{CanopyOptions, CanopyStats};
 pub use error::{Error, Result};
+pub use gauss::{GaussOptions, Order, Weighting};
+pub use method::{Method, Work};
 pub use lod::LodStats;
 pub use raster::{Frame, Splat};
 pub use scene::SceneFiles;
@@ -74,6 +89,12 @@ pub const AREA_COVER: f32 = 1.3;
 /// Everything that controls a render.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RenderOptions {
+    /// How the LOD cut is drawn.
+    pub method: Method,
+    /// Settings of [`Method::Gauss`].
+    pub gauss: GaussOptions,
+    /// Settings of [`Method::Canopy`].
+    pub canopy: CanopyOptions,
     /// Image width in pixels.
     pub width: u32,
     /// Image height in pixels.
@@ -117,6 +138,9 @@ pub struct RenderOptions {
 impl Default for RenderOptions {
     fn default() -> Self {
         RenderOptions {
+            method: Method::Zbuffer,
+            gauss: GaussOptions::default(),
+            canopy: CanopyOptions::default(),
             width: view::DEFAULT_WIDTH,
             height: view::DEFAULT_HEIGHT,
             view: ViewPreset::Front,
@@ -214,8 +238,10 @@ pub struct Phases {
     pub frame: f64,
     /// Refinement, block decoding and splat setup.
     pub traverse: f64,
-    /// Rasterization.
+    /// Rasterization (for `gauss`: compositing, the depth sort included).
     pub raster: f64,
+    /// The per-frame depth sort (`gauss`; 0 for `zbuffer`), part of `raster`.
+    pub sort: f64,
     /// Everything, PNG encoding excluded.
     pub total: f64,
 }
@@ -223,6 +249,12 @@ pub struct Phases {
 /// Counters of a render.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct RenderStats {
+    /// The method that drew the frame.
+    pub method: Method,
+    /// Work counters comparable across methods.
+    pub work: Work,
+    /// The thesis's Table 14 columns (`canopy` only).
+    pub canopy: Option<CanopyStats>,
     /// Splats rasterized.
     pub splats: u64,
     /// Refinement counters.
@@ -308,6 +340,7 @@ fn setup(files: &SceneFiles, opts: &RenderOptions) -> Result<(Camera, f64, View,
         max_radius: 2.0 * opts.width.max(opts.height) as f32,
         area_cover: AREA_COVER,
         lod_size: opts.lod_size,
+        kernel: (opts.method == Method::Gauss).then(|| gauss::Kernel::new(&opts.gauss)),
     };
     Ok((camera, near, view, params, up, t0.elapsed().as_secs_f64()))
 }
@@ -321,22 +354,82 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     if !(opts.fill.is_finite() && opts.fill > 0.0) {
         return Err(Error::Invalid(format!("fill {} must be a positive number (0.9: the model fills 90 % of the frame)", opts.fill)));
     }
+    if opts.method == Method::Gauss {
+        let g = &opts.gauss;
+        if !(g.alpha_min > 0.0 && g.alpha_min <= 0.5) {
+            return Err(Error::Invalid(format!("gauss alpha_min {} must lie in (0, 0.5]", g.alpha_min)));
+        }
+        if !(g.lowpass.is_finite() && g.lowpass >= 0.0) {
+            return Err(Error::Invalid(format!("gauss low-pass variance {} must be a finite number ≥ 0", g.lowpass)));
+        }
+    }
+    if opts.method == Method::Canopy || (opts.method == Method::Gauss && opts.gauss.order == gauss::Order::Mask) {
+        let c = &opts.canopy;
+        if ![c.t1, c.t2, c.t3].iter().all(|t| t.is_finite() && *t > 0.0) || c.t2 > c.t1 || c.t3 > c.t2 {
+            return Err(Error::Invalid(format!("canopy thresholds t1 {} ≥ t2 {} ≥ t3 {} must be positive pixel sizes", c.t1, c.t2, c.t3)));
+        }
+        if c.occ_cull.is_nan() || !(c.occ_clip.is_finite() && c.occ_clip >= 0.0) {
+            return Err(Error::Invalid(format!("canopy t_OccCull {} and t_OccClip {} must be numbers (t_OccClip ≥ 0)", c.occ_cull, c.occ_clip)));
+        }
+    }
     let (camera, near, view, params, up_axis, frame_secs) = setup(files, opts)?;
+    let mask_order = opts.method == Method::Gauss && opts.gauss.order == gauss::Order::Mask;
+    if opts.method == Method::Canopy || mask_order {
+        let [r, g, b] = opts.background;
+        let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
+        let draw = if mask_order { canopy::Draw::Gauss(&opts.gauss) } else { canopy::Draw::Discs };
+        let (cs, lod, fragments) = canopy::render(files, &view, &params, &opts.canopy, draw, &mut frame)?;
+        let t2 = Instant::now();
+        let covered = frame.covered() as u64;
+        let draw = cs.stage_seconds[3];
+        let stats = RenderStats {
+            method: opts.method,
+            work: Work::new(lod.nodes_visited, cs.nodes_rasterized, fragments, covered, files.bytes_read()),
+            canopy: Some(cs),
+            splats: cs.nodes_rasterized,
+            lod,
+            bytes_read: files.bytes_read(),
+            file_size: files.file_len(),
+            files: files.file_count(),
+            covered_pixels: covered,
+            seconds: Phases { open: 0.0, frame: frame_secs, traverse: (t2 - t0).as_secs_f64() - draw, raster: draw, sort: 0.0, total: (t2 - t0).as_secs_f64() },
+        };
+        return Ok(Rendered { frame, camera, stats, near, up_axis, provenance: files.provenance() });
+    }
     let (splats, lod) = files.collect(&view, &params)?;
     let t1 = Instant::now();
     let [r, g, b] = opts.background;
     let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
-    raster::rasterize(&mut frame, &splats);
-    raster::fill_holes(&mut frame);
+    let mut sort = 0.0;
+    let fragments = match opts.method {
+        Method::Zbuffer | Method::Canopy => {
+            raster::rasterize(&mut frame, &splats);
+            raster::fill_holes(&mut frame);
+            None
+        }
+        Method::Gauss => {
+            let ts = Instant::now();
+            let order = gauss::depth_order(&splats);
+            sort = ts.elapsed().as_secs_f64();
+            Some(gauss::composite(&mut frame, &splats, &order, &opts.gauss, view.focal).fragments)
+        }
+    };
     let t2 = Instant::now();
+    // The depth buffer's fragments are counted after the clock stops (the tuned
+    // rasterizer does not count them).
+    let fragments = fragments.unwrap_or_else(|| method::count_fragments(&splats, frame.width, frame.height));
+    let covered = frame.covered() as u64;
     let stats = RenderStats {
+        method: opts.method,
+        work: Work::new(lod.nodes_visited, splats.len() as u64, fragments, covered, files.bytes_read()),
+        canopy: None,
         splats: splats.len() as u64,
         lod,
         bytes_read: files.bytes_read(),
         file_size: files.file_len(),
         files: files.file_count(),
-        covered_pixels: frame.covered() as u64,
-        seconds: Phases { open: 0.0, frame: frame_secs, traverse: (t1 - t0).as_secs_f64(), raster: (t2 - t1).as_secs_f64(), total: (t2 - t0).as_secs_f64() },
+        covered_pixels: covered,
+        seconds: Phases { open: 0.0, frame: frame_secs, traverse: (t1 - t0).as_secs_f64(), raster: (t2 - t1).as_secs_f64(), sort, total: (t2 - t0).as_secs_f64() },
     };
     Ok(Rendered { frame, camera, stats, near, up_axis, provenance: files.provenance() })
 }

@@ -155,6 +155,23 @@ impl TreeCache {
         self.decode_with(reader, d, k, &parents)
     }
 
+    /// Node `i` of level `d`: the node, whether it is internal, the index of its first child
+    /// in level `d + 1` (internal nodes) and its leaf number (leaves; breadth-first order,
+    /// which names a group leaf's child).
+    pub(crate) fn node_at(&self, reader: &SctReader, d: usize, i: u64) -> Result<NodeAt> {
+        let k = self.block_of(reader, d, i)?;
+        let b = self.get(reader, d, k)?;
+        let local = i.checked_sub(b.first_node).filter(|&l| l < b.nodes.len() as u64).ok_or_else(|| self.malformed(reader, format!("level {d} has no node {i}")))? as usize;
+        let rank = b.internal_before + b.rank_before[local] as u64;
+        let leaves_before = self.leaves_before.get(d).copied().unwrap_or(0);
+        Ok(NodeAt { node: b.nodes[local], internal: b.internal[local], first_child: 2 * rank, leaf_no: leaves_before + i - rank })
+    }
+
+    /// Two-sided trees are never culled as back-facing (spec §6.2).
+    pub(crate) fn two_sided(&self, reader: &SctReader) -> bool {
+        reader.trees().get(self.tree).is_some_and(|t| t.two_sided())
+    }
+
     /// Decodes the blocks `ks` of level `d`, in parallel when several are missing.
     fn ensure(&self, reader: &SctReader, d: usize, ks: &[usize]) -> Result<()> {
         let missing: Vec<usize> = ks.iter().copied().filter(|&k| self.cached(d, k).is_none()).collect();
@@ -165,6 +182,15 @@ impl TreeCache {
         let jobs: Vec<(usize, Vec<Node>)> = missing.iter().map(|&k| Ok((k, self.parents_of(reader, d, k)?))).collect::<Result<_>>()?;
         jobs.par_iter().try_for_each(|(k, p)| self.decode_with(reader, d, *k, p).map(|_| ()))
     }
+}
+
+/// One node found by [`TreeCache::node_at`].
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct NodeAt {
+    pub node: Node,
+    pub internal: bool,
+    pub first_child: u64,
+    pub leaf_no: u64,
 }
 
 /// Placement of a tree in camera space: `c_cam = m·c + t`, `n_cam = rot·n`, `r' = s·r`.
@@ -200,6 +226,9 @@ pub(crate) struct LodParams {
     pub area_cover: f32,
     /// What the threshold is compared with.
     pub lod_size: LodSize,
+    /// Draw each node as this Gaussian kernel's support ellipse (the `gauss` method)
+    /// instead of the opaque splat.
+    pub kernel: Option<crate::gauss::Kernel>,
 }
 
 /// Counters of one render.
@@ -300,6 +329,11 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
         color = shade::apply(color, shade::lambert(nrm, l));
     }
     let [x, y] = view.project(c);
+    if let Some(k) = &p.kernel {
+        // The opaque splat's disc (the leaf's covering radius, an internal node's
+        // AREA_COVER × equal-area radius) is the kernel's half-opacity contour.
+        return Decision::Draw(k.splat(c, nrm, r * shrink, n.cone, view.focal, x, y, color));
+    }
     if p.ellipses && n.cone < std::f32::consts::FRAC_PI_2 {
         // The node's surface is a patch with normals inside the cone: seen at angle γ it
         // projects to an ellipse whose minor axis shrinks by |cos γ| (widened by the cone).
@@ -344,6 +378,21 @@ pub(crate) fn traverse(
     group: bool,
     out: &mut TreeOut,
 ) -> Result<()> {
+    traverse_from(reader, cache, pl, view, p, group, (0, 0), out)
+}
+
+/// [`traverse`] from node `start.1` of level `start.0` instead of the root.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn traverse_from(
+    reader: &SctReader,
+    cache: &TreeCache,
+    pl: &Placement,
+    view: &View,
+    p: &LodParams,
+    group: bool,
+    start: (usize, u64),
+    out: &mut TreeOut,
+) -> Result<()> {
     if cache.root().is_none() {
         return Ok(());
     }
@@ -357,8 +406,8 @@ pub(crate) fn traverse(
     } else {
         p
     };
-    let mut frontier: Vec<u64> = vec![0];
-    let mut d = 0usize;
+    let mut frontier: Vec<u64> = vec![start.1];
+    let mut d = start.0;
     while !frontier.is_empty() {
         if d >= cache.levels.len() {
             return Err(cache.malformed(reader, format!("children expected below the last level {}", d - 1)));

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::builder::TypedValueParser;
 use clap::{Args, Parser, Subcommand};
-use render_preview::{metrics, reference, sweep, synth, Error, LodSize, RenderOptions, Shading, SplatShape, UpAxis, ViewPreset};
+use render_preview::{metrics, reference, sweep, synth, CanopyOptions, Error, GaussOptions, LodSize, Method, RenderOptions, Shading, SplatShape, UpAxis, ViewPreset, Weighting};
 use sct_format::view;
 
 const EXAMPLES: &str = "\
@@ -15,9 +15,14 @@ Examples:
   sct-render-preview bunny.sct -o iso.png --view iso --width 640 --height 480 --pixel-error 2
   sct-render-preview scene.sct -o close.png --eye 0.1,0.2,0.3 --target 0,0.1,0 --fov 30
   sct-render-preview bunny.sct -o b.png --reference bun_zipper.ply --json
+  sct-render-preview duck.sct -o g.png --method gauss --reference Duck.glb --json
+  sct-render-preview duck.sct -o g.png --method gauss --gauss-weighting normalized --gauss-lowpass 0
+  sct-render-preview pair.sct -o c.png --method canopy --canopy-t3 1.7 --canopy-occ-cull 1.9 --json
   sct-render-preview spot.sct -o s.png --reference spot_triangulated.obj --min-psnr 30 --min-iou 0.97
   sct-render-preview scan.sct -o scan.png --up z --view iso
   sct-render-preview sweep --model bunny.sct=bun_zipper.ply --pixel-errors 0.5,1,2,4,8 -o chart
+  sct-render-preview compare --scene one:Duck.glb --scene pair:bun_zipper.ply,dragon.ply -o cmp
+  sct-render-preview compare --scene block:bun_zipper_res4.ply:8 --knobs 1,2,4 --orbit 16 -o dense
   sct-render-preview synth bun_zipper.ply -o bunny.sct --spacing 0.0005
 
 The default camera looks at the model's front (+Z; with --up z, from -Y), upright, at the
@@ -28,7 +33,7 @@ Exit status: 0 success; 1 invalid input (malformed file, degenerate camera), not
 or I/O error.";
 
 #[derive(Parser, Debug)]
-#[command(name = "sct-render-preview", version, about = "Render a preview image of an SCT scene file on the CPU (LOD splatting).", after_help = EXAMPLES, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+#[command(name = "sct-render-preview", version, about = "Render a preview image of an SCT scene file on the CPU (LOD splatting: --method zbuffer, gauss or canopy).", after_help = EXAMPLES, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
@@ -67,6 +72,46 @@ struct Cli {
 
 #[derive(Args, Debug, Clone)]
 struct RenderArgs {
+    /// Preview method: zbuffer (opaque splats, depth buffer), gauss (elliptical Gaussian
+    /// splats blended back to front, no depth buffer; Coconu & Hege; both refine the LOD cut
+    /// of --pixel-error) or canopy (the thesis: image-graph occlusion culling, discs in
+    /// reverse occlusion-mask order; knobs --canopy-*).
+    #[arg(long, value_enum, default_value_t = Method::Zbuffer)]
+    method: Method,
+    /// gauss: blend (alpha blending back to front, EQ 1) or normalized (EQ 2 over the
+    /// front surface found by a per-pixel visibility pass).
+    #[arg(long, value_enum, default_value_t = Weighting::Blend)]
+    gauss_weighting: Weighting,
+    /// gauss: the back-to-front order from a per-frame depth sort, or from canopy's occlusion
+    /// mask reversed (its stages 1–2 run first, with the --canopy-* settings).
+    #[arg(long, value_enum, default_value_t = render_preview::Order::Depth)]
+    gauss_order: render_preview::Order,
+    /// gauss: isotropic low-pass variance added to every kernel, px² (0: none).
+    #[arg(long, default_value_t = render_preview::gauss::DEFAULT_LOWPASS)]
+    gauss_lowpass: f32,
+    /// gauss: opacity at the edge of a kernel's support (the alpha test), in (0, 0.5].
+    #[arg(long, default_value_t = render_preview::gauss::DEFAULT_ALPHA_MIN)]
+    gauss_alpha_min: f32,
+    /// canopy: stage-1 threshold, projected view-cone radius in px (default: the thesis's
+    /// 2.5° at the default camera).
+    #[arg(long, default_value_t = CanopyOptions::default().t1)]
+    canopy_t1: f32,
+    /// canopy: stage-2 (occlusion mask) threshold, px (default: 1.0°).
+    #[arg(long, default_value_t = CanopyOptions::default().t2)]
+    canopy_t2: f32,
+    /// canopy: stage-3 threshold, px, the method's quality knob (default: 0.1°).
+    #[arg(long, default_value_t = CanopyOptions::default().t3)]
+    canopy_t3: f32,
+    /// canopy: t_OccCull, the occlusion estimate above which a node is culled; "off" culls
+    /// nothing.
+    #[arg(long, default_value = "1.9", value_parser = parse_cull)]
+    canopy_occ_cull: f32,
+    /// canopy: t_OccClip, occluders weaker than this add no occlusion.
+    #[arg(long, default_value_t = 0.0)]
+    canopy_occ_clip: f32,
+    /// canopy: draw the stage-3 discs through a depth buffer instead of in reverse mask order.
+    #[arg(long)]
+    canopy_zbuffer: bool,
     /// Image width in pixels (1 to 16384).
     #[arg(long, default_value_t = view::DEFAULT_WIDTH, value_parser = clap::value_parser!(u32).range(1..=i64::from(render_preview::camera::MAX_SIDE)))]
     width: u32,
@@ -123,6 +168,16 @@ struct RenderArgs {
 impl RenderArgs {
     fn options(&self) -> RenderOptions {
         RenderOptions {
+            method: self.method,
+            gauss: GaussOptions { weighting: self.gauss_weighting, order: self.gauss_order, lowpass: self.gauss_lowpass, alpha_min: self.gauss_alpha_min },
+            canopy: CanopyOptions {
+                t1: self.canopy_t1,
+                t2: self.canopy_t2,
+                t3: self.canopy_t3,
+                occ_cull: self.canopy_occ_cull,
+                occ_clip: self.canopy_occ_clip,
+                zbuffer: self.canopy_zbuffer,
+            },
             width: self.width,
             height: self.height,
             view: self.view,
@@ -164,6 +219,43 @@ enum Command {
         /// Timed repetitions per point (the fastest counts).
         #[arg(long, default_value_t = 3)]
         repeat: u32,
+        /// Output path without extension.
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        render: RenderArgs,
+    },
+    /// Compare every method over a sweep of its knob on scenes built from meshes: time per
+    /// frame against foreground PSNR and SSIM with the Pareto front (OUTPUT.png, OUTPUT.svg),
+    /// the error split, orbit stability and work counters (OUTPUT.json,
+    /// spec/render-preview-compare-json.md), a table on stdout.
+    Compare {
+        /// Scene: one:MESH, pair:FRONT,BACK (FRONT in front of BACK), grid:MESH:N (jittered
+        /// N×N instances) or block:MESH:N (dense N×N×N instances); repeat per scene.
+        #[arg(long = "scene", required = true)]
+        scenes: Vec<render_preview::scenes::SceneSpec>,
+        /// Methods to compare: zbuffer, gauss, canopy (zbuffer is always rendered: it is the
+        /// ordering baseline of gauss).
+        #[arg(long, value_delimiter = ',', default_values_t = [Method::Zbuffer, Method::Gauss, Method::Canopy])]
+        methods: Vec<Method>,
+        /// Knob values (--pixel-error for zbuffer and gauss, --canopy-t3 for canopy).
+        #[arg(long, value_delimiter = ',', default_values_t = [0.5f32, 1.0, 2.0, 4.0])]
+        knobs: Vec<f32>,
+        /// Timed frames per point after a warm-up frame (the median counts).
+        #[arg(long, default_value_t = 3)]
+        repeat: u32,
+        /// Frames of the stability orbit per method (0: none).
+        #[arg(long, default_value_t = 0)]
+        orbit: usize,
+        /// Degrees between orbit frames.
+        #[arg(long, default_value_t = 1.0)]
+        orbit_step: f64,
+        /// Leaves per model radius when sampling the scenes.
+        #[arg(long, default_value_t = 200.0)]
+        density: f64,
+        /// Directory for the scenes' SCT files (default: OUTPUT.scenes/).
+        #[arg(long)]
+        work_dir: Option<PathBuf>,
         /// Output path without extension.
         #[arg(short, long)]
         output: PathBuf,
@@ -223,6 +315,13 @@ fn parse_image_output(s: &str) -> Result<PathBuf, String> {
     Ok(p)
 }
 
+fn parse_cull(s: &str) -> Result<f32, String> {
+    if s == "off" {
+        return Ok(f32::INFINITY);
+    }
+    s.parse::<f32>().map_err(|e| format!("{s:?}: {e} (a number or off)"))
+}
+
 fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
     let v: Vec<f64> = s.split(',').map(|p| p.trim().parse::<f64>().map_err(|e| format!("{p:?}: {e}"))).collect::<Result<_, _>>()?;
     <[f64; 3]>::try_from(v).map_err(|_| format!("expected x,y,z, got {s:?}"))
@@ -267,6 +366,25 @@ fn run(mut cli: Cli) -> anyhow::Result<()> {
             let result = sweep::run(&models, &pixel_errors, repeat.max(1), &render.options())?;
             sweep::write_outputs(&result, &output)?;
             println!("{}", serde_json::to_string_pretty(&result)?);
+            Ok(())
+        }
+        Some(Command::Compare { scenes, methods, knobs, repeat, orbit, orbit_step, density, work_dir, output, render }) => {
+            let base = render.options();
+            let o = render_preview::compare::CompareOptions {
+                scenes,
+                methods,
+                knobs,
+                repeat: repeat.max(1),
+                orbit_frames: orbit,
+                orbit_step_deg: orbit_step,
+                orbit_knob: base.pixel_error,
+                density,
+                work_dir: work_dir.unwrap_or_else(|| sibling(&output, "scenes")),
+                base,
+            };
+            let result = render_preview::compare::run(&o, |line| eprintln!("{line}"))?;
+            render_preview::compare::write_outputs(&result, &output)?;
+            print!("{}", render_preview::compare::table(&result));
             Ok(())
         }
         Some(Command::Synth { mesh, output, spacing, grid, profile }) => {
@@ -318,6 +436,10 @@ fn preview(cli: &Cli, file: &Path, output: &Path) -> anyhow::Result<()> {
         "width": opts.width,
         "height": opts.height,
         "pixel_error": opts.pixel_error,
+        "method": opts.method,
+        "gauss": (opts.method == Method::Gauss).then_some(opts.gauss),
+        "canopy": out.stats.canopy.map(|s| serde_json::json!({ "options": opts.canopy, "stats": s })),
+        "work": out.stats.work,
         "splats": out.stats.splats,
         "nodes_visited": out.stats.lod.nodes_visited,
         "lod": out.stats.lod,
@@ -353,6 +475,7 @@ fn preview(cli: &Cli, file: &Path, output: &Path) -> anyhow::Result<()> {
             "reference": mesh_path,
             "reference_load": load,
             "pixel_error": opts.pixel_error,
+            "method": opts.method,
             "metrics": m,
             "reference_seconds": ref_secs,
             "difference_image": dp,

@@ -9,6 +9,10 @@
 //! inlines get the same checks in the same order (target present, no cycle on the branch,
 //! depth limit, BLAKE3 hash) with the same [`TraverseErrorKind`] errors.
 
+mod items;
+
+pub(crate) use items::Item;
+
 use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
 use std::rc::Rc;

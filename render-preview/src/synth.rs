@@ -264,3 +264,19 @@ pub fn uv_sphere(center: [f32; 3], radius: f32, seg: usize, color: [f32; 4]) -> 
     };
     WorldMesh::from_scene(scene)
 }
+
+/// A mesh of flat quads, each given by four corners counter-clockwise seen from its front
+/// and a linear RGBA colour (for failure-mode scenes: plates, layers, leaves).
+pub fn quads(quads: &[([[f32; 3]; 4], [f32; 4])]) -> WorldMesh {
+    use voxelize::mesh::{Instance, LoadedScene, Material, Mesh, Primitive, IDENTITY};
+    let mut meshes = Vec::new();
+    let mut materials = Vec::new();
+    let mut instances = Vec::new();
+    for (i, (p, color)) in quads.iter().enumerate() {
+        let prim = Primitive { positions: p.to_vec(), triangles: vec![[0, 1, 2], [0, 2, 3]], material: Some(i), ..Default::default() };
+        meshes.push(Mesh { name: format!("quad{i}"), primitives: vec![prim] });
+        materials.push(Material { base_color: *color, ..Default::default() });
+        instances.push(Instance { mesh: i, transform: IDENTITY });
+    }
+    WorldMesh::from_scene(LoadedScene { meshes, instances, materials, ..Default::default() })
+}

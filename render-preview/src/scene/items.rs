@@ -1,0 +1,172 @@
+//! Scene nodes one at a time, for renderers that refine node by node (the `canopy` image
+//! graph): an [`Item`] is one scene-tree node under one instance state, or an inline not yet
+//! opened; its children are the tree node's two children, a group leaf's child graph node, or
+//! the inlined file's root, with the same rules as [`SceneFiles::collect`] (instance state
+//! composition, inline checks).
+
+use std::collections::VecDeque;
+use std::rc::Rc;
+
+use sct_format::traverse::{TraversalState, VisitBudget};
+use sct_format::{GraphNode, Node};
+
+use super::{placement, Chain, SceneFiles};
+use crate::camera::View;
+use crate::error::{Error, Result};
+use crate::lod::{self, Decision, LodParams, LodStats, Placement, TreeOut};
+use crate::raster::Splat;
+
+/// One scene node under one instance state.
+#[derive(Clone)]
+pub(crate) struct Item {
+    chain: Rc<Chain>,
+    /// World placement and tint.
+    pub state: TraversalState,
+    kind: Kind,
+}
+
+#[derive(Clone, Copy)]
+enum Kind {
+    /// Node `i` of level `d` of a tree; `graph_node` is the Tree or Group graph node.
+    Tree { tree: u32, group: bool, graph_node: u32, d: u32, i: u64 },
+    /// An inline graph node, drawn by its stored bound until opened.
+    Inline { graph_node: u32 },
+}
+
+/// What a renderer needs to know about an item.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ItemNode {
+    /// The node in its tree's frame (an inline's stored bound).
+    pub node: Node,
+    /// Whether it has children (internal nodes, group leaves and inlines do).
+    pub refinable: bool,
+    /// Never cull by the normal cone (two-sided trees, inlines' bounds).
+    pub two_sided: bool,
+}
+
+impl SceneFiles {
+    /// The items of the main file's root graph node.
+    pub(crate) fn root_items(&mut self) -> Result<Vec<Item>> {
+        if self.files.is_empty() {
+            return Ok(Vec::new());
+        }
+        let root = self.files[0].reader.graph().root;
+        let chain = Rc::new(Chain { file: 0, parent: None, depth: 0 });
+        self.expand(chain, root, TraversalState::IDENTITY)
+    }
+
+    /// The items a graph node stands for: instances composed down to their tree or inline.
+    fn expand(&mut self, chain: Rc<Chain>, mut node: u32, mut state: TraversalState) -> Result<Vec<Item>> {
+        let fi = chain.file;
+        for _ in 0..=1024 {
+            let f = &self.files[fi];
+            let g = f.reader.graph().nodes.get(node as usize).cloned().ok_or_else(|| Error::Invalid(format!("{}: graph node {node} does not exist", f.path.display())))?;
+            match g {
+                GraphNode::Instance { child, transform, attrs } => {
+                    state = state.push_instance(&transform, &attrs);
+                    node = child;
+                }
+                GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => {
+                    let group = matches!(g, GraphNode::Group { .. });
+                    let has_root = f.trees.get(tree as usize).ok_or_else(|| Error::Invalid(format!("{}: graph refers to missing tree {tree}", f.path.display())))?.root().is_some();
+                    return Ok(if has_root { vec![Item { chain, state, kind: Kind::Tree { tree, group, graph_node: node, d: 0, i: 0 } }] } else { Vec::new() });
+                }
+                GraphNode::Inline { .. } => return Ok(vec![Item { chain, state, kind: Kind::Inline { graph_node: node } }]),
+            }
+        }
+        Err(Error::Invalid(format!("{}: instances nested more than 1024 deep", self.files[fi].path.display())))
+    }
+
+    /// The item's node.
+    pub(crate) fn item_node(&self, it: &Item) -> Result<ItemNode> {
+        let f = &self.files[it.chain.file];
+        match it.kind {
+            Kind::Tree { tree, group, d, i, .. } => {
+                let cache = &f.trees[tree as usize];
+                let at = cache.node_at(&f.reader, d as usize, i)?;
+                Ok(ItemNode { node: at.node, refinable: at.internal || group, two_sided: cache.two_sided(&f.reader) })
+            }
+            Kind::Inline { graph_node } => match f.reader.graph().nodes.get(graph_node as usize) {
+                Some(GraphNode::Inline { bound, .. }) => Ok(ItemNode { node: *bound, refinable: true, two_sided: true }),
+                _ => Err(Error::Invalid(format!("{}: graph node {graph_node} is not an inline", f.path.display()))),
+            },
+        }
+    }
+
+    /// The item's children (empty for a tree leaf outside a group tree).
+    pub(crate) fn item_children(&mut self, it: &Item) -> Result<Vec<Item>> {
+        let fi = it.chain.file;
+        match it.kind {
+            Kind::Tree { tree, group, graph_node, d, i } => {
+                let f = &self.files[fi];
+                let at = f.trees[tree as usize].node_at(&f.reader, d as usize, i)?;
+                if at.internal {
+                    let child = |i| Item { chain: it.chain.clone(), state: it.state, kind: Kind::Tree { tree, group, graph_node, d: d + 1, i } };
+                    return Ok(vec![child(at.first_child), child(at.first_child + 1)]);
+                }
+                if !group {
+                    return Ok(Vec::new());
+                }
+                let child = match f.reader.graph().nodes.get(graph_node as usize) {
+                    Some(GraphNode::Group { children, .. }) => children.get(at.leaf_no as usize).copied(),
+                    _ => None,
+                }
+                .ok_or_else(|| Error::Invalid(format!("{}: group leaf {} has no child", f.path.display(), at.leaf_no)))?;
+                self.expand(it.chain.clone(), child, it.state)
+            }
+            Kind::Inline { graph_node } => {
+                let Some(GraphNode::Inline { path, hash, .. }) = self.files[fi].reader.graph().nodes.get(graph_node as usize).cloned() else {
+                    return Err(Error::Invalid(format!("{}: graph node {graph_node} is not an inline", self.files[fi].path.display())));
+                };
+                let k = self
+                    .follow_inline(&it.chain, &path, &hash)
+                    .map_err(|kind| Error::Inline { file: self.files[fi].path.clone(), graph_node, kind: Box::new(kind) })?;
+                let root = self.files[k].reader.graph().root;
+                let chain = Rc::new(Chain { file: k, depth: it.chain.depth + 1, parent: Some(it.chain.clone()) });
+                self.expand(chain, root, it.state)
+            }
+        }
+    }
+
+    /// Camera-space placement of an item.
+    pub(crate) fn item_placement(&self, view: &View, it: &Item) -> Placement {
+        placement(view, &it.state)
+    }
+
+    /// Refines `it` depth by depth with the LOD test of `p` (as [`SceneFiles::collect`] does
+    /// from the root), appending its splats in a repeatable order.
+    pub(crate) fn refine_item(&mut self, it: &Item, view: &View, p: &LodParams, splats: &mut Vec<Splat>, stats: &mut LodStats) -> Result<()> {
+        let mut queue = VecDeque::from([it.clone()]);
+        let mut budget = VisitBudget::new(&self.limits);
+        while let Some(it) = queue.pop_front() {
+            let fi = it.chain.file;
+            budget.charge(1).map_err(|e| Error::sct(&self.files[fi].path, e))?;
+            let pl = placement(view, &it.state);
+            match it.kind {
+                Kind::Tree { tree, group, graph_node, d, i } => {
+                    let f = &self.files[fi];
+                    let mut out = TreeOut::default();
+                    lod::traverse_from(&f.reader, &f.trees[tree as usize], &pl, view, p, group, (d as usize, i), &mut out)?;
+                    splats.append(&mut out.splats);
+                    stats.add(&out.stats);
+                    if let Some(GraphNode::Group { children, .. }) = f.reader.graph().nodes.get(graph_node as usize).cloned() {
+                        for j in out.group_leaves {
+                            let c = children.get(j as usize).copied().ok_or_else(|| Error::Invalid(format!("{}: group leaf {j} has no child", self.files[fi].path.display())))?;
+                            queue.extend(self.expand(it.chain.clone(), c, it.state)?);
+                        }
+                    }
+                }
+                Kind::Inline { .. } => {
+                    let n = self.item_node(&it)?;
+                    let by_bound = LodParams { backface: false, ..*p };
+                    match lod::decide(&n.node, true, true, &pl, view, &by_bound, stats) {
+                        Decision::Cull | Decision::Refine => {}
+                        Decision::Draw(s) => splats.push(s),
+                        Decision::Descend => queue.extend(self.item_children(&it)?),
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}

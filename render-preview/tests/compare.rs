@@ -1,0 +1,101 @@
+//! `sct-render-preview compare` end to end on small scenes built from an OBJ sphere written
+//! here: the JSON (spec/render-preview-compare-json.md), the chart files and the table.
+
+use std::path::Path;
+
+/// A UV sphere as OBJ text (radius 1, `seg` segments).
+fn sphere_obj(path: &Path, seg: usize) {
+    let mut s = String::new();
+    for i in 0..=seg {
+        let th = std::f64::consts::PI * i as f64 / seg as f64;
+        for j in 0..2 * seg {
+            let ph = std::f64::consts::PI * j as f64 / seg as f64;
+            s.push_str(&format!("v {} {} {}\n", th.sin() * ph.cos(), th.cos(), -th.sin() * ph.sin()));
+        }
+    }
+    let row = 2 * seg;
+    for i in 0..seg {
+        for j in 0..row {
+            let a = i * row + j + 1;
+            let b = i * row + (j + 1) % row + 1;
+            let (c, d) = (a + row, b + row);
+            if i != 0 {
+                s.push_str(&format!("f {a} {c} {b}\n"));
+            }
+            if i != seg - 1 {
+                s.push_str(&format!("f {b} {c} {d}\n"));
+            }
+        }
+    }
+    std::fs::write(path, s).unwrap();
+}
+
+#[test]
+fn compare_writes_json_chart_and_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("ball.obj");
+    sphere_obj(&obj, 16);
+    let out = dir.path().join("cmp");
+    let exe = env!("CARGO_BIN_EXE_sct-render-preview");
+    let o = std::process::Command::new(exe)
+        .args(["compare", "--scene", &format!("one:{}", obj.display()), "--scene", &format!("grid:{}:3", obj.display())])
+        .args(["--knobs", "1,4", "--repeat", "1", "--orbit", "3", "--density", "60", "--width", "96", "--height", "72", "-o", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let table = String::from_utf8_lossy(&o.stdout);
+    assert!(table.starts_with("scene") && table.contains("one-ball") && table.contains("grid3-ball") && table.contains("orbit 3 frames"), "{table}");
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.path().join("cmp.json")).unwrap()).unwrap();
+    assert_eq!(v["schema"], "sct-render-preview-compare/1");
+    let scenes = v["scenes"].as_array().unwrap();
+    assert_eq!(scenes.len(), 2);
+    assert_eq!(scenes[1]["instances"], 9);
+    assert_eq!(scenes[1]["spec"]["kind"], "grid");
+    for sc in scenes {
+        let methods = sc["methods"].as_array().unwrap();
+        assert_eq!(methods.iter().map(|m| m["method"].as_str().unwrap()).collect::<Vec<_>>(), ["zbuffer", "gauss", "canopy"]);
+        let mut pareto = 0;
+        for m in methods {
+            let points = m["points"].as_array().unwrap();
+            assert_eq!(points.len(), 2);
+            for p in points {
+                // Knob 4 on a 96×72 frame is coarse (about 11 dB); knob 1 is not, but canopy's
+                // discs of whole spheres are thick.
+                let floor = if p["knob"] == 1.0 && m["method"] != "canopy" { 18.0 } else { 5.0 };
+                assert!(p["seconds"].as_f64().unwrap() > 0.0 && p["metrics"]["fg_psnr_db"].as_f64().unwrap() > floor, "{p}");
+                assert!(p["work"]["fragments"].as_u64().unwrap() >= p["work"]["covered_pixels"].as_u64().unwrap(), "{p}");
+                assert_eq!(p["culling"].is_null(), m["method"] != "canopy", "{p}");
+                assert_eq!(p["vs_zbuffer"].is_null(), m["method"] == "zbuffer", "{p}");
+                pareto += p["pareto"].as_bool().unwrap() as usize;
+            }
+            let t = &m["temporal"];
+            assert_eq!(t["frames"], 3);
+            assert!(t["reference_mean_abs_diff"].as_f64().unwrap() > 0.0, "{t}");
+            let excess = t["mean_abs_diff"].as_f64().unwrap() - t["reference_mean_abs_diff"].as_f64().unwrap();
+            assert!((excess - t["excess"].as_f64().unwrap()).abs() < 1e-9);
+        }
+        assert!(pareto >= 1, "{sc}");
+    }
+    // The chart: PNG and SVG with both methods in the legend.
+    let png = image::open(dir.path().join("cmp.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (880, 704));
+    let svg = std::fs::read_to_string(dir.path().join("cmp.svg")).unwrap();
+    assert!(svg.contains("zbuffer") && svg.contains("gauss") && svg.contains("canopy") && svg.contains("Pareto"), "legend");
+    assert!(dir.path().join("cmp.scenes/one-ball.sct").exists());
+}
+
+#[test]
+fn compare_rejects_bad_scenes_and_knobs() {
+    let exe = env!("CARGO_BIN_EXE_sct-render-preview");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x");
+    let run = |args: &[&str]| std::process::Command::new(exe).arg("compare").args(args).args(["-o", out.to_str().unwrap()]).output().unwrap();
+    assert_eq!(run(&["--scene", "cube:a.obj"]).status.code(), Some(2));
+    assert_eq!(run(&["--scene", "grid:a.obj:0"]).status.code(), Some(2));
+    let obj = dir.path().join("ball.obj");
+    sphere_obj(&obj, 8);
+    let o = run(&["--scene", &format!("one:{}", obj.display()), "--knobs", "0", "--width", "32", "--height", "32"]);
+    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = run(&["--scene", &format!("one:{}", dir.path().join("none.obj").display())]);
+    assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
+}
