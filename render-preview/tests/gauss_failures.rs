@@ -62,10 +62,14 @@ fn plates(gap_in_s: f32, deg: f64) -> ((f64, f64), (f64, f64)) {
 ///
 /// | gap | 0° | 45° | 70° | 80° |
 /// |---|---|---|---|---|
-/// | 1 S, gauss | 4.38 / 0.0000 | 2.52 / 0.0000 | 2.18 / 0.0002 | 3.11 / 0.0031 |
-/// | 1 S, zbuffer | 5.89 / 0.0356 | 3.66 / 0.0197 | 4.62 / 0.0232 | 7.14 / 0.0378 |
-/// | 0.5 S, gauss | 16.45 / 0.0238 | 16.99 / 0.0790 | 10.45 / 0.0423 | 9.06 / 0.0381 |
-/// | 0.5 S, zbuffer | 26.59 / 0.2130 | 18.49 / 0.1445 | 14.65 / 0.1064 | 15.14 / 0.1068 |
+/// | 1 S, gauss | 5.16 / 0.0000 | 4.74 / 0.0000 | 4.93 / 0.0002 | 7.31 / 0.0039 |
+/// | 1 S, zbuffer | 6.35 / 0.0380 | 5.42 / 0.0269 | 8.85 / 0.0399 | 16.87 / 0.0764 |
+/// | 0.5 S, gauss | 17.60 / 0.0257 | 18.93 / 0.0811 | 13.21 / 0.0431 | 12.74 / 0.0398 |
+/// | 0.5 S, zbuffer | 27.44 / 0.2192 | 20.17 / 0.1523 | 18.50 / 0.1224 | 22.53 / 0.1371 |
+///
+/// (Leaf splats drawn at their patch's size rather than their covering sphere made these
+/// worse, most at grazing angles: zbuffer at 80° was 7.14 / 0.0378 with covering leaves;
+/// the same change took 1–4 dB of outline error off single models in the accuracy table.)
 ///
 /// One spacing apart the plates stay apart for both (blending only tints the front plate by
 /// a few levels; the depth buffer shows the back plate through cracks between internal
@@ -77,7 +81,7 @@ fn grazing_plates_blend_the_far_one_in() {
         for deg in [0.0, 45.0, 70.0, 80.0] {
             let ((gm, gd), (zm, zd)) = plates(gap, deg);
             eprintln!("gap {gap} S, {deg}°: gauss mean drop {gm:.2} dark {gd:.4} | zbuffer {zm:.2} {zd:.4}");
-            let (max_mean, max_dark) = if gap >= 1.0 { (5.5, 0.01) } else { (22.0, 0.12) };
+            let (max_mean, max_dark) = if gap >= 1.0 { (8.5, 0.01) } else { (22.0, 0.12) };
             assert!(gm <= max_mean && gd <= max_dark, "gap {gap} S at {deg}°: gauss {gm} {gd}");
             assert!(gd <= zd, "gap {gap} S at {deg}°: gauss dark {gd} vs zbuffer {zd}");
         }
@@ -106,9 +110,9 @@ fn interpenetrating_spheres_order_error() {
     let wrong = g.frame.color.iter().zip(&z.frame.color).filter(|(a, b)| (a[0] > a[2]) != (b[0] > b[2]) && (a[0] as i32 - a[2] as i32).abs() > 100).count();
     let covered = z.frame.covered();
     eprintln!("interpenetrating: gauss vs zbuffer {m:?}, wrong-front {wrong} of {covered}");
-    // Measured: 31.8 dB against the depth buffer, 46 wrong-front pixels of 27,201 (0.17 %),
+    // Measured: 28.8 dB against the depth buffer, 105 wrong-front pixels of 27,197 (0.39 %),
     // along the intersection curve where kernel centres of both spheres share a depth.
-    assert!(m.fg_psnr_db.unwrap() >= 29.0, "{m:?}");
+    assert!(m.fg_psnr_db.unwrap() >= 27.5, "{m:?}");
     assert!((wrong as f64) <= 0.005 * covered as f64, "{wrong} of {covered}");
 }
 
