@@ -160,7 +160,7 @@ fn an_interrupted_run_leaves_no_temporary_file() {
     for (signal, code) in [("-INT", 130), ("-TERM", 143)] {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("dragon.samples");
-        let mut child = bin().arg(&dragon).arg("-o").arg(&out).args(["--voxel-size", "0.0002", "--threads", "1"]).stderr(std::process::Stdio::piped()).spawn().unwrap();
+        let mut child = bin().arg(&dragon).arg("-o").arg(&out).args(["--voxel-size", "0.05", "--threads", "1"]).stderr(std::process::Stdio::piped()).spawn().unwrap();
         let tmp_exists = || std::fs::read_dir(dir.path()).unwrap().flatten().any(|e| e.file_name().to_string_lossy().ends_with(".tmp"));
         let t0 = std::time::Instant::now();
         while !tmp_exists() && t0.elapsed().as_secs() < 60 && child.try_wait().unwrap().is_none() {
