@@ -80,10 +80,11 @@ fn bunny_matches_its_mesh_at_default_threshold() {
 
 /// The dragon's thin claws and horns make its outline long for its area: it failed the bar
 /// (28.9 dB whole-frame, IoU 0.959) while splats thickened silhouettes; over its foreground
-/// it scored 22.8 dB front and 23.0 dB iso when its own bar was set.
+/// it scored 22.8 dB front (23.0 iso) with leaves drawn as their covering spheres, and
+/// 23.26 dB front with leaves at their patch's size: the bar fails the former.
 #[test]
 fn dragon_matches_its_mesh_at_default_threshold() {
-    scan_matches_its_mesh("stanford-dragon-100k/dragon.ply", 22.0);
+    scan_matches_its_mesh("stanford-dragon-100k/dragon.ply", 23.2);
 }
 
 #[test]
