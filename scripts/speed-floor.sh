@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Measures where the time of the two speed goals goes (BENCHMARKS.md, "Session 10: what blocks
-# the 5 M leaves/s goal" and "Session 10: what blocks the 30 M samples/s goal"):
+# Measures where the time of the two speed goals goes (BENCHMARKS.md, "What blocks the 5 M
+# leaves/s goal" under "Build tree" and "What blocks the 30 M samples/s goal" under "Voxelize"):
 #   - sct-build-tree on the Table-8 bunny samples, default and raw profiles, per phase, with
 #     2 threads (RUNS runs, medians) and 1 thread (one run: the phases' CPU cost);
 #   - sct-voxelize dense runs (bunny, textured spot; voxel and scan-line methods), dry and
