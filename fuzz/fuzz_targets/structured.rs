@@ -88,6 +88,8 @@ fn limits() -> Limits {
         max_traversal_visits: 20_000,
         max_samples: 1 << 20,
         max_sample_bytes: 1 << 25,
+        // A low floor, so that the decoded-size bound (ratio × file size) decides often.
+        decoded_floor: 1 << 16,
         ..Limits::default()
     }
 }

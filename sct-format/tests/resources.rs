@@ -438,6 +438,11 @@ fn samples_file(chunks: usize, n: u32, frame: impl Fn(u32) -> Vec<u8>) -> Vec<u8
 }
 
 fn container_samples(total: u64, samples: Sec) -> Vec<u8> {
+    container_samples_with(total, samples, Vec::new())
+}
+
+/// [`container_samples`] with `extra` sections after the samples.
+fn container_samples_with(total: u64, samples: Sec, extra: Vec<Sec>) -> Vec<u8> {
     let mut mesh = 1u64.to_le_bytes().to_vec();
     mesh.extend_from_slice(&0u64.to_le_bytes());
     mesh.extend_from_slice(&total.to_le_bytes());
@@ -447,7 +452,9 @@ fn container_samples(total: u64, samples: Sec) -> Vec<u8> {
     for v in [0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0] {
         inst.extend_from_slice(&v.to_le_bytes());
     }
-    craft::container(SAMPLES_MAGIC, &[Sec::plain(tags::GENR, craft::genr()), Sec::plain(tags::MESH, mesh), Sec::zstd(tags::INST, &inst), samples])
+    let mut secs = vec![Sec::plain(tags::GENR, craft::genr()), Sec::plain(tags::MESH, mesh), Sec::zstd(tags::INST, &inst), samples];
+    secs.extend(extra);
+    craft::container(SAMPLES_MAGIC, &secs)
 }
 
 /// Item 12: 1,820 chunks of 65,536 samples in 250 KB (each chunk a frame of zeros) would
@@ -662,4 +669,120 @@ fn unreachable_nodes_with_bad_tree_references_are_invalid() {
             assert!(r.issues[0].path.starts_with("graph/"), "{}", r.issues[0]);
         }
     }
+}
+
+/// A raw-profile tree of levels 0..=`depth`, level `d` holding 2^d nodes in one block whose
+/// frame inflates to zeros: a few KB standing for 2^(depth+1) - 1 nodes. The index is
+/// consistent, so only what the nodes stand for can refuse it before decoding.
+fn claimed_tree_file(depth: u32) -> Vec<u8> {
+    let levels: Vec<LevelEntry> =
+        (0..=depth).map(|d| LevelEntry { node_count: 1 << d, first_block: d.saturating_sub(1), block_count: (d > 0) as u32 }).collect();
+    let mut at = craft::index_len(levels.len(), depth as usize);
+    let (mut blocks, mut data) = (Vec::new(), Vec::new());
+    for d in 1..=depth {
+        let m = 1u64 << d;
+        let raw_len = m.div_ceil(8) + 40 * m;
+        let frame = craft::rle_frame(&[], 0, raw_len);
+        blocks.push(BlockEntry { level: d, node_count: m as u32, first_node: 0, internal_before: 0, offset: at, stored_len: frame.len() as u32, raw_len: raw_len as u32, crc: 0, flags: 1 });
+        at += frame.len() as u64;
+        data.extend_from_slice(&frame);
+    }
+    let header = TreeHeader {
+        profile: 0,
+        flags: 0,
+        root_internal: 1,
+        level_count: depth + 1,
+        node_count: (1 << (depth + 1)) - 1,
+        leaf_count: 1 << depth,
+        block_count: depth,
+        root: leaf(0.0, 1),
+    };
+    let tree = craft::tree_section(&header, &levels, &blocks, &data);
+    craft::container(
+        SCT_MAGIC,
+        &[Sec::plain(tags::GENR, craft::genr()), Sec::zstd(tags::GRPH, &craft::graph_bytes(&[G::Tree(0)], 0)), Sec::plain(tags::TREE, tree)],
+    )
+}
+
+/// A scene file of a few KB whose blocks (each within every cap, each raw length what its
+/// nodes need) stand for 4 M nodes, 168 MB decoded: refused by the decoded-size bound from
+/// the index, before any block is inflated, by the reader and the validator. Such files
+/// multiply: a 1 MB file held 1 G nodes, minutes of `--deep` and gigabytes of `--export-ply`.
+#[test]
+fn decoded_size_is_bounded_by_the_file_size() {
+    let file = claimed_tree_file(21);
+    assert!(file.len() < 10_000, "{}", file.len());
+    limit(SctReader::from_bytes(file.clone(), &Limits::default()).map(|_| ()), sct_format::limits::DECODED_SIZE);
+    for deep in [false, true] {
+        let r = validate_bytes(&file, &ValidateOptions { deep, ..Default::default() });
+        assert_eq!(r.check_ids(), vec![CheckId::Limit], "{:?}", r.issues);
+    }
+    // A caller that trusts the file raises the bound; a tree within the floor always opens.
+    let trusting = Limits { max_decoded_ratio: u64::MAX, ..Limits::default() };
+    assert_eq!(SctReader::from_bytes(file, &trusting).expect("opens").trees()[0].header.node_count, (1 << 22) - 1);
+    assert!(SctReader::from_bytes(claimed_tree_file(18), &Limits::default()).is_ok());
+
+    // Samples: 30 chunks of zeros (3 KB) stand for 2 M samples, 79 MB decoded.
+    let samples = samples_file(30, 65_536, |n| craft::rle_frame(&[], 0, 36 * n as u64));
+    assert!(samples.len() < 10_000, "{}", samples.len());
+    limit(SamplesFile::read(&samples, &Limits::default()).map(|_| ()), sct_format::limits::DECODED_SIZE);
+    assert_eq!(SamplesFile::read(&samples, &trusting).expect("reads").samples.len(), 30 * 65_536);
+    // And 2 M identical placements (68 bytes each) in a few KB of INST (item 13's file).
+    let n = 2_000_000u64;
+    let mut inst = n.to_le_bytes().to_vec();
+    for _ in 0..n {
+        inst.extend_from_slice(&0u32.to_le_bytes());
+        for v in [0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0] {
+            inst.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    let mut mesh = 1u64.to_le_bytes().to_vec();
+    mesh.extend_from_slice(&0u64.to_le_bytes());
+    mesh.extend_from_slice(&1u64.to_le_bytes());
+    mesh.extend_from_slice(&0u32.to_le_bytes());
+    let one = zstd::bulk::compress(&[0u8; 36], 1).expect("compress");
+    let mut smps = 1u32.to_le_bytes().to_vec();
+    smps.extend_from_slice(&(one.len() as u32).to_le_bytes());
+    smps.extend_from_slice(&one);
+    let file = craft::container(
+        SAMPLES_MAGIC,
+        &[Sec::plain(tags::GENR, craft::genr()), Sec::plain(tags::MESH, mesh), Sec::zstd(tags::INST, &inst), Sec::plain(*b"SMPS", smps)],
+    );
+    assert!(file.len() < 100_000, "{}", file.len());
+    limit(SamplesFile::read(&file, &Limits::default()).map(|_| ()), sct_format::limits::DECODED_SIZE);
+
+    // Affine placements: each is baked into a copy of its mesh, so 100 placements of one
+    // 65,536-sample chunk stand for 262 MB, though the file holds 2 MB decoded; 10 read.
+    let affine = |placements: u64| {
+        let f = craft::rle_frame(&[], 0, 36 * 65_536);
+        let mut smps = 65_536u32.to_le_bytes().to_vec();
+        smps.extend_from_slice(&(f.len() as u32).to_le_bytes());
+        smps.extend_from_slice(&f);
+        let mut affi = placements.to_le_bytes().to_vec();
+        for _ in 0..placements {
+            affi.extend_from_slice(&0u32.to_le_bytes());
+            for v in [2.0f64, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0] {
+                affi.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        container_samples_with(65_536, Sec::plain(*b"SMPS", smps), vec![Sec::zstd(*b"AFFI", &affi)])
+    };
+    let file = affine(100);
+    assert!(file.len() < 10_000, "{}", file.len());
+    limit(SamplesFile::read(&file, &Limits::default()).map(|_| ()), sct_format::limits::DECODED_SIZE);
+    assert_eq!(SamplesFile::read(&affine(10), &Limits::default()).expect("reads").affine_instances.len(), 10);
+}
+
+/// The bound is the larger of the floor and the ratio times the file's size.
+#[test]
+fn decoded_bound_is_floor_or_ratio() {
+    let l = Limits { max_decoded_ratio: 10, decoded_floor: 1000, ..Limits::default() };
+    assert!(l.check_decoded(1000, 1).is_ok());
+    assert!(l.check_decoded(1001, 1).is_err());
+    assert!(l.check_decoded(5000, 500).is_ok());
+    match l.check_decoded(5001, 500) {
+        Err(Error::LimitExceeded { value: 5001, limit: 5000, .. }) => {}
+        other => panic!("{other:?}"),
+    }
+    assert!(Limits::unlimited().check_decoded(u64::MAX, 0).is_ok());
 }
