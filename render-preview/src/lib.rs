@@ -120,9 +120,10 @@ pub struct RenderOptions {
     pub max_splat_pixels: u64,
 }
 
-/// Default [`RenderOptions::max_nodes`]: 2^24 nodes, at most 0.7 GB of splats. A
-/// default-settings render of the 12 M-leaf dragon examines far fewer (see BENCHMARKS.md).
-pub const DEFAULT_MAX_NODES: u64 = 1 << 24;
+/// Default [`RenderOptions::max_nodes`]: 10^7 nodes, at most 0.4 GB of splats. Default
+/// 1280 × 720 previews examine 0.2–1.4 M (BENCHMARKS.md: a 3.7 M-leaf bunny, 600 × 600
+/// instances); a finer `--pixel-error` or larger image may ask for more with `--max-nodes`.
+pub const DEFAULT_MAX_NODES: u64 = 10_000_000;
 /// Default [`RenderOptions::max_splat_pixels`]: 2^31, a few seconds of rasterizing; an
 /// ordinary preview covers each of its 0.9 M pixels a few times.
 pub const DEFAULT_MAX_SPLAT_PIXELS: u64 = 1 << 31;

@@ -339,8 +339,9 @@ pub(crate) struct TreeOut {
     pub stats: LodStats,
 }
 
-/// Refines one tree under `pl`, examining at most `budget` nodes (else a limit error naming
-/// [`NODES_EXAMINED`], before the level that would pass it is decoded). With `group` set,
+/// Refines one tree under `pl`; `before` nodes were examined earlier in the render, and past
+/// [`LodParams::max_nodes`] in all the render fails with a limit error naming
+/// [`NODES_EXAMINED`], before the level that would pass it is decoded. With `group` set,
 /// leaves that still need refinement are reported in `group_leaves` instead of being drawn.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn traverse(
@@ -350,7 +351,7 @@ pub(crate) fn traverse(
     view: &View,
     p: &LodParams,
     group: bool,
-    budget: u64,
+    before: u64,
     out: &mut TreeOut,
 ) -> Result<()> {
     if cache.root().is_none() {
@@ -375,9 +376,9 @@ pub(crate) fn traverse(
         // Nodes that never shrink below the pixel error (identical children, or a tree used
         // thousands of times close up) would have the render examine, and keep a splat of,
         // every node: bounded here, a level at a time.
-        let examined = out.stats.nodes_visited.saturating_add(frontier.len() as u64);
-        if examined > budget {
-            let e = sct_format::Error::LimitExceeded { what: NODES_EXAMINED, value: examined, limit: budget };
+        let examined = before.saturating_add(out.stats.nodes_visited).saturating_add(frontier.len() as u64);
+        if examined > p.max_nodes {
+            let e = sct_format::Error::LimitExceeded { what: NODES_EXAMINED, value: examined, limit: p.max_nodes };
             return Err(Error::sct(reader.path().unwrap_or(std::path::Path::new("")), e));
         }
         // Group the sorted frontier by block.

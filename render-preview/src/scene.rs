@@ -261,7 +261,7 @@ impl SceneFiles {
                         .ok_or_else(|| Error::Invalid(format!("{}: graph refers to missing tree {tree}", f.path.display())))?;
                     let pl = placement(view, &v.state);
                     let mut out = TreeOut::default();
-                    lod::traverse(&f.reader, cache, &pl, view, p, group, p.max_nodes.saturating_sub(stats.nodes_visited), &mut out)?;
+                    lod::traverse(&f.reader, cache, &pl, view, p, group, stats.nodes_visited, &mut out)?;
                     splats.append(&mut out.splats);
                     stats.add(&out.stats);
                     if let GraphNode::Group { children, .. } = &gnode {
