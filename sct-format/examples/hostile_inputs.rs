@@ -7,9 +7,10 @@
 //!
 //! Every file is valid (passes `sct-inspect --deep`) or is refused only by what it means, and
 //! compresses as far as zstd allows: trees of identical nodes, samples all at one point. The
-//! decoded-size bound (`Limits::max_decoded_ratio`, spec §2.3) lets a file stand for 256
-//! times its size, so files that want more are padded up to just under 1 MB with a section
-//! readers skip (unknown, not required): padding is what buys an attacker the most work.
+//! decoded-size bound (spec §2.3) lets a file stand for `max(256 MiB, 256 × its size)`, so
+//! a file under 1 MB stands for at most 268 MB, 6.7 M nodes or samples at 40 bytes: each
+//! file below asks for close to that. They are padded to just under 1 MB with a section
+//! readers skip (unknown, not required), which is what the ratio alone would need.
 //!
 //! - `tree-identical.sct`: two perfect trees of identical nodes (4.2 M and 2.1 M nodes, blocks
 //!   of 2 M nodes, 84 MB each inflated), 252 MB decoded; the graph reaches the first.

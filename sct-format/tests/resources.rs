@@ -705,13 +705,13 @@ fn claimed_tree_file(depth: u32) -> Vec<u8> {
 }
 
 /// A scene file of a few KB whose blocks (each within every cap, each raw length what its
-/// nodes need) stand for 4 M nodes, 168 MB decoded: refused by the decoded-size bound from
+/// nodes need) stand for 8.4 M nodes, 335 MB decoded: refused by the decoded-size bound from
 /// the index, before any block is inflated, by the reader and the validator. Such files
 /// multiply: a 1 MB file held 1 G nodes, minutes of `--deep` and gigabytes of `--export-ply`.
 #[test]
 fn decoded_size_is_bounded_by_the_file_size() {
-    let file = claimed_tree_file(21);
-    assert!(file.len() < 10_000, "{}", file.len());
+    let file = claimed_tree_file(22);
+    assert!(file.len() < 20_000, "{}", file.len());
     limit(SctReader::from_bytes(file.clone(), &Limits::default()).map(|_| ()), sct_format::limits::DECODED_SIZE);
     for deep in [false, true] {
         let r = validate_bytes(&file, &ValidateOptions { deep, ..Default::default() });
@@ -719,23 +719,23 @@ fn decoded_size_is_bounded_by_the_file_size() {
     }
     // A caller that trusts the file raises the bound; a tree within the floor always opens.
     let trusting = Limits { max_decoded_ratio: u64::MAX, ..Limits::default() };
-    assert_eq!(SctReader::from_bytes(file, &trusting).expect("opens").trees()[0].header.node_count, (1 << 22) - 1);
-    assert!(SctReader::from_bytes(claimed_tree_file(18), &Limits::default()).is_ok());
+    assert_eq!(SctReader::from_bytes(file, &trusting).expect("opens").trees()[0].header.node_count, (1 << 23) - 1);
+    assert!(SctReader::from_bytes(claimed_tree_file(21), &Limits::default()).is_ok());
 
-    // Samples: 30 chunks of zeros (3 KB) stand for 2 M samples, 79 MB decoded.
-    let samples = samples_file(30, 65_536, |n| craft::rle_frame(&[], 0, 36 * n as u64));
-    assert!(samples.len() < 10_000, "{}", samples.len());
+    // Samples: 110 chunks of zeros (10 KB) stand for 7.2 M samples, 288 MB decoded.
+    let samples = samples_file(110, 65_536, |n| craft::rle_frame(&[], 0, 36 * n as u64));
+    assert!(samples.len() < 20_000, "{}", samples.len());
     limit(SamplesFile::read(&samples, &Limits::default()).map(|_| ()), sct_format::limits::DECODED_SIZE);
-    assert_eq!(SamplesFile::read(&samples, &trusting).expect("reads").samples.len(), 30 * 65_536);
-    // And 2 M identical placements (68 bytes each) in a few KB of INST (item 13's file).
-    let n = 2_000_000u64;
-    let mut inst = n.to_le_bytes().to_vec();
-    for _ in 0..n {
-        inst.extend_from_slice(&0u32.to_le_bytes());
-        for v in [0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0] {
-            inst.extend_from_slice(&v.to_le_bytes());
-        }
-    }
+    let small = samples_file(3, 65_536, |n| craft::rle_frame(&[], 0, 36 * n as u64));
+    let tight = Limits { decoded_floor: 1 << 20, ..Limits::default() };
+    limit(SamplesFile::read(&small, &tight).map(|_| ()), sct_format::limits::DECODED_SIZE);
+    let trusting = Limits { max_decoded_ratio: u64::MAX, ..tight };
+    assert_eq!(SamplesFile::read(&small, &trusting).expect("reads").samples.len(), 3 * 65_536);
+    // And 4.2 M placements (68 bytes each) in a few KB of INST (item 13's file); refused
+    // before the frame (garbage inside) is inflated.
+    let n = 4_200_000u64;
+    let raw_len = 8 + 68 * n;
+    let inst = craft::rle_frame(&n.to_le_bytes(), 0, raw_len);
     let mut mesh = 1u64.to_le_bytes().to_vec();
     mesh.extend_from_slice(&0u64.to_le_bytes());
     mesh.extend_from_slice(&1u64.to_le_bytes());
@@ -746,13 +746,13 @@ fn decoded_size_is_bounded_by_the_file_size() {
     smps.extend_from_slice(&one);
     let file = craft::container(
         SAMPLES_MAGIC,
-        &[Sec::plain(tags::GENR, craft::genr()), Sec::plain(tags::MESH, mesh), Sec::zstd(tags::INST, &inst), Sec::plain(*b"SMPS", smps)],
+        &[Sec::plain(tags::GENR, craft::genr()), Sec::plain(tags::MESH, mesh), Sec::frame(tags::INST, inst, raw_len), Sec::plain(*b"SMPS", smps)],
     );
-    assert!(file.len() < 100_000, "{}", file.len());
+    assert!(file.len() < 20_000, "{}", file.len());
     limit(SamplesFile::read(&file, &Limits::default()).map(|_| ()), sct_format::limits::DECODED_SIZE);
 
-    // Affine placements: each is baked into a copy of its mesh, so 100 placements of one
-    // 65,536-sample chunk stand for 262 MB, though the file holds 2 MB decoded; 10 read.
+    // Affine placements: each is baked into a copy of its mesh, so 110 placements of one
+    // 65,536-sample chunk stand for 288 MB, though the file holds 2.6 MB decoded; 10 read.
     let affine = |placements: u64| {
         let f = craft::rle_frame(&[], 0, 36 * 65_536);
         let mut smps = 65_536u32.to_le_bytes().to_vec();
@@ -767,7 +767,7 @@ fn decoded_size_is_bounded_by_the_file_size() {
         }
         container_samples_with(65_536, Sec::plain(*b"SMPS", smps), vec![Sec::zstd(*b"AFFI", &affi)])
     };
-    let file = affine(100);
+    let file = affine(110);
     assert!(file.len() < 10_000, "{}", file.len());
     limit(SamplesFile::read(&file, &Limits::default()).map(|_| ()), sct_format::limits::DECODED_SIZE);
     assert_eq!(SamplesFile::read(&affine(10), &Limits::default()).expect("reads").affine_instances.len(), 10);
