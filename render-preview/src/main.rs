@@ -317,7 +317,7 @@ fn preview(cli: &Cli, file: &Path, output: &Path) -> anyhow::Result<()> {
         }
         let view = render_preview::View::new(&out.camera, out.near)?;
         let t = std::time::Instant::now();
-        let refr = reference::render_reference(&mesh, &view, opts.shading, opts.background);
+        let refr = reference::render_reference_bounded(&mesh, &view, opts.shading, opts.background, opts.max_splat_pixels / reference::REFERENCE_PIXEL_COST)?;
         let ref_secs = t.elapsed().as_secs_f64();
         let m = metrics::compare(&out.frame, &refr);
         let (mj, dp, rp) = (sibling(output, "metrics.json"), sibling(output, "diff.png"), sibling(output, "reference.png"));
