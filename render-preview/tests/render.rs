@@ -626,7 +626,7 @@ fn reference_render_stops_at_its_pixel_limit() {
     let view = front_camera(32, 32);
     let quad = Primitive {
         positions: vec![[-1.0, -1.0, 0.0], [-1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, -1.0, 0.0]],
-        triangles: vec![[0, 1, 2], [0, 2, 3]].repeat(500),
+        triangles: [[0, 1, 2], [0, 2, 3]].repeat(500),
         ..Default::default()
     };
     let mesh = WorldMesh::from_scene(scene_of(quad, Material::default(), IDENTITY));
