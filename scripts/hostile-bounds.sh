@@ -40,7 +40,7 @@ run() {
 }
 
 echo "## sct-voxelize (default flags)"
-for m in comb.obj ngon-repeat.obj stacked.ply spread.ply points-coincident.ply points-1000.ply claims.ply dag.gltf nodes.gltf; do
+for m in comb.obj comb.ply ngon-repeat.obj stacked.ply spread.ply points-coincident.ply points-1000.ply claims.ply dag.gltf nodes.gltf; do
     run "sct-voxelize $m" "$bin/sct-voxelize" "$dir/$m" -o "$out/m.samples"
 done
 

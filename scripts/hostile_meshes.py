@@ -4,6 +4,7 @@ scripts/hostile-bounds.sh (README, "Resource bounds per tool"). Usage: hostile_m
 
 - comb.obj: one concave face, a comb of 16,000 teeth (32,002 corners), every tooth 1 unit
   wide and 1,000 units tall;
+- comb.ply: the same in binary PLY, 30,000 teeth (one face of 60,002 corners);
 - ngon-repeat.obj: one face of 400,000 corners cycling over 3 vertices (a polygon folded
   onto one triangle);
 - stacked.ply: 76,000 copies of one triangle (binary; stacked surfaces);
@@ -47,6 +48,18 @@ for i in range(teeth, 0, -1):
 lines = [f"v {x:g} {y:g} 0" for x, y in pts]
 lines.append("f " + " ".join(str(i + 1) for i in range(len(pts))))
 write("comb.obj", "\n".join(lines) + "\n")
+
+# comb.ply: the same comb in binary PLY, one face of 60,002 corners (a uint-counted list).
+teeth = 30_000
+pts = [(0.0, 0.0), (float(teeth), 0.0)]
+for i in range(teeth, 0, -1):
+    pts.append((float(i), 1000.0))
+    pts.append((i - 0.5, 1.0))
+head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(pts)}\nproperty float x\nproperty float y\n"
+        f"property float z\nelement face 1\nproperty list uint int vertex_indices\nend_header\n")
+body = b"".join(struct.pack("<3f", x, y, 0.0) for x, y in pts) + struct.pack("<I", len(pts))
+body += b"".join(struct.pack("<i", i) for i in range(len(pts)))
+write("comb.ply", head.encode() + body)
 
 # ngon-repeat.obj: 400,000 corners over 3 vertices.
 corners = 400_000
