@@ -391,7 +391,7 @@ fn check_reader_limits(composed: &crate::scene::Composed, limits: &Limits) -> Re
 /// Refuses a path that is not a regular file (after symlinks) before it is opened: a FIFO
 /// blocks `open` forever, a device never ends.
 fn ensure_regular(path: &Path) -> Result<(), BuildError> {
-    voxelize::load::fsio::open_regular(path).map(drop).map_err(|e| BuildError::Io(e.to_string()))
+    sct_format::fsio::open_regular(path).map(drop).map_err(|e| BuildError::Io(e.to_string()))
 }
 
 /// Fills the container, topology and per-stream figures from the writer's statistics.
@@ -465,11 +465,8 @@ fn generator(cfg: &Config, upstream: &Upstream, inlines: &[(String, String)]) ->
 
 fn source(path: &Path) -> Result<SourceRef, BuildError> {
     // Streamed, so hashing a large samples file costs no extra memory.
-    let io = |e: std::io::Error| BuildError::Io(format!("{}: {e}", path.display()));
-    let (mut f, _) = voxelize::load::fsio::open_regular(path).map_err(|e| BuildError::Io(e.to_string()))?;
-    let mut h = blake3::Hasher::new();
-    std::io::copy(&mut f, &mut h).map_err(io)?;
-    Ok(SourceRef { path: path.display().to_string(), blake3: h.finalize().to_hex().to_string() })
+    let blake3 = sct_format::atomic::hash_file(path).map_err(|e| BuildError::Io(e.to_string()))?;
+    Ok(SourceRef { path: path.display().to_string(), blake3 })
 }
 
 /// Peak resident set size of this process (Linux `VmHWM`), in bytes.

@@ -160,11 +160,17 @@ fn bad_scenes_are_input_errors() {
         r#"{"root": {"group": []}}"#,
         r#"{"root": {"wat": 1}}"#,
         r#"{"root": {"instance": {"child": {"mesh": 0}, "scale": -1}}}"#,
+        // A 70-byte scene of 2^28 cells took 14 GB; cells over all grids are bounded by
+        // MAX_GRID_CELLS (2^21), checked before any cell is made.
+        r#"{"root": {"grid": {"child": {"mesh": 0}, "nx": 16384, "nz": 16384}}}"#,
+        r#"{"root": {"group": [{"grid": {"child": {"mesh": 0}, "nx": 1024, "nz": 1024}}, {"grid": {"child": {"mesh": 0}, "nx": 1024, "nz": 1025}}]}}"#,
     ] {
         let sp = dir.path().join("bad.json");
         std::fs::write(&sp, bad).unwrap();
+        let t = std::time::Instant::now();
         let e = run(&cfg(&s, &out, Some(&sp)), &mut |_| {}).unwrap_err();
         assert_eq!(e.exit_code(), 1, "{bad}: {e}");
+        assert!(t.elapsed().as_secs() < 5, "{bad}: {:?}", t.elapsed());
     }
     assert!(!out.exists(), "no output on failure");
 }

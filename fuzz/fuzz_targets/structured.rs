@@ -88,6 +88,8 @@ fn limits() -> Limits {
         max_traversal_visits: 20_000,
         max_samples: 1 << 20,
         max_sample_bytes: 1 << 25,
+        // A low floor, so that the decoded-size bound (ratio × file size) decides often.
+        decoded_floor: 1 << 16,
         ..Limits::default()
     }
 }
@@ -554,7 +556,8 @@ fn exercise_samples_recipe(r: &mut Recipe) {
     let mut samples = Vec::new();
     for m in 0..nmesh {
         let n = r.below(300);
-        meshes.push(MeshEntry { name: format!("m{m}"), first: samples.len() as u64, count: n as u64 });
+        // Mesh 1 two-sided, so that files with a SIDE section are mutated too.
+        meshes.push(MeshEntry { name: format!("m{m}"), first: samples.len() as u64, count: n as u64, two_sided: m == 1 });
         samples.extend((0..n).map(|_| leaf(r)));
     }
     let mut instances: Vec<SampleInstance> = (0..nmesh).map(|m| SampleInstance { mesh: m as u32, transform: Similarity::IDENTITY }).collect();

@@ -48,7 +48,19 @@ pub struct AgainstOptions {
     /// alpha (glTF MASK below the cutoff, fully transparent BLEND, textures' alpha) are
     /// left out, so alpha-masked assets can be held to full coverage.
     pub exclude_alpha_dropped: bool,
+    /// Most leaf-tree queries over all points (a point queries each use whose bound may hold
+    /// a nearer leaf). Default [`MAX_USE_QUERIES`].
+    pub max_use_queries: u64,
 }
+
+/// Default [`AgainstOptions::max_use_queries`]: 4 × 10^6, 40 per default point, a few
+/// seconds. A point of a real scene queries one to a few uses; uses stacked at one place
+/// (65,536 inlines of one file, differing by a hair so they are not one use) would have
+/// every point query every use: hours, for a 164 KB file.
+pub const MAX_USE_QUERIES: u64 = 4_000_000;
+
+/// What the query limit names in its error.
+pub const USE_QUERIES: &str = "leaf-tree queries of the coverage check (--max-use-queries)";
 
 /// Default [`AgainstOptions::max_uses`]. Uses are not deduplicated (each is a placement), so
 /// a DAG of shared groups or instances `d` deep reaches `2^d` of them: a file of a few
@@ -67,7 +79,16 @@ pub const DEFAULT_MIN_COVERAGE: f64 = 0.999;
 
 impl Default for AgainstOptions {
     fn default() -> Self {
-        AgainstOptions { points: DEFAULT_POINTS, seed: DEFAULT_SEED, min_coverage: DEFAULT_MIN_COVERAGE, limits: Limits::default(), max_uses: MAX_USES, allow_outside_inlines: false, exclude_alpha_dropped: false }
+        AgainstOptions {
+            points: DEFAULT_POINTS,
+            seed: DEFAULT_SEED,
+            min_coverage: DEFAULT_MIN_COVERAGE,
+            limits: Limits::default(),
+            max_uses: MAX_USES,
+            allow_outside_inlines: false,
+            max_use_queries: MAX_USE_QUERIES,
+            exclude_alpha_dropped: false,
+        }
     }
 }
 
@@ -428,6 +449,9 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
     // `None`: the tree failed to decode; it is reported once, not decoded again per use.
     let mut by_key: HashMap<(PathBuf, usize), Option<usize>> = HashMap::new();
     let mut uses: Vec<Use> = Vec::new();
+    // Uses of one tree under one transform (bit for bit) place the same leaves: queried once.
+    let mut distinct: std::collections::HashSet<(usize, [u64; 8])> = std::collections::HashSet::new();
+    let (mut use_count, mut leaves_expanded) = (0u64, 0u64);
     let mut errors = Errors::default();
     let mut reached_count = 0u64;
     for item in Traversal::open(file, topts)? {
@@ -465,7 +489,14 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
             },
         };
         if !trees[ti].is_empty() {
-            uses.push(Use { tree: ti, transform: reached.state.transform });
+            use_count += 1;
+            leaves_expanded = leaves_expanded.saturating_add(trees[ti].len() as u64);
+            let t = reached.state.transform;
+            let [a, b, c] = t.translation;
+            let [x, y, z, w] = t.rotation;
+            if distinct.insert((ti, [a, b, c, x, y, z, w, t.scale].map(f64::to_bits))) {
+                uses.push(Use { tree: ti, transform: t });
+            }
         }
     }
     // Top level: each use's world bound.
@@ -485,7 +516,9 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
     let top = SphereTree::build(bounds);
     let t2 = std::time::Instant::now();
 
-    // (signed distance, nearest leaf radius) per point, world units.
+    // (signed distance, nearest leaf radius) per point, world units. Queries are counted
+    // over all points; past the limit every remaining one is skipped and the check fails.
+    let queries = std::sync::atomic::AtomicU64::new(0);
     let results: Vec<(f64, f64)> = points
         .par_iter()
         .map(|&p| {
@@ -493,6 +526,9 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
             let (d, _) = top.search(p, f64::INFINITY, 0.0, |id, bound, best| {
                 if sphere_distance(p, bound) >= best {
                     return f64::INFINITY; // nothing in this use can be nearer
+                }
+                if queries.fetch_add(1, std::sync::atomic::Ordering::Relaxed) >= opts.max_use_queries {
+                    return f64::INFINITY;
                 }
                 let u = &uses[id as usize];
                 let s = u.transform.scale;
@@ -508,6 +544,8 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
         })
         .collect();
     let t3 = std::time::Instant::now();
+    let asked = queries.into_inner();
+    sct_format::Limits::check(USE_QUERIES, asked, opts.max_use_queries)?;
 
     let covered = results.iter().filter(|r| r.0 <= 0.0).count() as u64;
     // The first point (lowest index) among the farthest: deterministic for any thread count.
@@ -517,7 +555,6 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
     });
     let n = points.len() as u64;
     let fraction = if n == 0 { 1.0 } else { covered as f64 / n as f64 };
-    let leaves_expanded = uses.iter().fold(0u64, |s, u| s.saturating_add(trees[u.tree].len() as u64));
     Ok(CoverageReport {
         mesh: mesh.display().to_string(),
         points: n,
@@ -528,7 +565,7 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
         passed: fraction >= opts.min_coverage,
         trees: trees.len() as u64,
         leaves: trees.iter().map(|t| t.len() as u64).sum(),
-        tree_uses: uses.len() as u64,
+        tree_uses: use_count,
         leaves_expanded,
         worst_uncovered: worst.map(|(i, d, r)| Uncovered {
             point: points[i],

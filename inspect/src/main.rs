@@ -87,6 +87,10 @@ struct Cli {
     /// Exit 1 when the covered fraction (0..1) is below this.
     #[arg(long, value_name = "F", default_value_t = DEFAULT_MIN_COVERAGE, requires = "against", value_parser = fraction)]
     min_coverage: f64,
+    /// Most leaf-tree queries of --against over all points (a point queries each placed tree
+    /// whose bound may hold a nearer leaf); past it the check fails with "limit exceeded".
+    #[arg(long, value_name = "N", default_value_t = inspect::coverage::MAX_USE_QUERIES, requires = "against")]
+    max_use_queries: u64,
     /// Write a PLY point cloud (position, normal, colour, radius; world space) and exit: all
     /// samples of a samples file, or an SCT file's leaves (or its cut at --export-level).
     #[arg(long, value_name = "OUT.ply")]
@@ -192,6 +196,7 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
                     limits: limits.clone(),
                     allow_outside_inlines: cli.allow_outside_inlines,
                     exclude_alpha_dropped: cli.exclude_alpha_dropped,
+                    max_use_queries: cli.max_use_queries,
                     ..Default::default()
                 };
                 s.coverage = Some(coverage_against(file, mesh, &opts)?);

@@ -282,3 +282,46 @@ fn alpha_dropped_surfaces_can_be_left_out() {
     assert!(kept.fraction > all.fraction && kept.fraction >= 0.99, "kept {} vs all {}", kept.fraction, all.fraction);
     assert_eq!(kept.points, 20_000);
 }
+
+/// Uses stacked at one place: 2,000 instances of one leaf, at translations differing by a
+/// hair (distinct uses) or all equal (one use, queried once). A point far from them queries
+/// every distinct use whose bound may hold a nearer leaf; the check stops at its query limit
+/// instead of taking hours (65,536 such inlines of a 4 M-leaf tree ran past a minute).
+#[test]
+fn stacked_uses_are_bounded_by_the_query_limit() {
+    use sct_format::{geometry::parent_of, Node, SceneTree};
+    let d = tmp();
+    let leaf = Node { center: [100.0, 0.0, 0.0], radius: 1.0, normal: [0.0, 0.0, 1.0], cone: 0.0, area: 1.0, color: [9, 9, 9, 255] };
+    let k = 2000u32;
+    // A balanced group tree of k leaves, breadth first.
+    let group_tree = || {
+        let mut q = std::collections::VecDeque::from([k as usize]);
+        let (mut nodes, mut flags) = (Vec::new(), Vec::new());
+        while let Some(n) = q.pop_front() {
+            nodes.push(if n > 1 { parent_of(&leaf, &leaf) } else { leaf });
+            flags.push(n > 1);
+            if n > 1 {
+                q.push_back(n / 2);
+                q.push_back(n - n / 2);
+            }
+        }
+        SceneTree::from_bfs(nodes, flags).unwrap()
+    };
+    let geo = SceneTree::from_bfs(vec![leaf], vec![false]).unwrap();
+    for (name, step, stops) in [("hair.sct", 1e-9, true), ("same.sct", 0.0, false)] {
+        let mut nodes = vec![GraphNode::Tree { tree: 0 }];
+        for i in 0..k {
+            let t = Similarity { translation: [i as f64 * step, 0.0, 0.0], ..Similarity::IDENTITY };
+            nodes.push(GraphNode::Instance { child: 0, transform: t, attrs: InstanceAttrs::default() });
+        }
+        nodes.push(GraphNode::Group { children: (1..=k).collect(), tree: 1 });
+        let sct = d.path().join(name);
+        write(&sct, SceneGraph { nodes, root: k + 1 }, vec![geo.clone(), group_tree()], Profile::Raw);
+        let opts = inspect::AgainstOptions { points: 100, max_use_queries: 50_000, ..Default::default() };
+        match inspect::coverage_against(&sct, &fuze_obj(), &opts) {
+            Err(e) if stops => assert!(e.to_string().contains(inspect::coverage::USE_QUERIES), "{e}"),
+            Ok(r) if !stops => assert_eq!((r.tree_uses, r.leaves_expanded, r.covered), (k as u64, k as u64, 0)),
+            other => panic!("{name}: {:?}", other.map(|r| r.tree_uses)),
+        }
+    }
+}

@@ -50,7 +50,7 @@ pub use canopy::{CanopyOptions, CanopyStats};
 pub use error::{Error, Result};
 pub use gauss::{GaussOptions, Order, Weighting};
 pub use method::{Method, Work};
-pub use lod::LodStats;
+pub use lod::{LodStats, NODES_EXAMINED, PIXELS_COVERED};
 pub use raster::{Frame, Splat};
 pub use scene::SceneFiles;
 pub use shade::Shading;
@@ -133,7 +133,22 @@ pub struct RenderOptions {
     pub limits: Limits,
     /// Follow inlines whose target lies outside the scene file's directory.
     pub allow_outside_inlines: bool,
+    /// Most tree nodes one render examines, summed over every use of every tree; each may
+    /// become a splat (40 bytes), so this bounds memory and time for any scene
+    /// ([`DEFAULT_MAX_NODES`]).
+    pub max_nodes: u64,
+    /// Most pixels under the splats of one render, each splat counted by its bounding box
+    /// clipped to the image: the raster's work ([`DEFAULT_MAX_SPLAT_PIXELS`]).
+    pub max_splat_pixels: u64,
 }
+
+/// Default [`RenderOptions::max_nodes`]: 10^7 nodes, at most 0.4 GB of splats. Default
+/// 1280 × 720 previews examine 0.2–1.4 M (BENCHMARKS.md: a 3.7 M-leaf bunny, 600 × 600
+/// instances); a finer `--pixel-error` or larger image may ask for more with `--max-nodes`.
+pub const DEFAULT_MAX_NODES: u64 = 10_000_000;
+/// Default [`RenderOptions::max_splat_pixels`]: 2^31, a few seconds of rasterizing; an
+/// ordinary preview covers each of its 0.9 M pixels a few times.
+pub const DEFAULT_MAX_SPLAT_PIXELS: u64 = 1 << 31;
 
 impl Default for RenderOptions {
     fn default() -> Self {
@@ -158,6 +173,8 @@ impl Default for RenderOptions {
             background: [24, 24, 28],
             limits: Limits::default(),
             allow_outside_inlines: false,
+            max_nodes: DEFAULT_MAX_NODES,
+            max_splat_pixels: DEFAULT_MAX_SPLAT_PIXELS,
         }
     }
 }
@@ -333,6 +350,8 @@ fn setup(files: &SceneFiles, opts: &RenderOptions) -> Result<(Camera, f64, View,
     let near = bound.map_or(1e-6, |(_, r)| (r * 1e-5).max(1e-12));
     let view = View::new(&camera, near)?;
     let params = lod::LodParams {
+        max_nodes: opts.max_nodes,
+        max_splat_pixels: opts.max_splat_pixels,
         pixel_error: opts.pixel_error,
         shading: opts.shading,
         ellipses: opts.splat == SplatShape::Ellipse,

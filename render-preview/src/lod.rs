@@ -213,9 +213,18 @@ fn mul(m: &[[f32; 3]; 3], v: [f32; 3]) -> [f32; 3] {
     ]
 }
 
+/// What the node limit names in its error.
+pub const NODES_EXAMINED: &str = "tree nodes examined by one render (--max-nodes)";
+/// What the pixel limit names in its error.
+pub const PIXELS_COVERED: &str = "pixels under the splats of one render, by bounding box (--max-splat-pixels)";
+
 /// Render settings the per-node decision needs.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct LodParams {
+    /// Most tree nodes examined over the whole render ([`crate::RenderOptions::max_nodes`]).
+    pub max_nodes: u64,
+    /// Most pixels under all splats ([`crate::RenderOptions::max_splat_pixels`]).
+    pub max_splat_pixels: u64,
     pub pixel_error: f32,
     pub shading: Shading,
     pub ellipses: bool,
@@ -367,8 +376,11 @@ pub(crate) struct TreeOut {
     pub stats: LodStats,
 }
 
-/// Refines one tree under `pl`. With `group` set, leaves that still need refinement are
-/// reported in `group_leaves` instead of being drawn.
+/// Refines one tree under `pl`; `before` nodes were examined earlier in the render, and past
+/// [`LodParams::max_nodes`] in all the render fails with a limit error naming
+/// [`NODES_EXAMINED`], before the level that would pass it is decoded. With `group` set,
+/// leaves that still need refinement are reported in `group_leaves` instead of being drawn.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn traverse(
     reader: &SctReader,
     cache: &TreeCache,
@@ -376,9 +388,10 @@ pub(crate) fn traverse(
     view: &View,
     p: &LodParams,
     group: bool,
+    before: u64,
     out: &mut TreeOut,
 ) -> Result<()> {
-    traverse_from(reader, cache, pl, view, p, group, (0, 0), out)
+    traverse_from(reader, cache, pl, view, p, group, (0, 0), before, out)
 }
 
 /// [`traverse`] from node `start.1` of level `start.0` instead of the root.
@@ -391,6 +404,7 @@ pub(crate) fn traverse_from(
     p: &LodParams,
     group: bool,
     start: (usize, u64),
+    before: u64,
     out: &mut TreeOut,
 ) -> Result<()> {
     if cache.root().is_none() {
@@ -411,6 +425,14 @@ pub(crate) fn traverse_from(
     while !frontier.is_empty() {
         if d >= cache.levels.len() {
             return Err(cache.malformed(reader, format!("children expected below the last level {}", d - 1)));
+        }
+        // Nodes that never shrink below the pixel error (identical children, or a tree used
+        // thousands of times close up) would have the render examine, and keep a splat of,
+        // every node: bounded here, a level at a time.
+        let examined = before.saturating_add(out.stats.nodes_visited).saturating_add(frontier.len() as u64);
+        if examined > p.max_nodes {
+            let e = sct_format::Error::LimitExceeded { what: NODES_EXAMINED, value: examined, limit: p.max_nodes };
+            return Err(Error::sct(reader.path().unwrap_or(std::path::Path::new("")), e));
         }
         // Group the sorted frontier by block.
         let mut groups: Vec<(usize, usize, usize)> = Vec::new(); // (block, start, end) in frontier

@@ -163,6 +163,13 @@ struct RenderArgs {
     /// Follow inlines whose target lies outside the scene file's directory.
     #[arg(long)]
     allow_outside_inlines: bool,
+    /// Most tree nodes one render examines (over every use of every tree); past it the
+    /// render fails with "limit exceeded" instead of taking unbounded time and memory.
+    #[arg(long, value_name = "N", default_value_t = render_preview::DEFAULT_MAX_NODES)]
+    max_nodes: u64,
+    /// Most pixels under all splats of one render (bounding boxes clipped to the image).
+    #[arg(long, value_name = "N", default_value_t = render_preview::DEFAULT_MAX_SPLAT_PIXELS)]
+    max_splat_pixels: u64,
 }
 
 impl RenderArgs {
@@ -200,6 +207,8 @@ impl RenderArgs {
             backface_culling: !self.no_backface_culling,
             background: self.background,
             allow_outside_inlines: self.allow_outside_inlines,
+            max_nodes: self.max_nodes,
+            max_splat_pixels: self.max_splat_pixels,
             ..RenderOptions::default()
         }
     }
@@ -463,7 +472,7 @@ fn preview(cli: &Cli, file: &Path, output: &Path) -> anyhow::Result<()> {
         }
         let view = render_preview::View::new(&out.camera, out.near)?;
         let t = std::time::Instant::now();
-        let refr = reference::render_reference(&mesh, &view, opts.shading, opts.background);
+        let refr = reference::render_reference_bounded(&mesh, &view, opts.shading, opts.background, opts.max_splat_pixels / reference::REFERENCE_PIXEL_COST)?;
         let ref_secs = t.elapsed().as_secs_f64();
         let m = metrics::compare(&out.frame, &refr);
         let (mj, dp, rp) = (sibling(output, "metrics.json"), sibling(output, "diff.png"), sibling(output, "reference.png"));

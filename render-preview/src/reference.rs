@@ -262,12 +262,39 @@ fn lerp(a: CV, b: CV, t: f32) -> CV {
     CV { p: std::array::from_fn(|k| a.p[k] + (b.p[k] - a.p[k]) * t), b: std::array::from_fn(|k| a.b[k] + (b.b[k] - a.b[k]) * t) }
 }
 
-/// Renders `mesh` into a new frame.
+/// Renders `mesh` into a new frame, however long that takes (see
+/// [`render_reference_bounded`] for untrusted meshes).
 pub fn render_reference(mesh: &WorldMesh, view: &View, shading: Shading, background: [u8; 3]) -> Frame {
+    match draw(mesh, view, shading, background, u64::MAX) {
+        Ok(f) | Err((f, _)) => f,
+    }
+}
+
+/// What a reference pixel test costs in splat pixel tests: the reference rasterizer draws
+/// one triangle at a time on one thread, the splat raster in parallel tiles. Callers bound a
+/// reference by [`crate::RenderOptions::max_splat_pixels`] divided by this (2^28 pixels,
+/// about 2 s, by default; real meshes test a few million).
+pub const REFERENCE_PIXEL_COST: u64 = 8;
+
+/// [`render_reference`] that tests at most `max_pixels` pixels (each triangle and point
+/// counted by its bounding box clipped to the image) and fails with a limit error naming
+/// [`crate::PIXELS_COVERED`] past it: 76,000 stacked triangles filling the view (a 1 MB
+/// PLY) rasterized for more than a minute.
+pub fn render_reference_bounded(mesh: &WorldMesh, view: &View, shading: Shading, background: [u8; 3], max_pixels: u64) -> Result<Frame> {
+    draw(mesh, view, shading, background, max_pixels).map_err(|(_, pixels)| {
+        let e = sct_format::Error::LimitExceeded { what: crate::PIXELS_COVERED, value: pixels, limit: max_pixels };
+        crate::Error::Invalid(format!("reference render: {e}"))
+    })
+}
+
+/// The reference frame, or the partial frame and the pixels asked for once they pass
+/// `max_pixels` (nothing more is drawn then).
+fn draw(mesh: &WorldMesh, view: &View, shading: Shading, background: [u8; 3], max_pixels: u64) -> std::result::Result<Frame, (Frame, u64)> {
     let (w, h) = (view.width as usize, view.height as usize);
     let [r, g, b] = background;
     let mut frame = Frame::new(w, h, [r, g, b, 255]);
     let eye = view.eye;
+    let mut pixels = 0u64;
     for t in &mesh.tris {
         if culled(t.two_sided, &t.p, eye) {
             continue;
@@ -291,13 +318,26 @@ pub fn render_reference(mesh: &WorldMesh, view: &View, shading: Shading, backgro
             }
         }
         for k in 1..poly.len().saturating_sub(1) {
-            raster_tri(mesh, t, [poly[0], poly[k], poly[k + 1]], view, shading, &mut frame);
+            raster_tri(mesh, t, [poly[0], poly[k], poly[k + 1]], view, shading, &mut frame, &mut pixels);
+            if pixels > max_pixels {
+                return Err((frame, pixels));
+            }
         }
     }
     if !mesh.points.is_empty() {
-        crate::raster::rasterize(&mut frame, &point_splats(&mesh.points, view, shading));
+        let splats = point_splats(&mesh.points, view, shading);
+        let (iw, ih) = (i64::from(view.width), i64::from(view.height));
+        pixels = splats.iter().fold(pixels, |sum, s| {
+            let [x0, x1, y0, y1] = s.bounds.map(i64::from);
+            let n = (x1.min(iw - 1) - x0.max(0) + 1).max(0) * (y1.min(ih - 1) - y0.max(0) + 1).max(0);
+            sum.saturating_add(n as u64)
+        });
+        if pixels > max_pixels {
+            return Err((frame, pixels));
+        }
+        crate::raster::rasterize(&mut frame, &splats);
     }
-    frame
+    Ok(frame)
 }
 
 /// Whether a triangle (world-space corners, counter-clockwise from its front) is culled
@@ -342,7 +382,9 @@ fn point_splats(points: &[Point], view: &View, shading: Shading) -> Vec<crate::r
         .collect()
 }
 
-fn raster_tri(mesh: &WorldMesh, t: &Tri, v: [CV; 3], view: &View, shading: Shading, frame: &mut Frame) {
+/// Draws one triangle, adding the pixels of its clipped bounding box to `pixels` (before
+/// drawing, so a caller can stop at a budget).
+fn raster_tri(mesh: &WorldMesh, t: &Tri, v: [CV; 3], view: &View, shading: Shading, frame: &mut Frame, pixels: &mut u64) {
     let (w, h) = (frame.width, frame.height);
     let s: [[f32; 2]; 3] = v.map(|c| view.project(c.p));
     let area = (s[1][0] - s[0][0]) * (s[2][1] - s[0][1]) - (s[2][0] - s[0][0]) * (s[1][1] - s[0][1]);
@@ -361,6 +403,7 @@ fn raster_tri(mesh: &WorldMesh, t: &Tri, v: [CV; 3], view: &View, shading: Shadi
         return;
     }
     let (x1, y1) = (x1 as usize, y1 as usize);
+    *pixels = pixels.saturating_add((x1 + 1).saturating_sub(x0) as u64 * (y1 + 1).saturating_sub(y0) as u64);
     let inv_z = v.map(|c| 1.0 / c.p[2]);
     for py in y0..=y1 {
         let fy = py as f32 + 0.5;

@@ -265,7 +265,7 @@ impl SceneFiles {
                         .ok_or_else(|| Error::Invalid(format!("{}: graph refers to missing tree {tree}", f.path.display())))?;
                     let pl = placement(view, &v.state);
                     let mut out = TreeOut::default();
-                    lod::traverse(&f.reader, cache, &pl, view, p, group, &mut out)?;
+                    lod::traverse(&f.reader, cache, &pl, view, p, group, stats.nodes_visited, &mut out)?;
                     splats.append(&mut out.splats);
                     stats.add(&out.stats);
                     if let GraphNode::Group { children, .. } = &gnode {
@@ -307,6 +307,20 @@ impl SceneFiles {
                     stats.add(&st);
                 }
             }
+        }
+        // Each splat costs the raster its pixels: a few million splats of a few pixels is a
+        // render, as many covering the whole frame would take hours. Counted by bounding
+        // box, clipped to the image, before anything is drawn.
+        let (w, h) = (i64::from(view.width), i64::from(view.height));
+        let pixels = splats.iter().fold(0u64, |sum, s| {
+            let [x0, x1, y0, y1] = s.bounds.map(i64::from);
+            let cols = (x1.min(w - 1) - x0.max(0) + 1).max(0);
+            let rows = (y1.min(h - 1) - y0.max(0) + 1).max(0);
+            sum.saturating_add(cols.saturating_mul(rows) as u64)
+        });
+        if pixels > p.max_splat_pixels {
+            let e = sct_format::Error::LimitExceeded { what: lod::PIXELS_COVERED, value: pixels, limit: p.max_splat_pixels };
+            return Err(Error::sct(&self.files[0].path, e));
         }
         Ok((splats, stats))
     }

@@ -8,7 +8,7 @@ use plotters::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::metrics::{self, Metrics};
-use crate::reference::{render_reference, WorldMesh};
+use crate::reference::{render_reference_bounded, WorldMesh};
 use crate::{render_file, RenderOptions, View};
 
 /// The chart font (DejaVu Sans Mono, Bitstream Vera licence: see assets/).
@@ -71,7 +71,7 @@ pub fn run(models: &[(PathBuf, PathBuf)], pixel_errors: &[f32], repeat: u32, bas
                         None => mesh.insert(crate::reference::load_for(model, mesh_path, &r.provenance, None)?.0),
                     };
                     let view = View::new(&r.camera, r.near)?;
-                    reference.insert(render_reference(m, &view, opts.shading, opts.background))
+                    reference.insert(render_reference_bounded(m, &view, opts.shading, opts.background, opts.max_splat_pixels / crate::reference::REFERENCE_PIXEL_COST)?)
                 }
             };
             points.push(SweepPoint {

@@ -72,3 +72,39 @@ fn inline_outside_the_scene_directory_needs_permission() {
     let allowed = render_file(&top, &RenderOptions { allow_outside_inlines: true, ..opts }).expect("allowed");
     assert_eq!(allowed.stats.files, 2);
 }
+
+/// A perfect tree whose nodes on each level are identical (consistent: a parent of two equal
+/// children is the child with twice the area), so no node ever projects smaller than its
+/// root: the LOD refines to every leaf, and every leaf covers much of the frame.
+fn identical_tree(depth: u32) -> SceneTree {
+    let (mut nodes, mut internal) = (Vec::new(), Vec::new());
+    for d in 0..=depth {
+        let n = Node { area: 2f32.powi((depth - d) as i32), ..leaf(0.0) };
+        nodes.extend(std::iter::repeat_n(n, 1 << d));
+        internal.extend(std::iter::repeat_n(d < depth, 1 << d));
+    }
+    SceneTree::from_bfs(nodes, internal).expect("perfect tree")
+}
+
+fn limit_of(r: Result<render_preview::Rendered, Error>) -> (&'static str, u64) {
+    match r {
+        Err(Error::Sct { source: sct_format::Error::LimitExceeded { what, limit, .. }, .. }) => (what, limit),
+        other => panic!("{:?}", other.map(|r| r.stats.splats)),
+    }
+}
+
+/// Nodes that never shrink below the pixel error: a 999 KB file of such trees (4 M nodes)
+/// rendered for more than two minutes, every leaf a splat over much of the frame. The render
+/// now stops at its node limit before decoding the level that would pass it, and at its
+/// pixel limit before rasterizing; within both it draws.
+#[test]
+fn renders_stop_at_their_node_and_pixel_limits() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let p = write(&dir.path().join("same.sct"), vec![GraphNode::Tree { tree: 0 }], 0, vec![identical_tree(12)]);
+    let opts = small();
+    let r = render_file(&p, &opts).expect("within the defaults");
+    assert_eq!(r.stats.lod.leaf_splats, 1 << 12);
+    assert_eq!(limit_of(render_file(&p, &RenderOptions { max_nodes: 5_000, ..opts.clone() })), (render_preview::NODES_EXAMINED, 5_000));
+    let pixels = RenderOptions { max_splat_pixels: 1_000_000, ..opts.clone() };
+    assert_eq!(limit_of(render_file(&p, &pixels)), (render_preview::PIXELS_COVERED, 1_000_000));
+}

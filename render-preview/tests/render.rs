@@ -620,6 +620,27 @@ fn reference_draws_two_sided_surfaces_from_behind() {
     assert_eq!(render_reference(&double, &inside, render_preview::Shading::Flat, [0; 3]).covered(), 32 * 32);
 }
 
+/// Stacked triangles filling the view (76,000 in a 1 MB PLY rasterized for over a minute):
+/// the bounded reference stops at its pixel limit; within it, it draws as the plain one.
+#[test]
+fn reference_render_stops_at_its_pixel_limit() {
+    let view = front_camera(32, 32);
+    let quad = Primitive {
+        positions: vec![[-1.0, -1.0, 0.0], [-1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, -1.0, 0.0]],
+        triangles: [[0, 1, 2], [0, 2, 3]].repeat(500),
+        ..Default::default()
+    };
+    let mesh = WorldMesh::from_scene(scene_of(quad, Material::default(), IDENTITY));
+    let bounded = |max| render_preview::reference::render_reference_bounded(&mesh, &view, render_preview::Shading::Flat, [0; 3], max);
+    match bounded(10_000) {
+        Err(e) => assert!(e.to_string().contains(render_preview::PIXELS_COVERED), "{e}"),
+        Ok(f) => panic!("drew {} pixels", f.covered()),
+    }
+    let plain = render_reference(&mesh, &view, render_preview::Shading::Flat, [0; 3]);
+    let within = bounded(u64::MAX).expect("within the limit");
+    assert!(plain.covered() > 100 && within.color == plain.color);
+}
+
 /// Regression: a point cloud's reference was empty (it has no triangles) and still scored.
 #[test]
 fn reference_draws_point_clouds() {

@@ -2,7 +2,7 @@
 //! (or a crash) never sees a partial file.
 
 use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
@@ -247,15 +247,20 @@ fn random_u64() -> u64 {
 }
 
 /// BLAKE3 hash of a file's bytes, lowercase hex (streams; memory stays small). Only a
-/// regular file is hashed: opening a FIFO would block and a device never ends.
+/// regular file is hashed, opened through [`crate::fsio::open_regular`]: a FIFO would block
+/// `open` and a device never ends, and a type check before a plain `open` would still block
+/// on a FIFO swapped in between. The file is hashed up to the size it had when opened; one
+/// that changes size meanwhile is an I/O error, not a hash of neither version.
 pub fn hash_file(path: &Path) -> Result<String> {
-    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    if !meta.is_file() {
-        let e = std::io::Error::new(std::io::ErrorKind::InvalidInput, "not a regular file");
+    let file = crate::fsio::open_regular(path)?;
+    let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    let mut h = blake3::Hasher::new();
+    // One byte past the size, so that a file that grew is told apart without hashing more.
+    let read = std::io::copy(&mut file.take(len.saturating_add(1)), &mut h).map_err(|e| Error::io(path, e))?;
+    if read != len {
+        let e = std::io::Error::other(format!("the file changed size while it was hashed ({len} bytes when opened, {read} read)"));
         return Err(Error::io(path, e));
     }
-    let mut h = blake3::Hasher::new();
-    h.update_reader(File::open(path).map_err(|e| Error::io(path, e))?).map_err(|e| Error::io(path, e))?;
     Ok(h.finalize().to_hex().to_string())
 }
 
@@ -454,5 +459,30 @@ mod tests {
             assert!(process_is_gone(u32::MAX - 1, &ours));
         }
         assert!(!process_is_gone(std::process::id(), &ours), "this process runs");
+    }
+
+    /// A FIFO (directly or through a symlink) is refused at once, not waited on, and a
+    /// directory or device is refused by type; a regular file hashes as its bytes.
+    #[cfg(unix)]
+    #[test]
+    fn hash_file_reads_only_regular_files_without_blocking() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let f = dir.path().join("a");
+        std::fs::write(&f, b"abc").expect("write");
+        assert_eq!(hash_file(&f).expect("hash"), blake3::hash(b"abc").to_hex().to_string());
+        let fifo = dir.path().join("pipe");
+        assert!(std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo").success());
+        let link = dir.path().join("link");
+        std::os::unix::fs::symlink(&fifo, &link).expect("symlink");
+        for p in [fifo, link, dir.path().to_path_buf(), PathBuf::from("/dev/zero")] {
+            // On a thread, so that a regression fails the test instead of hanging it.
+            let (tx, rx) = std::sync::mpsc::channel();
+            let q = p.clone();
+            std::thread::spawn(move || tx.send(hash_file(&q).map_err(|e| e.to_string())));
+            match rx.recv_timeout(std::time::Duration::from_secs(10)).expect("hash_file returned") {
+                Err(e) => assert!(e.contains("not a regular file") && e.contains(&*p.to_string_lossy()), "{e}"),
+                Ok(h) => panic!("{} hashed as {h}", p.display()),
+            }
+        }
     }
 }

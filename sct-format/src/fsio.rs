@@ -4,7 +4,9 @@
 //! end), a device (`/dev/zero` never ends), a socket or a directory. [`open_regular`] opens
 //! only regular files (after following symlinks), without ever blocking in `open`, and
 //! [`read_regular`] reads one with a bound. Every SCT input this crate opens goes through
-//! them; they are public so that other loaders (meshes, textures) can do the same.
+//! them, and so does every file the mesh loaders read (the input, MTL, textures, glTF
+//! buffers and images, PLY `TextureFile`: `voxelize::load`) and `sct-build-tree` opens: one
+//! implementation, one behaviour. [`not_regular_kind`] tells a refusal by type apart.
 //!
 //! [`Source`] holds the bytes of an SCT file: in memory, or a regular file read on demand
 //! with positioned reads. Reading instead of memory-mapping matters for robustness: when
@@ -24,13 +26,32 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 
-/// The error for a path that exists but is not a regular file.
-fn not_regular(path: &Path, what: &str) -> Error {
-    Error::io(path, std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("not a regular file ({what})")))
+/// Why a path was refused: it exists but is not a regular file. It is the source of the
+/// [`Error::Io`] the functions here return (kind `InvalidInput`), so callers with their own
+/// error types can tell it apart ([`not_regular_kind`]) without parsing messages.
+#[derive(Debug, thiserror::Error)]
+#[error("not a regular file ({kind})")]
+#[non_exhaustive]
+pub struct NotRegular {
+    /// What it is instead: "a FIFO", "a character device", "a directory", …
+    pub kind: &'static str,
 }
 
-/// What kind of non-regular file `m` describes, for messages.
-fn kind_of(m: &std::fs::Metadata) -> &'static str {
+/// The error for a path that exists but is not a regular file.
+fn not_regular(path: &Path, meta: &std::fs::Metadata) -> Error {
+    Error::io(path, std::io::Error::new(std::io::ErrorKind::InvalidInput, NotRegular { kind: kind_name(meta) }))
+}
+
+/// What `e` says a path is instead of a regular file, when it is that refusal.
+pub fn not_regular_kind(e: &Error) -> Option<&'static str> {
+    match e {
+        Error::Io { source, .. } => source.get_ref().and_then(|s| s.downcast_ref::<NotRegular>()).map(|n| n.kind),
+        _ => None,
+    }
+}
+
+/// What kind of non-regular file `m` describes, for messages ("a FIFO", …).
+pub fn kind_name(m: &std::fs::Metadata) -> &'static str {
     let t = m.file_type();
     if t.is_dir() {
         return "a directory";
@@ -41,8 +62,11 @@ fn kind_of(m: &std::fs::Metadata) -> &'static str {
         if t.is_fifo() {
             return "a FIFO";
         }
-        if t.is_char_device() || t.is_block_device() {
-            return "a device";
+        if t.is_char_device() {
+            return "a character device";
+        }
+        if t.is_block_device() {
+            return "a block device";
         }
         if t.is_socket() {
             return "a socket";
@@ -58,7 +82,7 @@ fn kind_of(m: &std::fs::Metadata) -> &'static str {
 pub fn open_regular(path: &Path) -> Result<File> {
     let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     if !meta.is_file() {
-        return Err(not_regular(path, kind_of(&meta)));
+        return Err(not_regular(path, &meta));
     }
     let mut opts = std::fs::OpenOptions::new();
     opts.read(true);
@@ -71,7 +95,7 @@ pub fn open_regular(path: &Path) -> Result<File> {
     let file = opts.open(path).map_err(|e| Error::io(path, e))?;
     let meta = file.metadata().map_err(|e| Error::io(path, e))?;
     if !meta.is_file() {
-        return Err(not_regular(path, kind_of(&meta)));
+        return Err(not_regular(path, &meta));
     }
     Ok(file)
 }
@@ -368,12 +392,29 @@ mod tests {
         assert!(matches!(read_regular(&p, 4), Err(Error::LimitExceeded { what: "file size", value: 5, limit: 4 })));
         // A directory is refused, with its path.
         match open_regular(dir.path()) {
-            Err(Error::Io { path: Some(q), source }) => {
+            Err(e @ Error::Io { .. }) => {
+                assert_eq!(not_regular_kind(&e), Some("a directory"));
+                let Error::Io { path: Some(q), source } = e else { panic!("no path") };
                 assert_eq!(q, dir.path());
                 assert!(source.to_string().contains("directory"), "{source}");
             }
             other => panic!("{other:?}"),
         }
+        // A FIFO (also through a symlink) is refused at once; a device by type, unread.
+        #[cfg(unix)]
+        {
+            let fifo = dir.path().join("pipe");
+            assert!(std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo").success());
+            let link = dir.path().join("link");
+            std::os::unix::fs::symlink(&fifo, &link).expect("symlink");
+            for p in [&fifo, &link] {
+                assert_eq!(read_regular(p, 1 << 20).map_err(|e| not_regular_kind(&e)).err(), Some(Some("a FIFO")));
+            }
+            assert_eq!(read_regular(Path::new("/dev/zero"), 1 << 20).map_err(|e| not_regular_kind(&e)).err(), Some(Some("a character device")));
+        }
+        // Other errors are not refusals by type.
+        assert_eq!(not_regular_kind(&read_regular(&p, 4).expect_err("too big")), None);
+        assert_eq!(not_regular_kind(&read_regular(&dir.path().join("none"), 4).expect_err("missing")), None);
     }
 
     /// More sources than may keep their files open: each still reads (reopening its file),

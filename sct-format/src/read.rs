@@ -162,6 +162,15 @@ pub(crate) fn section_bytes_in<'s>(src: &'s Source<'_>, e: &SectionEntry, max_ra
     decompress(&stored, e.raw_len, e.offset, limits).map(Cow::Owned)
 }
 
+/// What a scene file stands for once decoded, for [`Limits::check_decoded`]: 40 bytes (a raw
+/// node record, about a decoded node's memory) per node of the trees whose counts are
+/// `node_counts`, plus the raw lengths of `GENR` and `GRPH` (skipped sections are never
+/// inflated). Saturates: a sum past `u64::MAX` is refused like any other too large.
+pub(crate) fn scene_decoded_size(sections: &[SectionEntry], node_counts: impl Iterator<Item = u64>) -> u64 {
+    let tables = sections.iter().filter(|e| e.tag == tags::GENR || e.tag == tags::GRPH).fold(0u64, |s, e| s.saturating_add(e.raw_len));
+    node_counts.fold(tables, |s, n| s.saturating_add(n.saturating_mul(crate::codec::raw::NODE_BYTES as u64)))
+}
+
 /// Largest raw length of a `GRPH` section that can parse within `limits` (see
 /// [`GRAPH_NODE_BYTES`]).
 pub(crate) fn max_graph_section(limits: &Limits) -> u64 {
@@ -210,6 +219,11 @@ impl SctReader {
             read += (TREE_HEADER_LEN + t.levels.len() * LEVEL_ENTRY_LEN + t.blocks.len() * BLOCK_ENTRY_LEN) as u64;
             trees.push(t);
         }
+        // Before the graph is inflated or any block decoded: what the file stands for must be
+        // in proportion to its size (spec §2.4). The graph's own cap first, as its message is
+        // the more precise.
+        Limits::check("scene graph section bytes", grph.raw_len, max_graph_section(limits))?;
+        limits.check_decoded(scene_decoded_size(&sections, trees.iter().map(|t| t.header.node_count)), src.len())?;
         // After the tree indices, so that a bad tree reference is reported at its node.
         let leaves: Vec<u64> = trees.iter().map(|t| t.header.leaf_count).collect();
         let bytes = section_bytes_in(&src, grph, max_graph_section(limits), "scene graph section bytes", limits)?;

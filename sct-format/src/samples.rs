@@ -258,6 +258,18 @@ impl SamplesFile {
         };
 
         let stored = stored_samples(&c, limits)?;
+        // Before any table or sample is inflated: what the file stands for must be in
+        // proportion to its size (spec §2.4), or a few hundred kilobytes of chunks or
+        // instances could stand for gigabytes.
+        let mut tables = genr.raw_len;
+        for e in c.sections.iter().filter(|e| [tags::MESH, tags::INST, AFFI].contains(&e.tag)) {
+            // Each table's own cap first, as its message is the more precise.
+            Limits::check("samples table bytes", e.raw_len, limits.max_sample_bytes)?;
+            tables = tables.saturating_add(e.raw_len);
+        }
+        let sample_bytes = |n: u64| n.saturating_mul(std::mem::size_of::<Node>() as u64);
+        let decoded = tables.saturating_add(sample_bytes(stored.count()));
+        limits.check_decoded(decoded, data.len() as u64)?;
 
         let e = c.single(tags::MESH)?;
         let mesh_offset = e.offset;
@@ -323,6 +335,16 @@ impl SamplesFile {
             }
             cur.finish("two-sided mesh list")?;
         }
+        // Consumers bake a copy of a mesh's samples per affine placement (spec §8), so those
+        // copies count too, once the tables say how many there are and before any sample is
+        // decoded: a few bytes of `AFFI` could otherwise stand for a million copies of one
+        // chunk. A mesh's count is taken at most the file's sample count (a larger one is
+        // malformed, reported when the tables are checked below).
+        let baked = affine_instances
+            .iter()
+            .filter_map(|a| meshes.get(a.mesh as usize))
+            .fold(0u64, |s, m| s.saturating_add(sample_bytes(m.count.min(stored.count()))));
+        limits.check_decoded(decoded.saturating_add(baked), data.len() as u64)?;
         // The tables are checked against the sample count when the samples are decoded.
         let file = SamplesFile { generator, meshes, instances, affine_instances, samples: Vec::new() };
         Ok((file, stored, offsets))

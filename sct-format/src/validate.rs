@@ -680,6 +680,14 @@ impl<'o> Validator<'o> {
                 }
             }
         }
+        // What the file stands for must be in proportion to its size before the graph is
+        // inflated or any block decoded (spec §2.4); past that, nothing more is checked, as
+        // the reader would refuse the file there too.
+        let decoded = crate::read::scene_decoded_size(&sections, trees.iter().flatten().map(|t| t.header.node_count));
+        if let Err(e) = limits.check_decoded(decoded, src.len()) {
+            self.issue("file", CheckId::Limit, label, e);
+            return None;
+        }
         // Block CRCs (quick mode; deep mode checks them while decoding).
         if !self.opts.deep {
             for (t, idx) in trees.iter().enumerate() {

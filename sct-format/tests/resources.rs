@@ -232,6 +232,23 @@ fn shared_groups_are_bounded_by_the_visit_limit() {
     }
     assert!(!out.exists());
     assert_eq!(Limits::default().max_traversal_visits, 10_000_000);
+
+    // The group tree shared by every path is decoded once per traversal, not once per path
+    // (at 10^7 visits, decoding per path took an export 26 s): its blocks are read once.
+    let reader = std::sync::Arc::new(SctReader::open(&p, &Limits::default()).expect("open"));
+    let at_open = reader.bytes_read();
+    let canon = std::fs::canonicalize(&p).expect("canonical");
+    let mut opts = TraverseOptions::default();
+    opts.limits.max_traversal_visits = 10_000;
+    let reached = Traversal::from_reader(reader.clone(), canon, opts).filter(|i| i.is_ok()).count();
+    assert!(reached > 1000, "{reached}");
+    let per_read = {
+        let before = reader.bytes_read();
+        reader.read_tree(1).expect("group tree");
+        reader.read_tree(0).expect("leaf tree");
+        reader.bytes_read() - before
+    };
+    assert!(reader.bytes_read() - at_open <= 2 * per_read, "read {} bytes for {reached} items", reader.bytes_read() - at_open);
 }
 
 /// Runs `f` on a thread and waits for it: a call that blocks forever (opening a FIFO used
@@ -438,6 +455,11 @@ fn samples_file(chunks: usize, n: u32, frame: impl Fn(u32) -> Vec<u8>) -> Vec<u8
 }
 
 fn container_samples(total: u64, samples: Sec) -> Vec<u8> {
+    container_samples_with(total, samples, Vec::new())
+}
+
+/// [`container_samples`] with `extra` sections after the samples.
+fn container_samples_with(total: u64, samples: Sec, extra: Vec<Sec>) -> Vec<u8> {
     let mut mesh = 1u64.to_le_bytes().to_vec();
     mesh.extend_from_slice(&0u64.to_le_bytes());
     mesh.extend_from_slice(&total.to_le_bytes());
@@ -447,7 +469,9 @@ fn container_samples(total: u64, samples: Sec) -> Vec<u8> {
     for v in [0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0] {
         inst.extend_from_slice(&v.to_le_bytes());
     }
-    craft::container(SAMPLES_MAGIC, &[Sec::plain(tags::GENR, craft::genr()), Sec::plain(tags::MESH, mesh), Sec::zstd(tags::INST, &inst), samples])
+    let mut secs = vec![Sec::plain(tags::GENR, craft::genr()), Sec::plain(tags::MESH, mesh), Sec::zstd(tags::INST, &inst), samples];
+    secs.extend(extra);
+    craft::container(SAMPLES_MAGIC, &secs)
 }
 
 /// Item 12: 1,820 chunks of 65,536 samples in 250 KB (each chunk a frame of zeros) would
@@ -662,4 +686,120 @@ fn unreachable_nodes_with_bad_tree_references_are_invalid() {
             assert!(r.issues[0].path.starts_with("graph/"), "{}", r.issues[0]);
         }
     }
+}
+
+/// A raw-profile tree of levels 0..=`depth`, level `d` holding 2^d nodes in one block whose
+/// frame inflates to zeros: a few KB standing for 2^(depth+1) - 1 nodes. The index is
+/// consistent, so only what the nodes stand for can refuse it before decoding.
+fn claimed_tree_file(depth: u32) -> Vec<u8> {
+    let levels: Vec<LevelEntry> =
+        (0..=depth).map(|d| LevelEntry { node_count: 1 << d, first_block: d.saturating_sub(1), block_count: (d > 0) as u32 }).collect();
+    let mut at = craft::index_len(levels.len(), depth as usize);
+    let (mut blocks, mut data) = (Vec::new(), Vec::new());
+    for d in 1..=depth {
+        let m = 1u64 << d;
+        let raw_len = m.div_ceil(8) + 40 * m;
+        let frame = craft::rle_frame(&[], 0, raw_len);
+        blocks.push(BlockEntry { level: d, node_count: m as u32, first_node: 0, internal_before: 0, offset: at, stored_len: frame.len() as u32, raw_len: raw_len as u32, crc: 0, flags: 1 });
+        at += frame.len() as u64;
+        data.extend_from_slice(&frame);
+    }
+    let header = TreeHeader {
+        profile: 0,
+        flags: 0,
+        root_internal: 1,
+        level_count: depth + 1,
+        node_count: (1 << (depth + 1)) - 1,
+        leaf_count: 1 << depth,
+        block_count: depth,
+        root: leaf(0.0, 1),
+    };
+    let tree = craft::tree_section(&header, &levels, &blocks, &data);
+    craft::container(
+        SCT_MAGIC,
+        &[Sec::plain(tags::GENR, craft::genr()), Sec::zstd(tags::GRPH, &craft::graph_bytes(&[G::Tree(0)], 0)), Sec::plain(tags::TREE, tree)],
+    )
+}
+
+/// A scene file of a few KB whose blocks (each within every cap, each raw length what its
+/// nodes need) stand for 8.4 M nodes, 335 MB decoded: refused by the decoded-size bound from
+/// the index, before any block is inflated, by the reader and the validator. Such files
+/// multiply: a 1 MB file held 1 G nodes, minutes of `--deep` and gigabytes of `--export-ply`.
+#[test]
+fn decoded_size_is_bounded_by_the_file_size() {
+    let file = claimed_tree_file(22);
+    assert!(file.len() < 20_000, "{}", file.len());
+    limit(SctReader::from_bytes(file.clone(), &Limits::default()).map(|_| ()), sct_format::limits::DECODED_SIZE);
+    for deep in [false, true] {
+        let r = validate_bytes(&file, &ValidateOptions { deep, ..Default::default() });
+        assert_eq!(r.check_ids(), vec![CheckId::Limit], "{:?}", r.issues);
+    }
+    // A caller that trusts the file raises the bound; a tree within the floor always opens.
+    let trusting = Limits { max_decoded_ratio: u64::MAX, ..Limits::default() };
+    assert_eq!(SctReader::from_bytes(file, &trusting).expect("opens").trees()[0].header.node_count, (1 << 23) - 1);
+    assert!(SctReader::from_bytes(claimed_tree_file(21), &Limits::default()).is_ok());
+
+    // Samples: 110 chunks of zeros (10 KB) stand for 7.2 M samples, 288 MB decoded.
+    let samples = samples_file(110, 65_536, |n| craft::rle_frame(&[], 0, 36 * n as u64));
+    assert!(samples.len() < 20_000, "{}", samples.len());
+    limit(SamplesFile::read(&samples, &Limits::default()).map(|_| ()), sct_format::limits::DECODED_SIZE);
+    let small = samples_file(3, 65_536, |n| craft::rle_frame(&[], 0, 36 * n as u64));
+    let tight = Limits { decoded_floor: 1 << 20, ..Limits::default() };
+    limit(SamplesFile::read(&small, &tight).map(|_| ()), sct_format::limits::DECODED_SIZE);
+    let trusting = Limits { max_decoded_ratio: u64::MAX, ..tight };
+    assert_eq!(SamplesFile::read(&small, &trusting).expect("reads").samples.len(), 3 * 65_536);
+    // And 4.2 M placements (68 bytes each) in a few KB of INST (item 13's file); refused
+    // before the frame (garbage inside) is inflated.
+    let n = 4_200_000u64;
+    let raw_len = 8 + 68 * n;
+    let inst = craft::rle_frame(&n.to_le_bytes(), 0, raw_len);
+    let mut mesh = 1u64.to_le_bytes().to_vec();
+    mesh.extend_from_slice(&0u64.to_le_bytes());
+    mesh.extend_from_slice(&1u64.to_le_bytes());
+    mesh.extend_from_slice(&0u32.to_le_bytes());
+    let one = zstd::bulk::compress(&[0u8; 36], 1).expect("compress");
+    let mut smps = 1u32.to_le_bytes().to_vec();
+    smps.extend_from_slice(&(one.len() as u32).to_le_bytes());
+    smps.extend_from_slice(&one);
+    let file = craft::container(
+        SAMPLES_MAGIC,
+        &[Sec::plain(tags::GENR, craft::genr()), Sec::plain(tags::MESH, mesh), Sec::frame(tags::INST, inst, raw_len), Sec::plain(*b"SMPS", smps)],
+    );
+    assert!(file.len() < 20_000, "{}", file.len());
+    limit(SamplesFile::read(&file, &Limits::default()).map(|_| ()), sct_format::limits::DECODED_SIZE);
+
+    // Affine placements: each is baked into a copy of its mesh, so 110 placements of one
+    // 65,536-sample chunk stand for 288 MB, though the file holds 2.6 MB decoded; 10 read.
+    let affine = |placements: u64| {
+        let f = craft::rle_frame(&[], 0, 36 * 65_536);
+        let mut smps = 65_536u32.to_le_bytes().to_vec();
+        smps.extend_from_slice(&(f.len() as u32).to_le_bytes());
+        smps.extend_from_slice(&f);
+        let mut affi = placements.to_le_bytes().to_vec();
+        for _ in 0..placements {
+            affi.extend_from_slice(&0u32.to_le_bytes());
+            for v in [2.0f64, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0] {
+                affi.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        container_samples_with(65_536, Sec::plain(*b"SMPS", smps), vec![Sec::zstd(*b"AFFI", &affi)])
+    };
+    let file = affine(110);
+    assert!(file.len() < 10_000, "{}", file.len());
+    limit(SamplesFile::read(&file, &Limits::default()).map(|_| ()), sct_format::limits::DECODED_SIZE);
+    assert_eq!(SamplesFile::read(&affine(10), &Limits::default()).expect("reads").affine_instances.len(), 10);
+}
+
+/// The bound is the larger of the floor and the ratio times the file's size.
+#[test]
+fn decoded_bound_is_floor_or_ratio() {
+    let l = Limits { max_decoded_ratio: 10, decoded_floor: 1000, ..Limits::default() };
+    assert!(l.check_decoded(1000, 1).is_ok());
+    assert!(l.check_decoded(1001, 1).is_err());
+    assert!(l.check_decoded(5000, 500).is_ok());
+    match l.check_decoded(5001, 500) {
+        Err(Error::LimitExceeded { value: 5001, limit: 5000, .. }) => {}
+        other => panic!("{other:?}"),
+    }
+    assert!(Limits::unlimited().check_decoded(u64::MAX, 0).is_ok());
 }

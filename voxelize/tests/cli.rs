@@ -194,3 +194,31 @@ fn output_path_errors_say_what_is_wrong_once() {
         assert_eq!(err.matches(out.trim_end_matches('/')).count(), 1 + usize::from(out.ends_with('/')), "{err}");
     }
 }
+
+/// A glTF placing one mesh by 3,000 affine (non-uniformly scaled) nodes: every placement is
+/// a copy of the mesh's samples downstream (build-tree bakes them), and the area tally
+/// transforms each sample once per placement. The default budget counts the copies, so the
+/// run stays small (the mesh sampled at the density of 14,500 placements took 6 s to tally,
+/// and its samples times placements could reach billions).
+#[test]
+fn affine_copies_count_against_the_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let tri: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+    std::fs::write(dir.path().join("tri.bin"), &tri).unwrap();
+    let nodes: Vec<String> = (0..3000).map(|i| format!(r#"{{"mesh":0,"scale":[{},1,2],"translation":[{},0,0]}}"#, 1.0 + i as f64 * 1e-3, i as f64 * 0.01)).collect();
+    let roots: Vec<String> = (0..3000).map(|i| i.to_string()).collect();
+    let gltf = format!(
+        r#"{{"asset":{{"version":"2.0"}},"buffers":[{{"uri":"tri.bin","byteLength":36}}],"bufferViews":[{{"buffer":0,"byteLength":36}}],
+"accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}],
+"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],"nodes":[{}],"scenes":[{{"nodes":[{}]}}],"scene":0}}"#,
+        nodes.join(","),
+        roots.join(",")
+    );
+    let p = dir.path().join("nodes.gltf");
+    std::fs::write(&p, gltf).unwrap();
+    let st = bin().arg(&p).args(["--dry-run", "--json", "--sample-budget", "300000"]).output().unwrap();
+    assert_eq!(st.status.code(), Some(0), "{}", String::from_utf8_lossy(&st.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&st.stdout).unwrap();
+    let samples = v["samples"].as_u64().unwrap();
+    assert!(samples * 3001 <= 600_000, "{samples} samples, each copied 3,000 times");
+}

@@ -146,7 +146,7 @@ impl SceneFiles {
                 Kind::Tree { tree, group, graph_node, d, i } => {
                     let f = &self.files[fi];
                     let mut out = TreeOut::default();
-                    lod::traverse_from(&f.reader, &f.trees[tree as usize], &pl, view, p, group, (d as usize, i), &mut out)?;
+                    lod::traverse_from(&f.reader, &f.trees[tree as usize], &pl, view, p, group, (d as usize, i), stats.nodes_visited, &mut out)?;
                     splats.append(&mut out.splats);
                     stats.add(&out.stats);
                     if let Some(GraphNode::Group { children, .. }) = f.reader.graph().nodes.get(graph_node as usize).cloned() {

@@ -1,7 +1,8 @@
 //! Mesh loaders: OBJ/MTL (tobj), glTF/GLB (gltf), PLY (ply-rs-bw). Entry point [`load`].
-//! Every file is read through [`fsio`]: regular files only, reads bounded.
+//! Every file is read through [`sct_format::fsio`]: regular files only (a FIFO would block
+//! `open` forever, a device such as `/dev/zero` reports length 0 and never ends), opened
+//! without blocking, read up to the size they had when opened and at most the limit.
 
-pub mod fsio;
 mod gltf_load;
 mod obj;
 mod ply;
@@ -133,7 +134,21 @@ impl Kind {
 }
 
 pub(crate) fn read_file(path: &Path, max: u64) -> Result<Vec<u8>, LoadError> {
-    fsio::read_regular(path, max)
+    sct_format::fsio::read_regular(path, max).map_err(|e| load_error(path, e))
+}
+
+/// The loader's error for a read of `path` refused or failed by [`sct_format::fsio`].
+fn load_error(path: &Path, e: sct_format::Error) -> LoadError {
+    let path = path.to_path_buf();
+    if let Some(kind) = sct_format::fsio::not_regular_kind(&e) {
+        return LoadError::NotRegularFile { path, kind };
+    }
+    match e {
+        sct_format::Error::LimitExceeded { value, limit, .. } => LoadError::Limit { path, what: format!("file is {value} bytes, more than the limit of {limit}") },
+        sct_format::Error::Io { source, .. } => LoadError::Io { path, source },
+        // Reading a file fails only in the two ways above; anything else is reported as is.
+        other => LoadError::Io { path, source: std::io::Error::other(other.to_string()) },
+    }
 }
 
 /// Decodes an image file to 8-bit RGBA (any format the `image` crate was built with).
@@ -254,4 +269,38 @@ pub(crate) fn finish_primitive(
     p.triangles.retain(|t| !is_degenerate(pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]));
     stats.degenerate_triangles += (before - p.triangles.len()) as u64;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A regular file reads; a FIFO is refused at once (not blocked on), named in the error;
+    /// a directory and a device are refused by type; a read stops at the limit. The reading
+    /// is `sct_format::fsio`'s; what is checked here is the loader's errors for it.
+    #[cfg(unix)]
+    #[test]
+    fn only_regular_files_are_read_and_reads_are_bounded() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let f = dir.path().join("a.bin");
+        std::fs::write(&f, b"0123456789").expect("write");
+        assert_eq!(read_file(&f, 10).expect("read"), b"0123456789");
+        assert!(matches!(read_file(&f, 9), Err(LoadError::Limit { .. })));
+        assert!(matches!(read_file(&dir.path().join("none"), 9), Err(LoadError::Io { .. })));
+
+        let fifo = dir.path().join("pipe.obj");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo");
+        assert!(made.success());
+        let e = read_file(&fifo, 1 << 20).expect_err("a FIFO is refused");
+        assert!(matches!(e, LoadError::NotRegularFile { kind: "a FIFO", .. }), "{e}");
+        assert!(e.to_string().contains("pipe.obj"), "{e}");
+
+        // Through a symlink: the type is that of the target.
+        let link = dir.path().join("link.obj");
+        std::os::unix::fs::symlink(&fifo, &link).expect("symlink");
+        assert!(matches!(read_file(&link, 1 << 20), Err(LoadError::NotRegularFile { .. })));
+        assert!(matches!(read_file(dir.path(), 1 << 20), Err(LoadError::NotRegularFile { kind: "a directory", .. })));
+        // A device reports length 0 and never ends: refused by type, not read.
+        assert!(matches!(read_file(Path::new("/dev/zero"), 1 << 20), Err(LoadError::NotRegularFile { kind: "a character device", .. })));
+    }
 }

@@ -135,10 +135,11 @@ fn looks_like_obj(t: &str) -> bool {
 /// The kind of the file at `path` from its first [`SNIFF_BYTES`] bytes; `None` when it
 /// cannot be read as a regular file (the caller's own open reports why).
 pub fn sniff_path(path: &Path) -> Option<FileKind> {
-    let (file, meta) = super::fsio::open_regular(path).ok()?;
+    let file = sct_format::fsio::open_regular(path).ok()?;
+    let len = file.metadata().ok()?.len();
     let mut head = Vec::with_capacity(SNIFF_BYTES);
     file.take(SNIFF_BYTES as u64).read_to_end(&mut head).ok()?;
-    Some(sniff(&head, meta.len()))
+    Some(sniff(&head, len))
 }
 
 #[cfg(test)]
