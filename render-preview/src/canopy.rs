@@ -536,27 +536,11 @@ fn release(g: &mut Graph<'_>, rel: &[(u32, Class, bool)], u: &mut Vec<u32>, occl
 /// Opaque splats in the given order, each overwriting what is under it (no depth test).
 fn paint(frame: &mut Frame, splats: &[Splat]) {
     let (w, h) = (frame.width, frame.height);
-    if w == 0 || h == 0 {
-        return;
-    }
     for s in splats {
-        if s.z.is_nan() || s.z == f32::INFINITY {
-            continue;
-        }
-        let [x0, x1, y0, y1] = s.bounds.map(i32::from);
-        let (xa, xb, ya, yb) = (x0.max(0), x1.min(w as i32 - 1), y0.max(0), y1.min(h as i32 - 1));
-        for py in ya..=yb {
-            let dy = py as f32 + 0.5 - s.y;
-            for px in xa..=xb {
-                let dx = px as f32 + 0.5 - s.x;
-                let (a, b) = (dx * s.ux + dy * s.uy, dy * s.ux - dx * s.uy);
-                if a * a * s.inv_a2 + b * b * s.inv_b2 <= 1.0 {
-                    let i = py as usize * w + px as usize;
-                    frame.color[i] = s.color;
-                    frame.depth[i] = s.z;
-                }
-            }
-        }
+        s.for_each_pixel(w, h, |i| {
+            frame.color[i] = s.color;
+            frame.depth[i] = s.z;
+        });
     }
 }
 

@@ -95,19 +95,7 @@ pub fn count_fragments(splats: &[Splat], w: usize, h: usize) -> u64 {
         .map(|chunk| {
             let mut n = 0u64;
             for s in chunk {
-                if s.z.is_nan() || s.z == f32::INFINITY {
-                    continue;
-                }
-                let [x0, x1, y0, y1] = s.bounds.map(i32::from);
-                let (xa, xb, ya, yb) = (x0.max(0), x1.min(w as i32 - 1), y0.max(0), y1.min(h as i32 - 1));
-                for py in ya..=yb {
-                    let dy = py as f32 + 0.5 - s.y;
-                    for px in xa..=xb {
-                        let dx = px as f32 + 0.5 - s.x;
-                        let (a, b) = (dx * s.ux + dy * s.uy, dy * s.ux - dx * s.uy);
-                        n += (a * a * s.inv_a2 + b * b * s.inv_b2 <= 1.0) as u64;
-                    }
-                }
+                s.for_each_pixel(w, h, |_| n += 1);
             }
             n
         })

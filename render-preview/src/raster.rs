@@ -53,6 +53,27 @@ impl Splat {
         Splat { x, y, z, ux, uy, inv_a2: 1.0 / (a * a), inv_b2: 1.0 / (b * b), bounds: pixel_bounds(x, y, ex, ey), color }
     }
 
+    /// Calls `f` with the index (`y × w + x`) of every pixel of a `w × h` frame whose centre
+    /// lies in the splat; nothing for a splat at NaN or infinite depth. The plain scalar
+    /// loop: methods that paint in order or count fragments use it, not the binned
+    /// rasterizer.
+    pub fn for_each_pixel(&self, w: usize, h: usize, mut f: impl FnMut(usize)) {
+        if w == 0 || h == 0 || self.z.is_nan() || self.z == f32::INFINITY {
+            return;
+        }
+        let [x0, x1, y0, y1] = self.bounds.map(i32::from);
+        let (xa, xb, ya, yb) = (x0.max(0), x1.min(w as i32 - 1), y0.max(0), y1.min(h as i32 - 1));
+        for py in ya..=yb {
+            let dy = py as f32 + 0.5 - self.y;
+            for px in xa..=xb {
+                let dx = px as f32 + 0.5 - self.x;
+                let (a, b) = (dx * self.ux + dy * self.uy, dy * self.ux - dx * self.uy);
+                if a * a * self.inv_a2 + b * b * self.inv_b2 <= 1.0 {
+                    f(py as usize * w + px as usize);
+                }
+            }
+        }
+    }
 }
 
 /// Inclusive pixel bounds `[x0, x1, y0, y1]` of the pixels whose centre lies in the box of
