@@ -233,22 +233,6 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
     }
 }
 
-/// The error and its causes on one line, each once (an I/O error's message already holds
-/// its source's).
-fn one_line(e: &anyhow::Error) -> String {
-    let mut msg = String::new();
-    for cause in e.chain() {
-        let s = cause.to_string();
-        if !msg.contains(&s) {
-            if !msg.is_empty() {
-                msg.push_str(": ");
-            }
-            msg.push_str(&s);
-        }
-    }
-    msg.split_whitespace().collect::<Vec<_>>().join(" ")
-}
-
 fn main() -> ExitCode {
     let cli = Cli::parse();
     voxelize::interrupt::remove_temp_files_on_signal("sct-inspect");
@@ -260,7 +244,7 @@ fn main() -> ExitCode {
         Ok(code) => ExitCode::from(code as u8),
         Err(e) => {
             let code = e.exit_code();
-            let message = one_line(&anyhow::Error::new(e));
+            let message = sct_format::error::one_line(&e);
             eprintln!("sct-inspect: {message}");
             if cli.json {
                 // A pipeline reading stdout gets a JSON answer whatever happened.

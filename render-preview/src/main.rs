@@ -532,29 +532,13 @@ fn check(m: &metrics::Metrics, min_psnr: Option<f64>, min_iou: Option<f64>, allo
     None
 }
 
-/// The error and its causes on one line, each cause once: most errors here already name
-/// their source in their own message, and some parsers' messages span lines.
-fn one_line(e: &anyhow::Error) -> String {
-    let mut msg = String::new();
-    for cause in e.chain() {
-        let s = cause.to_string();
-        if !msg.contains(&s) {
-            if !msg.is_empty() {
-                msg.push_str(": ");
-            }
-            msg.push_str(&s);
-        }
-    }
-    msg.split_whitespace().collect::<Vec<_>>().join(" ")
-}
-
 fn main() -> ExitCode {
     let cli = Cli::parse();
     voxelize::interrupt::remove_temp_files_on_signal("sct-render-preview");
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("sct-render-preview: error: {}", one_line(&e));
+            eprintln!("sct-render-preview: error: {}", sct_format::error::one_line(e.as_ref()));
             let invalid = e.chain().any(|c| {
                 c.downcast_ref::<render_preview::Error>().is_some_and(|e| e.is_invalid_input())
                     || c.downcast_ref::<sct_format::Error>().is_some_and(|e| e.is_invalid_input())

@@ -102,3 +102,38 @@ impl From<std::io::Error> for Error {
         Error::Io { path: None, source }
     }
 }
+
+/// An error and its causes on one line, each cause once, as the tools print it: most errors
+/// already name their source in their own message (an I/O error's holds its source's), and
+/// some parsers' messages span lines.
+pub fn one_line(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut msg = String::new();
+    let mut cause = Some(e);
+    while let Some(c) = cause {
+        let s = c.to_string();
+        if !msg.contains(&s) {
+            if !msg.is_empty() {
+                msg.push_str(": ");
+            }
+            msg.push_str(&s);
+        }
+        cause = c.source();
+    }
+    msg.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Causes follow on one line; a cause whose text the message already holds is not
+    /// repeated, and line breaks inside a message fold to spaces.
+    #[test]
+    fn one_line_names_each_cause_once() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "gone");
+        let e = Error::io("a/b.sct", io);
+        let line = one_line(&e);
+        assert_eq!(line.matches("gone").count(), 1, "{line}");
+        assert!(line.contains("a/b.sct") && !line.contains('\n'), "{line}");
+    }
+}
