@@ -9,7 +9,7 @@
 //! count and the slabs' samples partition the triangle's.
 
 use super::keys::{offset_reach, up_f32, KeyPack, Rec, RecSink};
-use super::shade::{face_axes, shade_color, unit_or, Mat, Planes, Tri};
+use super::shade::{face_axes, near_face, shade_color, unit_or, Mat, Planes, Tri};
 use super::texture::Tex;
 use crate::mesh::AlphaMode;
 use crate::mesh::{floor_i64, norm};
@@ -156,7 +156,7 @@ impl<'p, 'm> RowShade<'p, 'm> {
         let p = self.planes;
         match p.flat_n {
             Some(n) => n,
-            None => unit_or(self.n.each_ref().map(|r| r[0] + r[1] * db), p.face_n),
+            None => near_face(unit_or(self.n.each_ref().map(|r| r[0] + r[1] * db), p.face_n), p.face_n),
         }
     }
 }
