@@ -157,12 +157,20 @@ fn mode(inputs: &[PathBuf]) -> Result<Mode, Refusal> {
 
 fn print_json<T: serde::Serialize>(v: &T) -> bool {
     match serde_json::to_string_pretty(v) {
-        Ok(s) => {
-            println!("{s}");
-            true
-        }
+        Ok(s) => print_out(&s),
         Err(e) => {
             eprintln!("error: {e}");
+            false
+        }
+    }
+}
+
+/// Data to stdout; false (after saying why) when it cannot be written.
+fn print_out(text: &str) -> bool {
+    match sct_format::error::print_stdout(text) {
+        Ok(()) => true,
+        Err(e) => {
+            eprintln!("error: writing to stdout: {e}");
             false
         }
     }
@@ -358,8 +366,8 @@ fn run_batch_cli(opts: &BatchOptions, json: bool) -> ExitCode {
                 if !print_json(&rep) {
                     return ExitCode::from(2);
                 }
-            } else {
-                print!("{}", batch::format_table(&rep));
+            } else if !print_out(batch::format_table(&rep).trim_end_matches('\n')) {
+                return ExitCode::from(2);
             }
             if rep.failed > 0 {
                 ExitCode::from(1)

@@ -242,6 +242,8 @@ fn main() -> ExitCode {
     }
     match run(&cli) {
         Ok(code) => ExitCode::from(code as u8),
+        // The reader of stdout went away (`| head`): it has what it wanted.
+        Err(e) if sct_format::error::is_broken_pipe(&e) => ExitCode::SUCCESS,
         Err(e) => {
             let code = e.exit_code();
             let message = sct_format::error::one_line(&e);
@@ -249,7 +251,7 @@ fn main() -> ExitCode {
             if cli.json {
                 // A pipeline reading stdout gets a JSON answer whatever happened.
                 let doc = serde_json::json!({"schema": inspect::SCHEMA, "file": cli.files.first(), "error": message, "exit_code": code});
-                println!("{}", serde_json::to_string_pretty(&doc).unwrap_or_default());
+                let _ = sct_format::error::print_stdout(&serde_json::to_string_pretty(&doc).unwrap_or_default());
             }
             ExitCode::from(code as u8)
         }

@@ -181,3 +181,26 @@ fn validates_many_files_and_directories() {
     assert_eq!(stdout(&o).lines().count(), 1, "{}", stdout(&o));
     assert!(stdout(&o).contains("valid"));
 }
+
+/// Regression: `sct-inspect FILE --dump … | head -1` printed "writing output: Broken pipe"
+/// and failed. A reader that closes the pipe has what it wanted: exit 0, nothing said.
+#[test]
+fn a_closed_stdout_pipe_ends_quietly() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bunny.sct");
+    bunny_scene(&path);
+    for args in [&["--dump", "root", "--levels", "12"][..], &["--json"][..]] {
+        let mut child = Command::new(bin())
+            .arg(&path)
+            .args(args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        drop(child.stdout.take());
+        let o = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.is_empty(), "{args:?}: {err}");
+        assert_eq!(o.status.code(), Some(0), "{args:?}");
+    }
+}

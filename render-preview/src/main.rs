@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::builder::TypedValueParser;
 use clap::{Args, Parser, Subcommand};
+use sct_format::error::print_stdout;
 use render_preview::{metrics, reference, sweep, synth, CanopyOptions, Error, GaussOptions, LodSize, Method, RenderOptions, Shading, SplatShape, UpAxis, ViewPreset, Weighting};
 use sct_format::view;
 
@@ -374,7 +375,7 @@ fn run(mut cli: Cli) -> anyhow::Result<()> {
         Some(Command::Sweep { models, pixel_errors, repeat, output, render }) => {
             let result = sweep::run(&models, &pixel_errors, repeat.max(1), &render.options())?;
             sweep::write_outputs(&result, &output)?;
-            println!("{}", serde_json::to_string_pretty(&result)?);
+            print_stdout(&serde_json::to_string_pretty(&result)?)?;
             Ok(())
         }
         Some(Command::Compare { scenes, methods, knobs, repeat, orbit, orbit_step, density, work_dir, output, render }) => {
@@ -393,7 +394,7 @@ fn run(mut cli: Cli) -> anyhow::Result<()> {
             };
             let result = render_preview::compare::run(&o, |line| eprintln!("{line}"))?;
             render_preview::compare::write_outputs(&result, &output)?;
-            print!("{}", render_preview::compare::table(&result));
+            print_stdout(render_preview::compare::table(&result).trim_end_matches('\n'))?;
             Ok(())
         }
         Some(Command::Synth { mesh, output, spacing, grid, profile }) => {
@@ -412,7 +413,7 @@ fn run(mut cli: Cli) -> anyhow::Result<()> {
             };
             let wopts = sct_format::WriteOptions { profile, ..Default::default() };
             let stats = sct_format::write_scene_file(&output, &scene, &wopts).with_context(|| format!("writing {}", output.display()))?;
-            println!("{}: {n} leaves, {} bytes", output.display(), stats.bytes);
+            print_stdout(&format!("{}: {n} leaves, {} bytes", output.display(), stats.bytes))?;
             Ok(())
         }
         None => {
@@ -503,7 +504,7 @@ fn preview(cli: &Cli, file: &Path, output: &Path) -> anyhow::Result<()> {
         }
     }
     if cli.json {
-        println!("{}", serde_json::to_string_pretty(&summary)?);
+        print_stdout(&serde_json::to_string_pretty(&summary)?)?;
     }
     match failure {
         Some(e) => Err(e.into()),

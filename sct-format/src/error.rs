@@ -103,6 +103,31 @@ impl From<std::io::Error> for Error {
     }
 }
 
+/// True when `e` or one of its causes is a closed pipe: whoever read the tool's stdout went
+/// away (`sct-inspect x.sct | head`). Tools end quietly then, as other Unix tools do.
+pub fn is_broken_pipe(e: &(dyn std::error::Error + 'static)) -> bool {
+    let mut cause = Some(e);
+    while let Some(c) = cause {
+        if c.downcast_ref::<std::io::Error>().is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe) {
+            return true;
+        }
+        cause = c.source();
+    }
+    false
+}
+
+/// Writes `text` and a newline to stdout (the data of a tool: a report, a table, JSON).
+/// A closed pipe is not an error: the reader has what it wanted (see [`is_broken_pipe`]).
+/// `println!` panics there instead.
+pub fn print_stdout(text: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.write_all(b"\n")).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        r => r,
+    }
+}
+
 /// An error and its causes on one line, each cause once, as the tools print it: most errors
 /// already name their source in their own message (an I/O error's holds its source's), and
 /// some parsers' messages span lines.

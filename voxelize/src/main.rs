@@ -89,7 +89,12 @@ fn main() -> ExitCode {
             }
             if cli.json {
                 match serde_json::to_string_pretty(&summary) {
-                    Ok(s) => println!("{s}"),
+                    Ok(s) => {
+                        if let Err(e) = sct_format::error::print_stdout(&s) {
+                            eprintln!("sct-voxelize: error: writing to stdout: {e}");
+                            return ExitCode::from(2);
+                        }
+                    }
                     Err(e) => {
                         eprintln!("sct-voxelize: {e}");
                         return ExitCode::from(2);

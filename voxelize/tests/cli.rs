@@ -222,3 +222,24 @@ fn affine_copies_count_against_the_budget() {
     let samples = v["samples"].as_u64().unwrap();
     assert!(samples * 3001 <= 600_000, "{samples} samples, each copied 3,000 times");
 }
+
+/// Regression: `sct-voxelize … --json | head -c 100` panicked ("failed printing to stdout")
+/// when the reader closed the pipe. A closed pipe ends the output quietly.
+#[test]
+fn a_closed_stdout_pipe_is_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("quad.obj");
+    std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n").unwrap();
+    let out = dir.path().join("quad.samples");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_sct-voxelize"))
+        .args([obj.to_str().unwrap(), "-o", out.to_str().unwrap(), "--json"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(o.status.code(), Some(0), "{err}");
+}

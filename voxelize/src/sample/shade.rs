@@ -147,7 +147,7 @@ impl<'m> Planes<'m> {
     }
 }
 
-/// How far (degrees) a sample's normal may lean from its triangle's own normal. A file's
+/// A sample's normal leans at most 5° from its triangle's own normal. A file's
 /// shading normals (or smoothed corner normals) can lean far from the geometry: a capsule made
 /// by stretching a sphere keeps the sphere's normals, 15° off on average and 28° at most. A
 /// renderer culls a one-sided tree by the samples' normals, so with such normals it hides
@@ -155,18 +155,17 @@ impl<'m> Planes<'m> {
 /// capsule lost 7 % of its outline and showed its far wall, mirrored, through the holes).
 /// Leaning at most 5° keeps culling wrong only on surface seen within 5° of edge-on, and
 /// keeps most of the smooth look: measured on the shared models, 0° (face normals) cost a
-/// coarse bunny 2.6 dB of its shading and 10° left the spider's thin legs culled.
-pub(super) const MAX_NORMAL_LEAN_DEG: f32 = 5.0;
+/// coarse bunny 2.6 dB of its shading and 10° left the spider's thin legs culled. This is
+/// the bound's cosine; [`LEAN_SIN`] its sine.
+const LEAN_COS: f32 = 0.996_194_7;
+const LEAN_SIN: f32 = 0.087_155_74;
 
-/// Unit `n` turned towards the unit face normal `f` until it leans at most
-/// [`MAX_NORMAL_LEAN_DEG`] from it.
+/// Unit `n` turned towards the unit face normal `f` until it leans at most 5° from it
+/// ([`LEAN_COS`]).
 #[inline(always)]
 pub(super) fn near_face(n: [f32; 3], f: [f32; 3]) -> [f32; 3] {
-    // cos and sin of MAX_NORMAL_LEAN_DEG (checked by a test).
-    const COS: f32 = 0.996_194_7;
-    const SIN: f32 = 0.087_155_74;
     let d = n[0] * f[0] + n[1] * f[1] + n[2] * f[2];
-    if d >= COS {
+    if d >= LEAN_COS {
         return n;
     }
     let t = [n[0] - d * f[0], n[1] - d * f[1], n[2] - d * f[2]];
@@ -174,7 +173,7 @@ pub(super) fn near_face(n: [f32; 3], f: [f32; 3]) -> [f32; 3] {
     if l < 1e-12 {
         return f;
     }
-    std::array::from_fn(|k| f[k] * COS + t[k] / l * SIN)
+    std::array::from_fn(|k| f[k] * LEAN_COS + t[k] / l * LEAN_SIN)
 }
 
 /// `n` scaled to unit length, or `fallback` when it is (nearly) zero.
@@ -206,11 +205,12 @@ pub(super) fn srgb8(c: [f32; 4]) -> [u8; 4] {
 mod tests {
     use super::*;
 
-    /// Normals leaning more than MAX_NORMAL_LEAN_DEG from the face (even pointing behind it)
+    /// Normals leaning more than 5° from the face (even pointing behind it)
     /// are turned to lean exactly that much, towards their own side; closer ones are kept.
     #[test]
     fn normals_lean_at_most_the_bound_from_the_face() {
-        let lean = MAX_NORMAL_LEAN_DEG.to_radians();
+        let lean = 5f32.to_radians();
+        assert!((LEAN_COS - lean.cos()).abs() < 1e-7 && (LEAN_SIN - lean.sin()).abs() < 1e-7);
         let f = [0.0f32, 0.0, 1.0];
         for deg in [0.0f32, 2.0, 4.9, 5.1, 15.0, 28.0, 89.0, 135.0, 180.0] {
             let a = deg.to_radians();
