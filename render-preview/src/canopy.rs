@@ -478,7 +478,7 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
     // Stage 3: each mask node refined to t3 with EQ 46 discs of its nodes' spheres (or to the
     // kernels' LOD cut).
     let p3 = match draw {
-        Draw::Discs => LodParams { pixel_error: o.t3, lod_size: LodSize::Sphere, ellipses: false, area_cover: f32::INFINITY, kernel: None, ..*p },
+        Draw::Discs => LodParams { pixel_error: o.t3, lod_size: LodSize::Sphere, ellipses: false, area_cover: f32::INFINITY, outline_refine: 1.0, kernel: None, ..*p },
         Draw::Gauss(_) => *p,
     };
     let mut lod = LodStats::default();

@@ -86,6 +86,11 @@ pub enum LodSize {
 /// area equals the node's surface area (see `lod::decide`).
 pub const AREA_COVER: f32 = 1.3;
 
+/// The `zbuffer` and `gauss` methods refine internal nodes that may hold part of an outline
+/// (their normal cone may turn edge-on to the eye) until their splat is at most this
+/// fraction of `--pixel-error`. `canopy` keeps the thesis's cut.
+pub const OUTLINE_REFINE: f32 = 0.5;
+
 /// Everything that controls a render.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RenderOptions {
@@ -359,6 +364,7 @@ fn setup(files: &SceneFiles, opts: &RenderOptions) -> Result<(Camera, f64, View,
         max_radius: 2.0 * opts.width.max(opts.height) as f32,
         area_cover: AREA_COVER,
         lod_size: opts.lod_size,
+        outline_refine: OUTLINE_REFINE,
         kernel: (opts.method == Method::Gauss).then(|| gauss::Kernel::new(&opts.gauss)),
     };
     Ok((camera, near, view, params, up, t0.elapsed().as_secs_f64()))

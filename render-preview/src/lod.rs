@@ -235,6 +235,9 @@ pub(crate) struct LodParams {
     pub area_cover: f32,
     /// What the threshold is compared with.
     pub lod_size: LodSize,
+    /// Internal nodes that may hold part of an outline refine until their splat is at most
+    /// this fraction of `pixel_error` (1: no different from the others).
+    pub outline_refine: f32,
     /// Draw each node as this Gaussian kernel's support ellipse (the `gauss` method)
     /// instead of the opaque splat.
     pub kernel: Option<crate::gauss::Kernel>,
@@ -309,7 +312,12 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
     // patch, for about a quarter of the nodes and blocks. Group leaves keep the sphere test:
     // their "patch" is a whole child scene.
     let size = if p.lod_size == LodSize::Patch && !group { s * shrink } else { s };
-    if size > p.pixel_error {
+    // An outline is where a drawn internal node errs most: its disc (of the whole patch's
+    // area, front and back) reaches past the outline into the background, a full-contrast
+    // error for each pixel. Nodes that may hold part of one refine to half the threshold:
+    // +1.5 dB on SimpleInstancing's many small boxes, for 1 % more splats
+    // ([`crate::OUTLINE_REFINE`]).
+    if size > p.pixel_error || (!leaf && !group && size > p.pixel_error * p.outline_refine && on_silhouette(c, r, nrm, n.cone)) {
         if !leaf {
             return Decision::Refine;
         }
@@ -364,6 +372,25 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
         }
     }
     Decision::Draw(Splat::disc(x, y, c[2], s, color))
+}
+
+/// True when a node's patch may hold part of an outline: not every normal of its cone faces
+/// the eye from every point of its sphere (the front-facing counterpart of
+/// [`View::backfacing`]).
+#[inline]
+fn on_silhouette(c: [f32; 3], r: f32, n: [f32; 3], cone: f32) -> bool {
+    let d2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+    if d2 <= r * r || cone >= std::f32::consts::FRAC_PI_2 {
+        return true;
+    }
+    let d = d2.sqrt();
+    let cg = -(n[0] * c[0] + n[1] * c[1] + n[2] * c[2]) / d;
+    // Every normal faces the eye when γ + cone + α < 90°, i.e. cos γ > sin(cone + α).
+    let sa = (r / d).min(1.0);
+    let ca = (1.0 - sa * sa).max(0.0).sqrt();
+    let (sc, cc) = cone.sin_cos();
+    let st = sc * ca + cc * sa;
+    cg.abs() <= st || cc * ca - sc * sa <= 0.0
 }
 
 /// Output of one tree traversal.
@@ -494,4 +521,27 @@ pub(crate) fn traverse_from(
         d += 1;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::on_silhouette;
+
+    #[test]
+    fn outline_nodes_are_those_whose_cone_may_turn_edge_on() {
+        let c = [0.0, 0.0, 10.0];
+        // Facing the eye (or, two-sided, away from it) squarely: no outline.
+        assert!(!on_silhouette(c, 0.1, [0.0, 0.0, -1.0], 0.0));
+        assert!(!on_silhouette(c, 0.1, [0.0, 0.0, 1.0], 0.0));
+        assert!(!on_silhouette(c, 0.1, [0.0, 0.0, -1.0], 1.0));
+        // Edge on, or a cone or a view cone that reaches edge on.
+        assert!(on_silhouette(c, 0.1, [1.0, 0.0, 0.0], 0.0));
+        let t = 1.2f32;
+        assert!(on_silhouette(c, 0.1, [t.sin(), 0.0, -t.cos()], 0.4));
+        assert!(!on_silhouette(c, 0.1, [t.sin(), 0.0, -t.cos()], 0.3));
+        assert!(on_silhouette(c, 5.0, [t.sin(), 0.0, -t.cos()], 0.0));
+        // Obtuse cones and an eye inside the sphere.
+        assert!(on_silhouette(c, 0.1, [0.0, 0.0, -1.0], 1.6));
+        assert!(on_silhouette(c, 11.0, [0.0, 0.0, -1.0], 0.0));
+    }
 }

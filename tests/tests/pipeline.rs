@@ -140,3 +140,28 @@ fn leaning_file_normals_do_not_hide_the_outline() {
     let m = render_preview::metrics::compare(&out.frame, &refr);
     assert!(m.silhouette_iou >= 0.985, "IoU {} (missing {})", m.silhouette_iou, m.missing_fraction);
 }
+
+/// Regression: many small boxes (glTF instances) at the default view. Internal nodes drawn
+/// on an outline reach past it into the background, a full-contrast error per pixel (22.99 dB
+/// over the foreground); nodes that may hold an outline now refine to half the threshold.
+#[test]
+fn outlines_of_many_small_objects_are_refined() {
+    let model = repo().join("../shared/models/gltf/SimpleInstancing/glTF-Binary/SimpleInstancing.glb");
+    if !model.exists() {
+        eprintln!("skipping: {} not found", model.display());
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let samples = dir.path().join("inst.samples");
+    voxelize(&model, &samples);
+    let sct = dir.path().join("inst.sct");
+    build(&samples, &sct, Profile::Default);
+    let opts = render_preview::RenderOptions::default();
+    let out = render_preview::render_file(&sct, &opts).expect("render");
+    let mesh = render_preview::reference::WorldMesh::load(&model).expect("load");
+    let view = render_preview::View::new(&out.camera, out.near).expect("view");
+    let refr = render_preview::reference::render_reference(&mesh, &view, opts.shading, opts.background);
+    let m = render_preview::metrics::compare(&out.frame, &refr);
+    let db = m.fg_psnr_db.expect("scored");
+    assert!(db >= 24.0, "foreground PSNR {db:.2} dB, IoU {}", m.silhouette_iou);
+}
