@@ -351,11 +351,21 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
         // AREA_COVER × equal-area radius) is the kernel's half-opacity contour.
         return Decision::Draw(k.splat(c, nrm, r * shrink, n.cone, view.focal, x, y, color));
     }
-    if p.ellipses && n.cone < std::f32::consts::FRAC_PI_2 {
-        // The node's surface is a patch with normals inside the cone: seen at angle γ it
-        // projects to an ellipse whose minor axis shrinks by |cos γ| (widened by the cone).
-        let cg = (nrm[0] * l[0] + nrm[1] * l[1] + nrm[2] * l[2]).abs();
-        let k = (cg + n.cone.sin()).min(1.0);
+    if p.ellipses {
+        return Decision::Draw(surface_splat(c, nrm, n.cone, s, [x, y], color));
+    }
+    Decision::Draw(Splat::disc(x, y, c[2], s, color))
+}
+
+/// The splat of a surface patch at camera-space `c` with unit normal `nrm` (normals within
+/// `cone` of it), radius `s` pixels, projected to `xy`: seen at angle γ the patch projects
+/// to an ellipse whose minor axis shrinks by |cos γ| (widened by the cone); a disc when it
+/// faces the eye or its cone is obtuse.
+pub(crate) fn surface_splat(c: [f32; 3], nrm: [f32; 3], cone: f32, s: f32, [x, y]: [f32; 2], color: [u8; 4]) -> Splat {
+    if cone < std::f32::consts::FRAC_PI_2 {
+        let d = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt().max(1e-30);
+        let cg = ((nrm[0] * c[0] + nrm[1] * c[1] + nrm[2] * c[2]) / d).abs();
+        let k = (cg + cone.sin()).min(1.0);
         if k < 0.999 {
             // Screen direction of the normal at the centre (derivative of the projection).
             let ux = nrm[0] * c[2] - c[0] * nrm[2];
@@ -367,11 +377,11 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
                 // the dragon 2 dB); the few cracks thin splats leave on grazing surfaces
                 // are closed by `raster::fill_holes`.
                 let minor = (s * k).min(s);
-                return Decision::Draw(Splat::ellipse(x, y, c[2], s, minor, ux / len, uy / len, color));
+                return Splat::ellipse(x, y, c[2], s, minor, ux / len, uy / len, color);
             }
         }
     }
-    Decision::Draw(Splat::disc(x, y, c[2], s, color))
+    Splat::disc(x, y, c[2], s, color)
 }
 
 /// True when a node's patch may hold part of an outline: not every normal of its cone faces

@@ -2,7 +2,7 @@
 //! the same camera, headlight shading, textures and alpha handling as the splat renderer
 //! (perspective-correct attributes, near-plane clipping, depth test on view-axis depth,
 //! back faces culled only on one-sided meshes, screen-door alpha). Point clouds are drawn
-//! as discs.
+//! as discs turned to their normals, as the splat renderer draws leaves.
 //!
 //! Which faces are culled is decided per triangle by [`culled`] from the mesh's `two_sided`
 //! flag, by the voxelizer's own rule ([`LoadedScene::mesh_two_sided`]: glTF `doubleSided`
@@ -42,7 +42,7 @@ pub struct Tri {
     pub two_sided: bool,
 }
 
-/// A point of a point cloud, drawn as a screen-facing disc.
+/// A point of a point cloud, drawn as a disc turned to its normal.
 #[derive(Clone, Copy, Debug)]
 pub struct Point {
     /// Centre, world space.
@@ -55,10 +55,6 @@ pub struct Point {
     pub color: [u8; 4],
 }
 
-/// A point's disc radius as a multiple of the mean distance to its 4 nearest neighbours:
-/// the smallest that closes a square grid of that spacing (1/√2), so a sampled surface
-/// has no gaps and no more growth than half a spacing at its outline.
-pub const POINT_RADIUS: f32 = std::f32::consts::FRAC_1_SQRT_2;
 
 /// A loaded mesh flattened to world-space triangles.
 #[derive(Debug)]
@@ -156,7 +152,7 @@ impl WorldMesh {
         let points = scene.points.as_ref().map_or_else(Vec::new, |pc| {
             voxelize::sample::sample_points(pc)
                 .into_iter()
-                .map(|n| Point { p: n.center, radius: n.radius * POINT_RADIUS, n: n.normal, color: n.color })
+                .map(|n| Point { p: n.center, radius: point_radius(&n), n: n.normal, color: n.color })
                 .collect()
         });
         WorldMesh { tris, materials, points, scene }
@@ -336,6 +332,8 @@ fn draw(mesh: &WorldMesh, view: &View, shading: Shading, background: [u8; 3], ma
             return Err((frame, pixels));
         }
         crate::raster::rasterize(&mut frame, &splats);
+        // Cracks between the discs are closed as the splat renderer closes them.
+        crate::raster::fill_holes(&mut frame);
     }
     Ok(frame)
 }
@@ -359,7 +357,16 @@ fn det3(m: &voxelize::mesh::Mat4) -> f64 {
         + m[2][0] * (m[0][1] * m[1][2] - m[1][1] * m[0][2])
 }
 
-/// Screen-facing discs for the points (no back-face culling: a point has no back).
+/// A point's disc radius: the one the splat renderer draws the point's leaf with (its
+/// sample's equal-area disc × [`crate::AREA_COVER`], at most its sphere), so the reference
+/// is the cloud at full resolution and the metrics measure what the tree and its codec
+/// changed. The sample's area is the square of the mean distance to its nearest
+/// neighbours, so neighbouring discs overlap.
+fn point_radius(n: &sct_format::Node) -> f32 {
+    (crate::AREA_COVER * (n.area / std::f32::consts::PI).sqrt()).min(n.radius)
+}
+
+/// The points' discs, turned to their normals (no back-face culling: a point has no back).
 fn point_splats(points: &[Point], view: &View, shading: Shading) -> Vec<crate::raster::Splat> {
     points
         .iter()
@@ -377,7 +384,13 @@ fn point_splats(points: &[Point], view: &View, shading: Shading) -> Vec<crate::r
                 pt.color
             };
             let [x, y] = view.project(c);
-            Some(crate::raster::Splat::disc(x, y, c[2], s.min(2.0 * view.width.max(view.height) as f32), color))
+            let s = s.min(2.0 * view.width.max(view.height) as f32);
+            // Oriented like the splat renderer's leaves, so that the reference shows the
+            // cloud at full resolution rather than another convention: screen-facing discs
+            // covered 9 % more of a pond scan seen at a low angle than its own leaves did.
+            let n = view.dir_to_camera(pt.n.map(f64::from)).map(|v| v as f32);
+            let unit = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2] - 1.0).abs() < 1e-3;
+            Some(if unit { crate::lod::surface_splat(c, n, 0.0, s, [x, y], color) } else { crate::raster::Splat::disc(x, y, c[2], s, color) })
         })
         .collect()
 }
