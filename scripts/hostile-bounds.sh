@@ -61,6 +61,9 @@ for f in tree-identical dag dag-built inlines; do
     run "sct-inspect --export-ply $f.sct" "$bin/sct-inspect" "$dir/$f.sct" --export-ply "$out/e.ply"
     run "sct-inspect --dump $f.sct" "$bin/sct-inspect" "$dir/$f.sct" --dump
     run "sct-render-preview $f.sct" "$bin/sct-render-preview" "$dir/$f.sct" -o "$out/r.png"
+    for m in gauss canopy; do
+        run "sct-render-preview --method $m $f.sct" "$bin/sct-render-preview" "$dir/$f.sct" -o "$out/r.png" --method "$m"
+    done
 done
 for s in samples-coincident samples-line samples-inst samples-affine; do
     run "sct-inspect --export-ply $s.samples" "$bin/sct-inspect" "$dir/$s.samples" --export-ply "$out/e.ply"

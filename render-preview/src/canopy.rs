@@ -209,6 +209,8 @@ struct Graph<'a> {
     backface: bool,
     nodes: Vec<INode>,
     stats: CanopyStats,
+    /// Relations linked so far (checked against [`MAX_RELATIONS`]).
+    links: u64,
 }
 
 impl Graph<'_> {
@@ -279,6 +281,7 @@ impl Graph<'_> {
             Class::Inter => self.stats.relations.intersecting += 1,
             Class::Cont => self.stats.relations.contained += 1,
         }
+        self.links += 1;
         self.nodes[a as usize].rel.push((b, class, a_dom));
         self.nodes[b as usize].rel.push((a, class, !a_dom));
     }
@@ -296,12 +299,17 @@ impl Graph<'_> {
 }
 
 /// Most image nodes in stages 1–2 (the thesis's frames hold a few thousand; Table 14).
-pub const MAX_IMAGE_NODES: usize = 1 << 21;
+pub const MAX_IMAGE_NODES: usize = 1 << 18;
+
+/// Most relations the image graph may hold (each costs two 8-byte entries), and most
+/// candidate pairs tested for them (8 bytes each): about 0.5 GB at most together. Real
+/// scenes at the default thresholds form 0.5–1.7 M relations; a file of identical nodes
+/// relates every pair (the candidates of 2^21 nodes in one place are 2^41).
+pub const MAX_RELATIONS: u64 = 1 << 24;
 
 fn too_big(o: &CanopyOptions) -> crate::Error {
     crate::Error::Invalid(format!(
-        "canopy's image graph exceeds {MAX_IMAGE_NODES} nodes (or {} candidate relations) at t1 {} px, t2 {} px: raise --canopy-t1 / --canopy-t2",
-        MAX_IMAGE_NODES * 64,
+        "canopy's image graph exceeds {MAX_IMAGE_NODES} nodes or {MAX_RELATIONS} relations (or as many candidate pairs) at t1 {} px, t2 {} px: raise --canopy-t1 / --canopy-t2",
         o.t1,
         o.t2
     ))
@@ -319,7 +327,7 @@ pub(crate) enum Draw<'a> {
 
 pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &CanopyOptions, draw: Draw<'_>, frame: &mut Frame) -> Result<(CanopyStats, LodStats, u64)> {
     let t0 = Instant::now();
-    let mut g = Graph { files, view, backface: p.backface, nodes: Vec::new(), stats: CanopyStats::default() };
+    let mut g = Graph { files, view, backface: p.backface, nodes: Vec::new(), stats: CanopyStats::default(), links: 0 };
     // Stage 1.
     let mut stack: Vec<Item> = g.files.root_items()?;
     stack.reverse();
@@ -358,7 +366,13 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
             }
         }
     }
-    let mut pairs: Vec<(u32, u32)> = Vec::new();
+    // Counted before they are listed: nodes piled in one place make every pair a candidate.
+    let n1 = g.nodes.len() as u32;
+    let candidates = grid.iter().map(|c| (c.len() as u64) * (c.len() as u64).saturating_sub(1) / 2).sum::<u64>() + everywhere.len() as u64 * u64::from(n1);
+    if candidates > MAX_RELATIONS {
+        return Err(too_big(o));
+    }
+    let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(candidates as usize);
     for c in &grid {
         for (k, &a) in c.iter().enumerate() {
             for &b in &c[k + 1..] {
@@ -366,7 +380,6 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
             }
         }
     }
-    let n1 = g.nodes.len() as u32;
     for &e in &everywhere {
         for b in 0..n1 {
             if b != e {
@@ -376,9 +389,6 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
     }
     pairs.sort_unstable();
     pairs.dedup();
-    if pairs.len() > MAX_IMAGE_NODES * 64 {
-        return Err(too_big(o));
-    }
     for (a, b) in pairs {
         if let Some((class, a_dom)) = g.relate(a, b) {
             g.link(a, b, class, a_dom);
@@ -444,6 +454,9 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
                 let partners = live.iter().map(|&(q, _, _)| q).chain(kids[..k].iter().copied());
                 for q in partners.collect::<Vec<_>>() {
                     let Some((class, c_dom)) = g.relate(c, q) else { continue };
+                    if g.links >= MAX_RELATIONS {
+                        return Err(too_big(o));
+                    }
                     g.link(c, q, class, c_dom);
                     match (c_dom, g.nodes[q as usize].st) {
                         (false, St::InM) => {

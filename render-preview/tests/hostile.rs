@@ -108,3 +108,24 @@ fn renders_stop_at_their_node_and_pixel_limits() {
     let pixels = RenderOptions { max_splat_pixels: 1_000_000, ..opts.clone() };
     assert_eq!(limit_of(render_file(&p, &pixels)), (render_preview::PIXELS_COVERED, 1_000_000));
 }
+
+/// Regression: canopy relates every pair of image nodes whose view cones overlap. On a
+/// 999 KB tree of identical nodes every pair overlaps: it listed 2^41 candidate pairs and was
+/// killed at 23 GB after 68 s. Candidates are now counted before they are listed, and image
+/// nodes and relations have caps, so it refuses at once, naming the knobs.
+#[test]
+fn canopy_refuses_an_image_graph_beyond_its_caps() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let p = write(&dir.path().join("same.sct"), vec![GraphNode::Tree { tree: 0 }], 0, vec![identical_tree(19)]);
+    let opts = RenderOptions { method: render_preview::Method::Canopy, ..small() };
+    let t = std::time::Instant::now();
+    match render_file(&p, &opts) {
+        Err(Error::Invalid(msg)) => assert!(msg.contains("--canopy-t1"), "{msg}"),
+        other => panic!("{:?}", other.map(|r| r.stats.splats)),
+    }
+    assert!(t.elapsed().as_secs() < 30, "took {:?}", t.elapsed());
+    // Within the caps it draws.
+    let p = write(&dir.path().join("small.sct"), vec![GraphNode::Tree { tree: 0 }], 0, vec![identical_tree(8)]);
+    let r = render_file(&p, &opts).expect("a small pile draws");
+    assert!(r.stats.splats > 0);
+}

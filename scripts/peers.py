@@ -1,0 +1,199 @@
+"""Driver of scripts/peers.sh: runs our tools and the installed peers interleaved on the same
+inputs and prints the peers table of BENCHMARKS.md. Run it through peers.sh, which installs
+the peers and builds our tools first.
+
+Tasks (the peers each do the same job as ours, on the same input, for the same point count):
+  mesh -> points   sct-voxelize (default density)   vs open3d sample_points_uniformly,
+                                                       trimesh sample_surface (N = our samples)
+  points -> LOD    sct-build-tree on those samples  vs copc_converter on a LAS of them
+  dense mesh       sct-build-tree, one step         vs open3d and trimesh mesh -> points
+  threads          ours with 1 and 2 threads (RAYON_NUM_THREADS)
+Every run is a whole process timed by /usr/bin/time (wall, user + system CPU, peak RSS).
+Outputs are removed before each run. Medians over the rounds; a round runs every tool once,
+the order of ours and the peers alternating between rounds.
+"""
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+PY_SAMPLE = {
+    "open3d": """
+import sys, open3d as o3d
+m = o3d.io.read_triangle_mesh(sys.argv[1])
+m.compute_triangle_normals()
+p = m.sample_points_uniformly(int(sys.argv[2]))
+o3d.io.write_point_cloud(sys.argv[3], p, write_ascii=False)
+""",
+    "trimesh": """
+import sys, trimesh
+m = trimesh.load(sys.argv[1], force="mesh", process=False)
+pts, face = trimesh.sample.sample_surface(m, int(sys.argv[2]))
+trimesh.PointCloud(pts).export(sys.argv[3])
+""",
+}
+
+
+def timed(cmd, env=None):
+    """(wall s, CPU s, peak RSS MB) of one run of `cmd`; raises on failure."""
+    tfile = "/tmp/peers-time.txt"
+    full = ["/usr/bin/time", "-f", "%e %U %S %M", "-o", tfile] + [str(c) for c in cmd]
+    r = subprocess.run(full, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    if r.returncode != 0:
+        raise RuntimeError(f"{' '.join(map(str, cmd))}: exit {r.returncode}: {r.stderr.decode()[-400:]}")
+    wall, user, sys_, rss = open(tfile).read().split()[-4:]
+    return float(wall), float(user) + float(sys_), int(rss) / 1024.0
+
+
+def clear(*paths):
+    for p in paths:
+        Path(p).unlink(missing_ok=True)
+    os.sync()
+
+
+def make_dense(py, src, dst):
+    """The bunny subdivided three times (each triangle into four), binary PLY."""
+    if dst.exists():
+        return
+    code = """
+import sys, trimesh
+m = trimesh.load(sys.argv[1], force="mesh", process=False)
+for _ in range(3):
+    m = m.subdivide()
+m.export(sys.argv[2], encoding="binary")
+"""
+    subprocess.run([py, "-c", code, str(src), str(dst)], check=True)
+
+
+def write_las(py, ply, las):
+    """A LAS 1.4 file (point format 7: xyz, rgb) of an exported leaf PLY, 0.01 mm steps."""
+    code = """
+import sys, numpy as np, laspy
+f = open(sys.argv[1], "rb")
+n = 0
+while True:
+    l = f.readline()
+    if l.startswith(b"element vertex"):
+        n = int(l.split()[2])
+    if l.strip() == b"end_header":
+        break
+dt = np.dtype([("p", "<f4", 3), ("n", "<f4", 3), ("c", "u1", 4), ("r", "<f4")])
+a = np.frombuffer(f.read(n * dt.itemsize), dt)
+h = laspy.LasHeader(point_format=7, version="1.4")
+h.offsets = a["p"].min(0).astype(float)
+h.scales = [1e-5] * 3
+las = laspy.LasData(h)
+las.x, las.y, las.z = (a["p"][:, k].astype(float) for k in range(3))
+las.red, las.green, las.blue = (a["c"][:, k].astype(np.uint16) * 257 for k in range(3))
+las.write(sys.argv[2])
+"""
+    subprocess.run([py, "-c", code, str(ply), str(las)], check=True)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--bin", type=Path, required=True)
+    ap.add_argument("--copc", type=Path, required=True)
+    ap.add_argument("--models", type=Path, required=True)
+    a = ap.parse_args()
+    out, bin_, py = a.out, a.bin, sys.executable
+    vox, build, inspect = bin_ / "sct-voxelize", bin_ / "sct-build-tree", bin_ / "sct-inspect"
+    m = a.models
+    meshes = {
+        "bunny": m / "scans/stanford-bunny-original-ply/bun_zipper.ply",
+        "dragon": m / "scans/stanford-dragon-100k/dragon.ply",
+        "spot (textured)": m / "textured-obj/spot/spot_triangulated.obj",
+    }
+    dense = out / "dense-bunny.ply"
+    make_dense(py, meshes["bunny"], dense)
+    dense_tris = 69451 * 64
+
+    # Preparation (untimed): our sample counts, the LAS inputs of the LOD task.
+    prep = {}
+    for name, mesh in meshes.items():
+        key = name.split()[0]
+        smp = out / f"{key}.samples"
+        r = subprocess.run([vox, mesh, "-o", smp, "--json"], check=True, capture_output=True)
+        n = json.loads(r.stdout)["samples"]
+        sct = out / f"{key}.sct"
+        subprocess.run([build, smp, "-o", sct], check=True, capture_output=True)
+        ply = out / f"{key}.leaves.ply"
+        subprocess.run([inspect, sct, "--export-ply", ply], check=True, capture_output=True)
+        las = out / f"{key}.las"
+        write_las(py, ply, las)
+        prep[name] = (mesh, smp, n, las)
+    r = subprocess.run([build, dense, "-o", out / "dense.sct", "--json"], check=True, capture_output=True)
+    dense_n = json.loads(r.stdout)["build"]["leaves"]
+
+    runs = {}  # (task, input, tool) -> list of (wall, cpu, rss)
+    size = {}  # (task, input, tool) -> (bytes, points)
+
+    def run(key, cmd, output, points, env=None):
+        clear(output)
+        runs.setdefault(key, []).append(timed(cmd, env))
+        size[key] = (Path(output).stat().st_size, points)
+
+    for rnd in range(a.rounds):
+        flip = rnd % 2 == 1
+        for name, (mesh, smp, n, las) in prep.items():
+            key = name.split()[0]
+            jobs = [
+                (("mesh -> points", name, "ours"), [vox, mesh, "-o", out / f"{key}.t.samples"], out / f"{key}.t.samples"),
+                (("mesh -> points", name, "open3d"), [py, "-c", PY_SAMPLE["open3d"], mesh, n, out / f"{key}.o3d.ply"], out / f"{key}.o3d.ply"),
+                (("mesh -> points", name, "trimesh"), [py, "-c", PY_SAMPLE["trimesh"], mesh, n, out / f"{key}.tm.ply"], out / f"{key}.tm.ply"),
+                (("points -> LOD", name, "ours"), [build, smp, "-o", out / f"{key}.t.sct"], out / f"{key}.t.sct"),
+                (("points -> LOD", name, "copc_converter"), [a.copc, las, out / f"{key}.copc.laz"], out / f"{key}.copc.laz"),
+            ]
+            for key_, cmd, output in (reversed(jobs) if flip else jobs):
+                run(key_, cmd, output, n)
+        dense_jobs = [
+            (("dense mesh -> LOD / points", "bunny x64 (4.4 M tris)", "ours"), [build, dense, "-o", out / "dense.t.sct"], out / "dense.t.sct"),
+            (("dense mesh -> LOD / points", "bunny x64 (4.4 M tris)", "open3d"), [py, "-c", PY_SAMPLE["open3d"], dense, dense_n, out / "dense.o3d.ply"], out / "dense.o3d.ply"),
+            (("dense mesh -> LOD / points", "bunny x64 (4.4 M tris)", "trimesh"), [py, "-c", PY_SAMPLE["trimesh"], dense, dense_n, out / "dense.tm.ply"], out / "dense.tm.ply"),
+        ]
+        for key_, cmd, output in (reversed(dense_jobs) if flip else dense_jobs):
+            run(key_, cmd, output, dense_n)
+        for threads in ("1", "2"):
+            env = dict(os.environ, RAYON_NUM_THREADS=threads)
+            mesh, smp, n, _ = prep["dragon"]
+            run(("threads", "dragon, sct-voxelize", threads), [vox, mesh, "-o", out / "thr.samples"], out / "thr.samples", n, env)
+            run(("threads", "dragon, sct-build-tree", threads), [build, smp, "-o", out / "thr.sct"], out / "thr.sct", n, env)
+        print(f"round {rnd + 1}/{a.rounds} done", file=sys.stderr)
+
+    def med(key, i):
+        return statistics.median(r[i] for r in runs[key])
+
+    print(f"peers: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {os.cpu_count()} cores, "
+          f"{a.rounds} rounds, load average {os.getloadavg()[0]:.2f} at the end")
+    print()
+    print("| task | input | points | tool | wall s | CPU s | peak MB | B/point | ours faster |")
+    print("|---|---|---:|---|---:|---:|---:|---:|---:|")
+    for key in runs:
+        task, inp, tool = key
+        if task == "threads":
+            continue
+        b, pts = size[key]
+        ours = med((task, inp, "ours"), 0)
+        ratio = "—" if tool == "ours" else f"{med(key, 0) / ours:.2f}×"
+        print(f"| {task} | {inp} | {pts:,} | {tool} | {med(key, 0):.2f} | {med(key, 1):.2f} | {med(key, 2):.0f} | {b / pts:.2f} | {ratio} |")
+    print()
+    w, c, rss = (med(("dense mesh -> LOD / points", "bunny x64 (4.4 M tris)", "ours"), i) for i in range(3))
+    print(f"Dense mesh, ours one step: {w / dense_tris * 1e6:.2f} µs wall and {rss * 1048576 / dense_tris:.0f} B peak per triangle "
+          f"({dense_tris:,} triangles, {dense_n:,} leaves).")
+    print()
+    print("| threads | tool | 1 thread s | 2 threads s | speed-up |")
+    print("|---|---|---:|---:|---:|")
+    for inp in ("dragon, sct-voxelize", "dragon, sct-build-tree"):
+        one, two = med(("threads", inp, "1"), 0), med(("threads", inp, "2"), 0)
+        print(f"| 1 -> 2 | {inp} | {one:.2f} | {two:.2f} | {one / two:.2f}× |")
+
+
+if __name__ == "__main__":
+    main()
