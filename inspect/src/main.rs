@@ -105,6 +105,16 @@ struct Cli {
     /// by default: such inlines are reported (inline-outside) and their targets not opened.
     #[arg(long)]
     allow_outside_inlines: bool,
+    /// Most scene-graph nodes one traversal visits (a node shared by several paths counts once
+    /// per path): --export-ply, --against, --dump and validation stop past it with "limit
+    /// exceeded" instead of expanding a DAG of shared groups path by path.
+    #[arg(long, value_name = "N", default_value_t = Limits::default().max_traversal_visits)]
+    max_visits: u64,
+}
+
+/// The reader limits, with the caps the flags set.
+fn limits_of(cli: &Cli) -> Limits {
+    Limits { max_traversal_visits: cli.max_visits, ..Limits::default() }
 }
 
 fn fraction(s: &str) -> Result<f64, String> {
@@ -124,7 +134,7 @@ fn positive(s: &str) -> Result<usize, String> {
 
 /// `sct-inspect A B DIR/ --validate`: one result per file and a summary.
 fn run_many(cli: &Cli) -> Result<i32, InspectError> {
-    let opts = ValidateOptions { deep: cli.deep, limits: Limits::default(), allow_outside_inlines: cli.allow_outside_inlines };
+    let opts = ValidateOptions { deep: cli.deep, limits: limits_of(cli), allow_outside_inlines: cli.allow_outside_inlines };
     let report = validate_many(&cli.files, &opts);
     let mut out = std::io::stdout().lock();
     if cli.json {
@@ -163,7 +173,7 @@ fn run(cli: &Cli) -> Result<i32, InspectError> {
         return run_many(cli);
     }
     let file = &cli.files[0];
-    let limits = Limits::default();
+    let limits = limits_of(cli);
     let mut out = std::io::stdout().lock();
     if let Some(ply) = &cli.export_ply {
         let e = inspect::export::export_ply(file, ply, cli.export_level, cli.max_points, &limits, cli.allow_outside_inlines)?;

@@ -122,6 +122,22 @@ fn shared_groups_are_bounded() {
     let mut out = Vec::new();
     dump(&f, &deep_path, 1, &limits, false, &mut out).expect("dump");
     assert!(text(&out).contains("is node 0 of tree 0"), "{}", text(&out));
+    // The binary's --max-visits sets the same cap: low, the export stops at once naming it;
+    // high enough for a 10-level DAG (2^11 visits), it exports.
+    let ply = path_in(&d, "cli.ply");
+    let o = run(&args(&[&f, &"--export-ply", &ply, &"--max-visits", &"5000"]));
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("limit exceeded"), "{}", text(&o.stderr));
+    let t = pair(leaf(0.0), leaf(1.0));
+    let mut nodes = vec![GraphNode::Tree { tree: 0 }];
+    for k in 1..=10u32 {
+        nodes.push(GraphNode::Group { children: vec![k - 1, k - 1], tree: 1 });
+    }
+    let small = path_in(&d, "dag10.sct");
+    write(&small, SceneGraph { nodes, root: 10 }, vec![t, pair(b, b)], Profile::Raw);
+    assert_eq!(run(&args(&[&small, &"--export-ply", &ply, &"--max-visits", &"1000"])).status.code(), Some(1));
+    let o = run(&args(&[&small, &"--export-ply", &ply, &"--max-visits", &"5000"]));
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
 }
 
 /// Item 20: inlines leave the scene directory only with --allow-outside-inlines.
