@@ -26,8 +26,9 @@ target_dir=$(cargo metadata --format-version 1 --no-deps | python3 -c 'import js
 if [ ! -x "$out/venv/bin/python" ]; then
     python3 -m venv "$out/venv"
 fi
-"$out/venv/bin/python" -c 'import open3d, trimesh, laspy, numpy' 2>/dev/null ||
-    "$out/venv/bin/pip" install --quiet --disable-pip-version-check 'open3d>=0.18' 'trimesh>=4' 'laspy>=2.5' 'numpy>=1.26'
+# Installed? (found, not imported: importing open3d needs the library below)
+"$out/venv/bin/python" -c 'import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in ("open3d", "trimesh", "laspy", "numpy", "PIL")))' ||
+    "$out/venv/bin/pip" install --quiet --disable-pip-version-check 'open3d>=0.18' 'trimesh>=4' 'laspy>=2.5' 'numpy>=1.26' 'pillow>=10'
 # open3d's wheel links libusb (Debian: libusb-1.0-0), which a bare machine lacks.
 if ! "$out/venv/bin/python" -c 'import open3d' 2>/dev/null; then
     if [ "$(id -u)" = 0 ] && command -v apt-get > /dev/null; then
