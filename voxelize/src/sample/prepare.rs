@@ -72,7 +72,7 @@ impl<'a> Prepared<'a> {
                 })
                 .collect()
         });
-        let computed = if nrm.is_none() { Some(corner_normals(prim, crease_deg)) } else { None };
+        let computed = if nrm.is_none() && !finer_than_voxels(prim, &pos) { Some(corner_normals(prim, crease_deg)) } else { None };
         let baked = computed.as_ref().map(|c| c.iter().map(|&c| bake_corner_normals(c, u.bake.as_ref(), flip)).collect());
         Prepared { prim, mat, pos, nrm, computed, baked, flip }
     }
@@ -102,6 +102,30 @@ impl<'a> Prepared<'a> {
     }
 }
 
+/// Whether a primitive's triangles are on average smaller than half a voxel's face (`pos` in
+/// grid units): each sample then merges several triangles' pieces, whose face normals average
+/// to the smooth normal there, and a sample's normal may lean only 5° from its pieces' faces
+/// anyway ([`super::shade::near_face`]). Smoothed corner normals would change almost nothing
+/// and cost a third of a dense mesh's conversion (a random walk over each vertex's faces):
+/// such primitives take their face normals. Coarser ones keep them for a smooth look.
+fn finer_than_voxels(prim: &Primitive, pos: &[[f64; 3]]) -> bool {
+    use rayon::prelude::*;
+    let n = prim.triangles.len();
+    if n == 0 {
+        return false;
+    }
+    let area2: f64 = prim
+        .triangles
+        .par_iter()
+        .map(|t| match t.map(|i| pos.get(i as usize)) {
+            [Some(a), Some(b), Some(c)] => norm(cross(sub(*b, *a), sub(*c, *a))),
+            _ => 0.0,
+        })
+        .sum();
+    // Mean area below 1/2 voxel², i.e. its double below 1.
+    area2 < n as f64
+}
+
 /// The file's corner normals `n` of the triangle `p`, each turned to the side its winding
 /// calls the front. Renderers cull one-sided trees by the samples' normals while the mesh
 /// reference (and every mesh renderer) culls by winding: a file whose normals point inward
@@ -128,5 +152,34 @@ pub(super) fn bake_corner_normals(c: [[f32; 3]; 3], bake: Option<&Mat4>, flip: b
             if l > 0.0 { w.map(|x| (x / l) as f32) } else { [0.0; 3] }
         }),
         None => cn,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A grid of `k × k` squares (two triangles each) over `side` grid units.
+    fn grid(k: u32, side: f64) -> (Primitive, Vec<[f64; 3]>) {
+        let mut positions = Vec::new();
+        for j in 0..=k {
+            for i in 0..=k {
+                positions.push([i as f32, j as f32, 0.0]);
+            }
+        }
+        let at = |i: u32, j: u32| j * (k + 1) + i;
+        let triangles = (0..k).flat_map(|j| (0..k).flat_map(move |i| [[at(i, j), at(i + 1, j), at(i + 1, j + 1)], [at(i, j), at(i + 1, j + 1), at(i, j + 1)]])).collect();
+        let pos = positions.iter().map(|p: &[f32; 3]| p.map(|x| f64::from(x) * side / k as f64)).collect();
+        (Primitive { positions, triangles, ..Default::default() }, pos)
+    }
+
+    /// Corner normals are skipped only where triangles are finer than the voxels.
+    #[test]
+    fn fine_primitives_take_face_normals() {
+        let (p, pos) = grid(40, 10.0); // triangles of 0.03 voxel²
+        assert!(finer_than_voxels(&p, &pos));
+        let (p, pos) = grid(4, 10.0); // 3.1 voxel²
+        assert!(!finer_than_voxels(&p, &pos));
+        assert!(!finer_than_voxels(&Primitive::default(), &[]));
     }
 }
