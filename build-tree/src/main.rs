@@ -68,6 +68,10 @@ struct Cli {
     /// Scene description (spec/scene-json.md); inline paths are relative to the output.
     #[arg(long)]
     scene: Option<PathBuf>,
+    /// Most grid cells (instances) over all grids of the --scene file; each costs about 280
+    /// bytes while composing.
+    #[arg(long, value_name = "N", default_value_t = build_tree::scene::MAX_GRID_CELLS, requires = "scene")]
+    max_grid_cells: u64,
     /// Batch: convert even outputs that are up to date.
     #[arg(long)]
     force: bool,
@@ -223,7 +227,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     }
-    let build = BuildOptions { weld, depth_slack: cli.depth_slack };
+    let build = BuildOptions { weld, depth_slack: cli.depth_slack, max_grid_cells: cli.max_grid_cells };
     if let Mode::Batch(dir) = &mode {
         if cli.scene.is_some() {
             eprintln!("error: --scene does not apply to a directory of meshes");

@@ -183,8 +183,9 @@ pub struct Composer<'a> {
     grid_cells: u64,
 }
 
-/// Most grid cells (instances) over all grids of one scene: 2^21, about 0.6 GB and a few
-/// seconds of composition (the §6.7 scene has 360,000).
+/// Default of [`BuildOptions::max_grid_cells`]: most grid cells (instances) over all grids
+/// of one scene, 2^21, about 0.6 GB and a few seconds of composition (the §6.7 scene has
+/// 360,000).
 pub const MAX_GRID_CELLS: u64 = 1 << 21;
 
 static NO_DEFS: BTreeMap<String, SceneNode> = BTreeMap::new();
@@ -431,9 +432,10 @@ impl<'a> Composer<'a> {
         // 2^28 cells took 14 GB before it was stopped. Cells over all grids of the scene
         // are bounded, before any is made.
         let total = self.grid_cells.saturating_add(count);
-        if count == 0 || total > MAX_GRID_CELLS {
+        let max = self.opts.max_grid_cells;
+        if count == 0 || total > max {
             return Err(BuildError::Input(format!(
-                "scene: grid of {} × {} instances: grids may hold 1 to {MAX_GRID_CELLS} cells in all ({} before this one)",
+                "scene: grid of {} × {} instances: grids may hold 1 to {max} cells in all ({} before this one; --max-grid-cells)",
                 g.nx, g.nz, self.grid_cells
             )));
         }

@@ -67,11 +67,14 @@ pub struct BuildOptions {
     /// Depth limit above ⌈log2 n⌉: a centre split that would exceed it is moved to the
     /// nearest split that keeps it (a median split in the worst case).
     pub depth_slack: u32,
+    /// Most grid cells (instances) over all grids of one `scene.json`
+    /// ([`crate::scene::MAX_GRID_CELLS`] by default).
+    pub max_grid_cells: u64,
 }
 
 impl Default for BuildOptions {
     fn default() -> Self {
-        BuildOptions { weld: Weld::RelativeToMeanRadius(0.01), depth_slack: 4 }
+        BuildOptions { weld: Weld::RelativeToMeanRadius(0.01), depth_slack: 4, max_grid_cells: crate::scene::MAX_GRID_CELLS }
     }
 }
 
@@ -874,7 +877,7 @@ mod tests {
             })
             .collect();
         for (weld, depth_slack) in [(Weld::Absolute(2e-3), 4), (Weld::Off, 0), (Weld::RelativeToMeanRadius(0.5), 1)] {
-            let (tree, stats) = build_tree(&samples, &BuildOptions { weld, depth_slack }).unwrap();
+            let (tree, stats) = build_tree(&samples, &BuildOptions { weld, depth_slack, ..Default::default() }).unwrap();
             let nodes = tree.nodes();
             for i in 0..nodes.len() {
                 if let Some([a, b]) = tree.children(i) {

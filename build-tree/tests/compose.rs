@@ -192,6 +192,14 @@ fn cli_exit_codes_and_json() {
     assert_eq!(Command::new(exe).arg(&junk).arg("-o").arg(&out).status().unwrap().code(), Some(1));
     assert_eq!(Command::new(exe).arg(dir.path().join("missing")).arg("-o").arg(&out).status().unwrap().code(), Some(2));
     assert_eq!(Command::new(exe).arg(&s).arg("--bogus").status().unwrap().code(), Some(2));
+    // --max-grid-cells sets the grid cap: a 4 × 4 grid needs 16.
+    let sp = dir.path().join("grid.json");
+    std::fs::write(&sp, r#"{"root": {"grid": {"child": {"mesh": 0}, "nx": 4, "nz": 4}}}"#).unwrap();
+    let grid = |cap: &str| Command::new(exe).arg(&s).arg("-o").arg(&out).arg("--scene").arg(&sp).args(["--max-grid-cells", cap]).output().unwrap();
+    let o = grid("15");
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--max-grid-cells"), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(grid("16").status.code(), Some(0));
 }
 
 /// A two-sided mesh gives a two-sided tree (its leaves keep their cones: they bound the

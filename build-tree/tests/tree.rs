@@ -126,13 +126,13 @@ fn degenerate_inputs() {
     let (t, _) = build_tree(&same, &BuildOptions::default()).unwrap();
     assert_eq!(t.len(), 1);
     assert!((t.nodes()[0].area - 1000.0 * one[0].area).abs() < 1e-2 * t.nodes()[0].area);
-    let (t, st) = build_tree(&same, &BuildOptions { weld: Weld::Off, depth_slack: 0 }).unwrap();
+    let (t, st) = build_tree(&same, &BuildOptions { weld: Weld::Off, depth_slack: 0, ..Default::default() }).unwrap();
     assert_eq!(t.len(), 1999);
     assert_eq!(st.depth, 10);
     // Points on a line with exponentially growing gaps: the centre split degenerates into a
     // chain; the depth budget must keep it logarithmic.
     let chain: Vec<Node> = (0..2000).map(|i| Node { center: [1.01f32.powi(i), 0.0, 0.0], radius: 0.001, normal: [0.0, 0.0, 1.0], area: 1.0, ..Default::default() }).collect();
-    let (t, st) = build_tree(&chain, &BuildOptions { weld: Weld::Off, depth_slack: 2 }).unwrap();
+    let (t, st) = build_tree(&chain, &BuildOptions { weld: Weld::Off, depth_slack: 2, ..Default::default() }).unwrap();
     check_tree(&t);
     assert!(st.depth <= 11 + 2, "depth {}", st.depth);
     assert!(st.forced_splits > 0);
