@@ -149,7 +149,7 @@ pub struct CompareResult {
 /// `base` with method `m` at knob value `k` (`pixel_error`, or canopy's `t3`).
 fn with_knob(base: &RenderOptions, m: Method, k: f32) -> RenderOptions {
     match m {
-        Method::Zbuffer | Method::Gauss => RenderOptions { method: m, pixel_error: k, ..base.clone() },
+        Method::Zbuffer | Method::Gauss | Method::Parilov => RenderOptions { method: m, pixel_error: k, ..base.clone() },
         Method::Canopy => {
             let c = base.canopy;
             RenderOptions { method: m, canopy: crate::CanopyOptions { t3: k, t2: c.t2.max(k), t1: c.t1.max(k), ..c }, ..base.clone() }
@@ -262,7 +262,7 @@ pub fn run(o: &CompareOptions, mut progress: impl FnMut(&str)) -> Result<Compare
                 let mt = metrics::compare(&r.frame, &refr);
                 let (vs, culling) = match m {
                     Method::Zbuffer => (None, None),
-                    Method::Gauss => (zframes[ki].as_ref().map(|z| metrics::compare(&r.frame, z)), None),
+                    Method::Gauss | Method::Parilov => (zframes[ki].as_ref().map(|z| metrics::compare(&r.frame, z)), None),
                     Method::Canopy => {
                         // Ordering: the same discs through a depth buffer; culling: the same
                         // frame without occlusion culling.

@@ -32,6 +32,7 @@ pub mod gauss;
 pub mod image_file;
 mod lod;
 pub mod method;
+pub mod parilov;
 pub mod metrics;
 pub mod provenance;
 pub mod raster;
@@ -50,6 +51,7 @@ pub use canopy::{CanopyOptions, CanopyStats};
 pub use error::{Error, Result};
 pub use gauss::{GaussOptions, Order, Weighting};
 pub use method::{Method, Work};
+pub use parilov::{ParilovOptions, ParilovStats};
 pub use lod::{LodStats, NODES_EXAMINED, PIXELS_COVERED};
 pub use raster::{Frame, Splat};
 pub use scene::SceneFiles;
@@ -100,6 +102,8 @@ pub struct RenderOptions {
     pub gauss: GaussOptions,
     /// Settings of [`Method::Canopy`].
     pub canopy: CanopyOptions,
+    /// Settings of [`Method::Parilov`].
+    pub parilov: ParilovOptions,
     /// Image width in pixels.
     pub width: u32,
     /// Image height in pixels.
@@ -161,6 +165,7 @@ impl Default for RenderOptions {
             method: Method::Zbuffer,
             gauss: GaussOptions::default(),
             canopy: CanopyOptions::default(),
+            parilov: ParilovOptions::default(),
             width: view::DEFAULT_WIDTH,
             height: view::DEFAULT_HEIGHT,
             view: ViewPreset::Front,
@@ -277,6 +282,8 @@ pub struct RenderStats {
     pub work: Work,
     /// The thesis's Table 14 columns (`canopy` only).
     pub canopy: Option<CanopyStats>,
+    /// Cells, re-sorts and samples (`parilov` only).
+    pub parilov: Option<ParilovStats>,
     /// Splats rasterized.
     pub splats: u64,
     /// Refinement counters.
@@ -388,6 +395,9 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             return Err(Error::Invalid(format!("gauss low-pass variance {} must be a finite number ≥ 0", g.lowpass)));
         }
     }
+    if opts.method == Method::Parilov && !(opts.parilov.threshold_deg > 0.0 && opts.parilov.threshold_deg <= 90.0) {
+        return Err(Error::Invalid(format!("parilov threshold {}° must lie in (0, 90]", opts.parilov.threshold_deg)));
+    }
     if opts.method == Method::Canopy || (opts.method == Method::Gauss && opts.gauss.order == gauss::Order::Mask) {
         let c = &opts.canopy;
         if ![c.t1, c.t2, c.t3].iter().all(|t| t.is_finite() && *t > 0.0) || c.t2 > c.t1 || c.t3 > c.t2 {
@@ -411,6 +421,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             method: opts.method,
             work: Work::new(lod.nodes_visited, cs.nodes_rasterized, fragments, covered, files.bytes_read()),
             canopy: Some(cs),
+            parilov: None,
             splats: cs.nodes_rasterized,
             lod,
             bytes_read: files.bytes_read(),
@@ -421,13 +432,35 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         };
         return Ok(Rendered { frame, camera, stats, near, up_axis, provenance: files.provenance() });
     }
+    if opts.method == Method::Parilov {
+        let [r, g, b] = opts.background;
+        let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
+        let (ps, lod) = parilov::render(files, &view, &params, &opts.parilov, &mut frame)?;
+        let t2 = Instant::now();
+        let covered = frame.covered() as u64;
+        let stats = RenderStats {
+            method: opts.method,
+            // One pixel write per sample streamed, and one per hole filled.
+            work: Work::new(lod.nodes_visited, ps.samples, ps.samples + ps.holes_filled, covered, files.bytes_read()),
+            canopy: None,
+            parilov: Some(ps),
+            splats: ps.samples,
+            lod,
+            bytes_read: files.bytes_read(),
+            file_size: files.file_len(),
+            files: files.file_count(),
+            covered_pixels: covered,
+            seconds: Phases { open: 0.0, frame: frame_secs, traverse: (t2 - t0).as_secs_f64(), raster: 0.0, sort: 0.0, total: (t2 - t0).as_secs_f64() },
+        };
+        return Ok(Rendered { frame, camera, stats, near, up_axis, provenance: files.provenance() });
+    }
     let (splats, lod) = files.collect(&view, &params)?;
     let t1 = Instant::now();
     let [r, g, b] = opts.background;
     let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
     let mut sort = 0.0;
     let fragments = match opts.method {
-        Method::Zbuffer | Method::Canopy => {
+        Method::Zbuffer | Method::Canopy | Method::Parilov => {
             raster::rasterize(&mut frame, &splats);
             raster::fill_holes(&mut frame);
             None
@@ -448,6 +481,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         method: opts.method,
         work: Work::new(lod.nodes_visited, splats.len() as u64, fragments, covered, files.bytes_read()),
         canopy: None,
+        parilov: None,
         splats: splats.len() as u64,
         lod,
         bytes_read: files.bytes_read(),

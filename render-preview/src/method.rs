@@ -5,6 +5,7 @@
 //! | `zbuffer` (default) | opaque elliptical splats of the LOD cut | depth buffer | `--pixel-error` |
 //! | `gauss` | elliptical Gaussian kernels of the same cut (Coconu & Hege) | per-frame depth sort, back to front, no depth buffer | `--pixel-error` (the sample spacing `d_t` on screen) |
 //! | `canopy` | EQ 46 discs of the nodes' spheres, cut at `t3`, after image-graph occlusion culling (thesis) | reverse occlusion-mask order, no depth buffer | `--canopy-t3` (px) |
+//! | `parilov` | one pixel per node of the cut (nodes at most `--pixel-error` px wide), in cells | cells back to front by split planes, each cell's kept sample order (Parilov & Stuerzlinger), no depth buffer | `--pixel-error` (px wide); `--parilov-threshold` (°) |
 //!
 //! Every method walks the same scene graph (groups, instances, tints, inlines). `zbuffer` and
 //! `gauss` refine it with the same LOD test, so at equal `--pixel-error` they draw the same cut
@@ -26,11 +27,14 @@ pub enum Method {
     /// The thesis's image-graph occlusion culling and reverse-mask-order discs, no depth
     /// buffer (§3.3, §5.4–5.8).
     Canopy,
+    /// Multi-view visibility orderings: one pixel per sample in kept per-cell orders, cells
+    /// back to front, no depth buffer (Parilov & Stuerzlinger).
+    Parilov,
 }
 
 impl Method {
     /// Every method, in the order charts list them.
-    pub const ALL: [Method; 3] = [Method::Zbuffer, Method::Gauss, Method::Canopy];
+    pub const ALL: [Method; 4] = [Method::Zbuffer, Method::Gauss, Method::Canopy, Method::Parilov];
 
     /// The name used on the command line and in JSON.
     pub fn name(self) -> &'static str {
@@ -38,13 +42,14 @@ impl Method {
             Method::Zbuffer => "zbuffer",
             Method::Gauss => "gauss",
             Method::Canopy => "canopy",
+            Method::Parilov => "parilov",
         }
     }
 
     /// The name of the method's quality knob.
     pub fn knob(self) -> &'static str {
         match self {
-            Method::Zbuffer | Method::Gauss => "pixel_error",
+            Method::Zbuffer | Method::Gauss | Method::Parilov => "pixel_error",
             Method::Canopy => "t3",
         }
     }
@@ -59,7 +64,7 @@ impl std::fmt::Display for Method {
 impl std::str::FromStr for Method {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        Method::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| format!("unknown method {s:?} (zbuffer, gauss, canopy)"))
+        Method::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| format!("unknown method {s:?} (zbuffer, gauss, canopy, parilov)"))
     }
 }
 

@@ -9,7 +9,7 @@
 //! inlines get the same checks in the same order (target present, no cycle on the branch,
 //! depth limit, BLAKE3 hash) with the same [`TraverseErrorKind`] errors.
 
-mod items;
+pub(crate) mod items;
 
 pub(crate) use items::Item;
 
@@ -45,6 +45,9 @@ pub struct SceneFiles {
     /// The directory inline targets must stay in, unless `allow_outside_inlines`.
     root: PathBuf,
     allow_outside_inlines: bool,
+    /// The `parilov` method's kept cell orders, reused by the next frame rendered from these
+    /// files.
+    pub(crate) parilov_orders: crate::parilov::Orders,
 }
 
 impl std::fmt::Debug for SceneFiles {
@@ -85,7 +88,7 @@ impl SceneFiles {
     pub fn open(path: &Path, limits: &Limits) -> Result<SceneFiles> {
         let canon = std::fs::canonicalize(path).map_err(|e| Error::sct(path, sct_format::Error::io(path, e)))?;
         let root = scene_root(&canon);
-        let mut s = SceneFiles { files: Vec::new(), by_path: HashMap::new(), limits: limits.clone(), verify_inline_hashes: true, root, allow_outside_inlines: false };
+        let mut s = SceneFiles { files: Vec::new(), by_path: HashMap::new(), limits: limits.clone(), verify_inline_hashes: true, root, allow_outside_inlines: false, parilov_orders: Default::default() };
         let reader = SctReader::open(&canon, limits).map_err(|e| Error::sct(path, e))?;
         s.add_file(canon, reader);
         Ok(s)

@@ -53,7 +53,7 @@ fn compare_writes_json_chart_and_table() {
     assert_eq!(scenes[1]["spec"]["kind"], "grid");
     for sc in scenes {
         let methods = sc["methods"].as_array().unwrap();
-        assert_eq!(methods.iter().map(|m| m["method"].as_str().unwrap()).collect::<Vec<_>>(), ["zbuffer", "gauss", "canopy"]);
+        assert_eq!(methods.iter().map(|m| m["method"].as_str().unwrap()).collect::<Vec<_>>(), ["zbuffer", "gauss", "canopy", "parilov"]);
         let mut pareto = 0;
         for m in methods {
             let points = m["points"].as_array().unwrap();

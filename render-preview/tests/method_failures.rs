@@ -1,4 +1,4 @@
-//! Failure modes every method shares (preview-methods.md A4, B4, F4): a thin two-sided leaf
+//! Failure modes every method shares (preview-methods.md A4, B4, D4, F4): a thin two-sided leaf
 //! seen face-on, from behind and edge-on, and close-ups where leaves reach several pixels.
 //! Each test prints its measurements (`--nocapture`) and asserts, per method, the behaviour
 //! measured when it was written, with its bound.
@@ -9,7 +9,7 @@ use render_preview::reference::{render_reference, WorldMesh};
 use render_preview::{metrics, render_file, synth, Method, RenderOptions, View};
 use sct_format::write::{write_scene_file, Scene, WriteOptions};
 
-const METHODS: [Method; 3] = [Method::Zbuffer, Method::Gauss, Method::Canopy];
+const METHODS: [Method; 4] = [Method::Zbuffer, Method::Gauss, Method::Canopy, Method::Parilov];
 
 fn shared(rel: &str) -> Option<PathBuf> {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models").join(rel);
@@ -31,8 +31,10 @@ fn against_mesh(mesh: &WorldMesh, sct: &Path, o: &RenderOptions) -> metrics::Met
 /// angle, so the line stays a line); gauss 0.993 and 0.995–0.998; canopy, whose EQ 46 discs
 /// cover each node's whole sphere, 0.971 face-on and from behind but 0.794, 0.800 and 0.480
 /// at 80°, 85° and 88°: edge-on the leaf is a line a few pixels wide and the discs make it a
-/// band (extra 0.52 at 88°). Bounds: the measured value less 0.02 face-on and from behind,
-/// less 0.1 edge-on.
+/// band (extra 0.52 at 88°); parilov 1.000 face-on and from behind, 0.890 / 0.997 / 0.761
+/// edge-on (one pixel per sample: the pixels that hold a sample's centre, up to a pixel
+/// beyond the line). Bounds: the measured value less 0.02 face-on and from behind, less 0.1
+/// edge-on.
 #[test]
 fn thin_two_sided_leaf_from_both_sides_and_edge_on() {
     let dir = tempfile::tempdir().unwrap();
@@ -61,6 +63,10 @@ fn leaf_iou_measured(m: Method, deg: u32) -> f64 {
         (Method::Canopy, 80) => 0.794,
         (Method::Canopy, 85) => 0.800,
         (Method::Canopy, _) => 0.480,
+        (Method::Parilov, 0 | 180) => 1.000,
+        (Method::Parilov, 80) => 0.890,
+        (Method::Parilov, 85) => 0.997,
+        (Method::Parilov, _) => 0.761,
         (Method::Gauss, 0 | 180) => 0.993,
         (Method::Gauss, _) => 0.995,
         (_, 0 | 180) => 0.996,
@@ -75,8 +81,9 @@ fn leaf_iou_measured(m: Method, deg: u32) -> f64 {
 /// Measured when set (holes; IoU; fg PSNR at 1 / 2 / 4 px): zbuffer ≤ 0.04 %, 0.997–0.998,
 /// 31.0 / 33.5 / 33.6 dB; gauss ≤ 0.02 %, 0.998–0.999, 32.0 / 34.0 / 34.4 dB; canopy 0.01 %,
 /// 0.955 / 0.985 / 0.990, 19.2 / 24.5 / 26.6 dB (its whole-sphere discs grow the outline
-/// most where leaves are smallest). Bounds: holes ≤ 0.5 % for every method at every
-/// distance, and IoU at least the measured less 0.02.
+/// most where leaves are smallest); parilov (virtual children, one per pixel of a wide
+/// sample) ≤ 0.04 %, 0.991–0.998, 26.7 / 32.9 / 33.6 dB. Bounds: holes ≤ 0.5 % for every
+/// method at every distance, and IoU at least the measured less 0.02.
 #[test]
 fn close_ups_where_leaves_reach_four_pixels() {
     let Some(path) = shared("scans/stanford-bunny-original-ply/bun_zipper_res2.ply") else { return };
@@ -106,6 +113,7 @@ fn close_ups_where_leaves_reach_four_pixels() {
                 (Method::Canopy, 1) => 0.955,
                 (Method::Canopy, 2) => 0.985,
                 (Method::Canopy, _) => 0.990,
+                (Method::Parilov, 1) => 0.991,
                 _ => 0.997,
             };
             assert!(q.hole_fraction <= 0.005 && q.silhouette_iou >= iou - 0.02, "{m} at {px} px: {q:?}");

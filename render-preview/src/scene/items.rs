@@ -33,6 +33,37 @@ enum Kind {
     Inline { graph_node: u32 },
 }
 
+impl Item {
+    /// Identifies the item across frames: file, tree, level, node, and the bits of its
+    /// instance state's translation, scale and rotation (one tree drawn under two instances
+    /// is two items).
+    pub(crate) fn key(&self) -> [u64; 5] {
+        let t = &self.state.transform;
+        let mut h = 0xcbf2_9ce4_8422_2325u64;
+        for v in t.translation.iter().chain(t.rotation.iter()).chain(std::iter::once(&t.scale)) {
+            h = (h ^ v.to_bits()).wrapping_mul(0x100_0000_01b3);
+        }
+        match self.kind {
+            Kind::Tree { tree, d, i, .. } => [self.chain.file as u64, u64::from(tree), u64::from(d), i, h],
+            Kind::Inline { graph_node } => [self.chain.file as u64, u64::MAX, u64::from(graph_node), 0, h],
+        }
+    }
+
+    /// Whether the item is a node of a plain tree (not a group tree, not an inline).
+    pub(crate) fn is_plain_tree(&self) -> bool {
+        matches!(self.kind, Kind::Tree { group: false, .. })
+    }
+
+    /// Whether both items are nodes of one tree under one instance state (siblings that the
+    /// tree's own split separates).
+    pub(crate) fn same_tree(&self, o: &Item) -> bool {
+        match (self.kind, o.kind) {
+            (Kind::Tree { tree: a, .. }, Kind::Tree { tree: b, .. }) => a == b && self.chain.file == o.chain.file && self.state.transform == o.state.transform,
+            _ => false,
+        }
+    }
+}
+
 /// What a renderer needs to know about an item.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct ItemNode {
