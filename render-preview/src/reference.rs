@@ -55,7 +55,6 @@ pub struct Point {
     pub color: [u8; 4],
 }
 
-
 /// A loaded mesh flattened to world-space triangles.
 #[derive(Debug)]
 pub struct WorldMesh {
