@@ -36,7 +36,7 @@ use std::collections::HashMap;
 use crate::camera::View;
 use crate::error::Result;
 use crate::lod::{self, Decision, LodParams, LodStats, Placement};
-use crate::raster::{self, alpha_passes, Frame};
+use crate::raster::{self, alpha_passes, Frame, Splat};
 use crate::scene::items::Item;
 use crate::scene::SceneFiles;
 
@@ -123,6 +123,8 @@ struct Sample {
     y: f32,
     z: f32,
     color: [u8; 4],
+    /// The splat of a sample wider than the footprint, drawn as its virtual children.
+    wide: Option<Splat>,
 }
 
 /// Draws a frame: cells back to front, each cell's samples in its (kept or new) order.
@@ -139,10 +141,15 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Par
     let mut stack: Vec<Item> = files.root_items()?;
     sort_far_first(files, view, &mut stack);
     stack.reverse();
-    let mut content: Vec<Item> = Vec::new();
+    let mut content: Vec<sct_format::Node> = Vec::new();
     let mut samples: Vec<Sample> = Vec::new();
     let mut keys: Vec<f32> = Vec::new();
+    // The same bounds as the other methods: nodes examined, and pixels under wide samples.
+    let mut wide_pixels = 0u64;
     while let Some(it) = stack.pop() {
+        if lod.nodes_visited > p.max_nodes {
+            return Err(limit(files, lod::NODES_EXAMINED, lod.nodes_visited, p.max_nodes));
+        }
         let n = files.item_node(&it)?;
         let pl = files.item_placement(view, &it);
         let (c, r) = camera_sphere(&pl, n.node.center, n.node.radius);
@@ -169,38 +176,31 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Par
         }
         // A cell: its samples, CELL_LEVELS down.
         content.clear();
-        content.push(it.clone());
-        for _ in 0..CELL_LEVELS {
-            let mut next = Vec::with_capacity(content.len() * 2);
-            for q in content.drain(..) {
-                let kids = if files.item_node(&q)?.refinable { files.item_children(&q)? } else { Vec::new() };
-                if kids.is_empty() {
-                    next.push(q);
-                } else {
-                    next.extend(kids);
-                }
-            }
-            content = next;
+        if n.refinable {
+            files.descendants(&it, CELL_LEVELS, &mut content)?;
+        } else {
+            content.push(n.node);
         }
         samples.clear();
-        let mut virtual_pixels = false;
+        let mut wide = false;
         // A two-sided tree's samples face both ways (spec §6.2): none is culled.
         let sample_params = if n.two_sided { LodParams { backface: false, ..draw_all } } else { draw_all };
         for q in &content {
-            let qn = files.item_node(q)?;
-            let qpl = files.item_placement(view, q);
-            if let Decision::Draw(s) = lod::decide(&qn.node, true, false, &qpl, view, &sample_params, &mut lod) {
-                if 1.0 / s.inv_b2.sqrt() > footprint * 1.01 {
-                    // Close-up: a sample wider than the footprint is replaced by virtual
+            if let Decision::Draw(s) = lod::decide(q, true, false, &pl, view, &sample_params, &mut lod) {
+                let is_wide = 1.0 / s.inv_b2.sqrt() > footprint * 1.01;
+                if is_wide {
+                    // Close-up: a sample wider than the footprint stands for virtual
                     // children, one per pixel its splat covers, at its depth.
-                    virtual_pixels = true;
-                    s.for_each_pixel(frame.width, frame.height, |i| {
-                        samples.push(Sample { x: (i % frame.width) as f32 + 0.5, y: (i / frame.width) as f32 + 0.5, z: s.z, color: s.color });
-                    });
+                    let [x0, x1, y0, y1] = s.bounds.map(i64::from);
+                    let (w, h) = (frame.width as i64, frame.height as i64);
+                    wide_pixels = wide_pixels.saturating_add(((x1.min(w - 1) - x0.max(0) + 1).max(0) * (y1.min(h - 1) - y0.max(0) + 1).max(0)) as u64);
+                    if wide_pixels > p.max_splat_pixels {
+                        return Err(limit(files, lod::PIXELS_COVERED, wide_pixels, p.max_splat_pixels));
+                    }
+                    wide = true;
                     stats.virtual_samples += 1;
-                } else {
-                    samples.push(Sample { x: s.x, y: s.y, z: s.z, color: s.color });
                 }
+                samples.push(Sample { x: s.x, y: s.y, z: s.z, color: s.color, wide: is_wide.then_some(s) });
             }
         }
         if samples.is_empty() {
@@ -227,7 +227,7 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Par
         // A kept order is reused when the cell's samples are the same ones (no close-up
         // replication): its permutation is still sorted along the kept axis.
         let reuse = kept_axis.is_some()
-            && !virtual_pixels
+            && !wide
             && orders.map.get(&key).is_some_and(|ord| ord.perm.len() == samples.len() && ord.perm.windows(2).all(|w| keys[w[0] as usize] >= keys[w[1] as usize] - 1e-5 * len));
         if !reuse {
             if kept_axis.is_some() {
@@ -239,8 +239,7 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Par
             orders.map.insert(key, Order { axis: k, sign: sgn, perm });
         }
         for &i in &orders.map[&key].perm {
-            stats.samples += 1;
-            draw(frame, &samples[i as usize]);
+            stats.samples += draw(frame, &samples[i as usize]);
         }
     }
     let before = frame.covered();
@@ -253,14 +252,31 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Par
     Ok((stats, lod))
 }
 
+/// The limit error of the other methods, naming the main file.
+fn limit(files: &SceneFiles, what: &'static str, value: u64, limit: u64) -> crate::Error {
+    crate::Error::sct(&files.main_path(), sct_format::Error::LimitExceeded { what, value, limit })
+}
+
 /// Camera-space direction of a tree-frame normal under `pl`.
 fn axis_rotate(pl: &Placement, n: [f32; 3]) -> [f32; 3] {
     [0, 1, 2].map(|i| pl.rot[i][0] * n[0] + pl.rot[i][1] * n[1] + pl.rot[i][2] * n[2])
 }
 
-/// Draws sample `q` over what is there (no depth test): the pixel holding it.
-fn draw(frame: &mut Frame, q: &Sample) {
+/// Draws sample `q` over what is there (no depth test): the pixel holding it, or each pixel
+/// of a wide sample's splat (its virtual children). Returns the pixel samples drawn.
+fn draw(frame: &mut Frame, q: &Sample) -> u64 {
     let (w, h) = (frame.width, frame.height);
+    if let Some(s) = &q.wide {
+        let mut n = 0;
+        s.for_each_pixel(w, h, |i| {
+            n += 1;
+            if alpha_passes(s.color[3], i % w, i / w) {
+                frame.color[i] = s.color;
+                frame.depth[i] = s.z;
+            }
+        });
+        return n;
+    }
     let (x, y) = (q.x.floor(), q.y.floor());
     if x >= 0.0 && y >= 0.0 && (x as usize) < w && (y as usize) < h && q.z.is_finite() {
         let (x, y) = (x as usize, y as usize);
@@ -270,6 +286,7 @@ fn draw(frame: &mut Frame, q: &Sample) {
             frame.depth[i] = q.z;
         }
     }
+    1
 }
 
 /// Orders sibling items back to front. Two children of a tree node are ordered by the plane

@@ -94,6 +94,11 @@ impl SceneFiles {
         Ok(s)
     }
 
+    /// The path of the main file (as opened).
+    pub(crate) fn main_path(&self) -> PathBuf {
+        self.files.first().map(|f| f.path.clone()).unwrap_or_default()
+    }
+
     /// Turns the BLAKE3 check of inline targets off (it reads each target file whole once).
     pub fn set_verify_inline_hashes(&mut self, on: bool) {
         self.verify_inline_hashes = on;

@@ -129,3 +129,16 @@ fn canopy_refuses_an_image_graph_beyond_its_caps() {
     let r = render_file(&p, &opts).expect("a small pile draws");
     assert!(r.stats.splats > 0);
 }
+
+/// `parilov` walks the scene node by node: on a tree of identical nodes (which never shrink)
+/// it stops at the same node and pixel limits as the other methods, without holding a
+/// virtual sample per pixel (6.8 GB before that was fixed).
+#[test]
+fn parilov_stops_at_the_render_limits() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let p = write(&dir.path().join("same.sct"), vec![GraphNode::Tree { tree: 0 }], 0, vec![identical_tree(16)]);
+    let opts = RenderOptions { method: render_preview::Method::Parilov, ..small() };
+    let (what, _) = limit_of(render_file(&p, &RenderOptions { max_nodes: 20_000, ..opts.clone() }));
+    assert!(what == render_preview::NODES_EXAMINED || what == render_preview::PIXELS_COVERED, "{what}");
+    assert_eq!(limit_of(render_file(&p, &RenderOptions { max_splat_pixels: 100_000, ..opts.clone() })).1, 100_000);
+}

@@ -124,6 +124,33 @@ impl SceneFiles {
         }
     }
 
+    /// The nodes `levels` levels below a plain tree's item (and the leaves above that depth),
+    /// left to right, appended to `out`; nothing for other items. Walks level ranges: the
+    /// children of consecutive internal nodes are consecutive in the next level.
+    pub(crate) fn descendants(&self, it: &Item, levels: u32, out: &mut Vec<Node>) -> Result<()> {
+        let Kind::Tree { tree, group: false, d, i, .. } = it.kind else { return Ok(()) };
+        let f = &self.files[it.chain.file];
+        let cache = &f.trees[tree as usize];
+        let (mut lo, mut hi, mut level) = (i, i + 1, d as usize);
+        for step in 0..=levels {
+            let mut next: Option<(u64, u64)> = None;
+            for j in lo..hi {
+                let at = cache.node_at(&f.reader, level, j)?;
+                if at.internal && step < levels {
+                    let first = next.map_or(at.first_child, |(l, _)| l);
+                    next = Some((first, at.first_child + 2));
+                } else {
+                    out.push(at.node);
+                }
+            }
+            match next {
+                Some((l, h)) => (lo, hi, level) = (l, h, level + 1),
+                None => break,
+            }
+        }
+        Ok(())
+    }
+
     /// The item's children (empty for a tree leaf outside a group tree).
     pub(crate) fn item_children(&mut self, it: &Item) -> Result<Vec<Item>> {
         let fi = it.chain.file;
