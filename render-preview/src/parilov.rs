@@ -21,8 +21,9 @@
 //! - **Cells are subtrees** with a fixed depth of samples below them (the paper's octree
 //!   nodes hold a fixed 16³ sample grid), so a cell's samples do not change with the view
 //!   and its order is a permutation kept with its axis.
-//! - **Sorting** is a comparison sort on the sample's coordinate along the axis (the paper's
-//!   counting sort needs its sample grid).
+//! - **Sorting** is linear, as the paper's: a counting sort of the samples' coordinates along
+//!   the axis, quantized to 16 bits over the cell (the paper's 4-bit grid coordinate is a
+//!   property of its sample grid, which SCT cells do not have).
 //! - **Close-ups:** a sample wider than the footprint is replaced by "virtual children", one
 //!   per pixel its splat covers, at its depth (the paper replicates samples into temporary
 //!   octree children). Such cells are sorted again every frame along their kept axis
@@ -233,10 +234,7 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Par
             if kept_axis.is_some() {
                 stats.cells_recut += 1;
             }
-            let mut perm: Vec<u32> = (0..samples.len() as u32).collect();
-            // Farthest first; ties in index order, so a frame repeats exactly.
-            perm.sort_by(|&x, &y| keys[y as usize].total_cmp(&keys[x as usize]).then(x.cmp(&y)));
-            orders.map.insert(key, Order { axis: k, sign: sgn, perm });
+            orders.map.insert(key, Order { axis: k, sign: sgn, perm: counting_sort_far_first(&keys) });
         }
         for &i in &orders.map[&key].perm {
             stats.samples += draw(frame, &samples[i as usize]);
@@ -250,6 +248,36 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Par
     let secs = t0.elapsed().as_secs_f64();
     stats.samples_per_second = if secs > 0.0 { stats.samples as f64 / secs } else { 0.0 };
     Ok((stats, lod))
+}
+
+/// Sample indices ordered by `keys`, largest (farthest) first, by a linear sort: the keys
+/// quantized to 16 bits over their range and sorted by two stable counting passes of 8 bits
+/// (the paper's counting sort on its 4-bit grid coordinate, with finer buckets). Samples in
+/// one bucket (within 1/65,536 of the cell's depth range) keep their index order, so a frame
+/// repeats exactly.
+fn counting_sort_far_first(keys: &[f32]) -> Vec<u32> {
+    let (lo, hi) = keys.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &k| (l.min(k), h.max(k)));
+    let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
+    // Descending key = ascending (65535 − quantized key).
+    let q: Vec<u16> = keys.iter().map(|&k| 65535 - (((k - lo) * scale).clamp(0.0, 65535.0) as u16)).collect();
+    let mut a: Vec<u32> = (0..keys.len() as u32).collect();
+    let mut b = vec![0u32; keys.len()];
+    for shift in [0u32, 8] {
+        let mut count = [0usize; 257];
+        for &i in &a {
+            count[((q[i as usize] >> shift) & 0xff) as usize + 1] += 1;
+        }
+        for d in 0..256 {
+            count[d + 1] += count[d];
+        }
+        for &i in &a {
+            let d = ((q[i as usize] >> shift) & 0xff) as usize;
+            b[count[d]] = i;
+            count[d] += 1;
+        }
+        std::mem::swap(&mut a, &mut b);
+    }
+    a
 }
 
 /// The limit error of the other methods, naming the main file.
@@ -329,4 +357,24 @@ fn sort_far_first(files: &SceneFiles, view: &View, items: &mut [Item]) {
     d.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
     let sorted: Vec<Item> = d.iter().map(|&(_, i)| items[i].clone()).collect();
     items.clone_from_slice(&sorted);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::counting_sort_far_first;
+
+    #[test]
+    fn counting_sort_orders_far_first_and_keeps_ties_in_index_order() {
+        let keys = [0.5f32, 2.0, -1.0, 2.0, 0.0, 1.0e-9, 0.5];
+        let perm = counting_sort_far_first(&keys);
+        assert_eq!(perm, [1, 3, 0, 6, 4, 5, 2]);
+        assert_eq!(counting_sort_far_first(&[]), Vec::<u32>::new());
+        assert_eq!(counting_sort_far_first(&[3.0, 3.0]), [0, 1]);
+        // Against a comparison sort on random keys (ties broken by index).
+        let mut rng = sct_format::rng::SplitMix64(7);
+        let keys: Vec<f32> = (0..1000).map(|_| (rng.next_u64() % 5000) as f32 * 0.25).collect();
+        let mut want: Vec<u32> = (0..1000).collect();
+        want.sort_by(|&x, &y| keys[y as usize].total_cmp(&keys[x as usize]).then(x.cmp(&y)));
+        assert_eq!(counting_sort_far_first(&keys), want);
+    }
 }
