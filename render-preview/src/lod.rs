@@ -368,7 +368,8 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
 
 /// [`decide`] when collecting leaves for ray tracing: a node is culled when the scaled
 /// supports of all its leaves lie outside the view frustum, or all face away from the eye;
-/// otherwise internal nodes refine and leaves become surfels.
+/// otherwise internal nodes refine (unless below the pixel footprint) and leaves become
+/// surfels.
 #[allow(clippy::too_many_arguments)]
 #[inline]
 fn decide_leaf(n: &Node, leaf: bool, group: bool, c: [f32; 3], r: f32, scale: f32, pl: &Placement, view: &View, p: &LodParams, st: &mut LodStats) -> Decision {
@@ -387,13 +388,23 @@ fn decide_leaf(n: &Node, leaf: bool, group: bool, c: [f32; 3], r: f32, scale: f3
         st.backface_culled += 1;
         return Decision::Cull;
     }
-    if !leaf {
+    // Far away, whole subtrees shrink below a pixel: an internal node whose sphere projects
+    // to at most `LOD_FRACTION × pixel_error` stands for its leaves (Wald & Seidel use every
+    // point; this is the level-of-detail extension the write-up suggests). It keeps the
+    // splats of a scene of many instances near one per pixel and layer instead of one per
+    // leaf, within `--max-nodes`. Group leaves keep descending: their subtree is a scene.
+    let small = !leaf && !group && view.projected_radius(c, r) <= p.pixel_error * crate::wald::LOD_FRACTION;
+    if !leaf && !small {
         return Decision::Refine;
     }
     if group {
         return Decision::Descend;
     }
-    st.leaf_splats += 1;
+    if small {
+        st.internal_splats += 1;
+    } else {
+        st.leaf_splats += 1;
+    }
     let mut color = n.color;
     if let Some(t) = pl.tint {
         color = sct_format::traverse::tint_color(color, t);

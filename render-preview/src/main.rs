@@ -153,7 +153,8 @@ struct RenderArgs {
     /// Vertical field of view in degrees, in (0.01, 179).
     #[arg(long, default_value_t = view::DEFAULT_FOV_Y_DEG, value_parser = fov_degrees)]
     fov: f64,
-    /// LOD threshold: largest projected splat radius in pixels (see --lod-size).
+    /// LOD threshold: largest projected splat radius in pixels (see --lod-size); wald:
+    /// internal nodes whose sphere projects to at most half of it stand for their leaves.
     #[arg(long, default_value_t = 1.0, value_parser = positive_f32)]
     pixel_error: f32,
     /// Lambert + ambient headlight, or the stored colour only.

@@ -5,12 +5,12 @@
 //! | `zbuffer` (default) | opaque elliptical splats of the LOD cut | depth buffer | `--pixel-error` |
 //! | `gauss` | elliptical Gaussian kernels of the same cut (Coconu & Hege) | per-frame depth sort, back to front, no depth buffer | `--pixel-error` (the sample spacing `d_t` on screen) |
 //! | `canopy` | EQ 46 discs of the nodes' spheres, cut at `t3`, after image-graph occlusion culling (thesis) | reverse occlusion-mask order, no depth buffer | `--canopy-t3` (px) |
-//! | `wald` | the implicit surface of hat-weighted splats of every leaf in view (Wald & Seidel), one ray per pixel | first sign change along each ray | `--wald-radius-scale` (and `--wald-k`) |
+//! | `wald` | the implicit surface of hat-weighted splats of every leaf in view (Wald & Seidel; far internal nodes below half of `--pixel-error` stand for their leaves), one ray per pixel | first sign change along each ray | `--wald-radius-scale` (and `--wald-k`) |
 //!
 //! Every method walks the same scene graph (groups, instances, tints, inlines). `zbuffer` and
 //! `gauss` refine it with the same LOD test, so at equal `--pixel-error` they draw the same cut
 //! and differ only in how they composite it; `canopy` has its own three-stage refinement;
-//! `wald` takes every leaf in view (no LOD) and ray-traces them.
+//! `wald` takes every leaf in view (but for subtrees below half a pixel) and ray-traces them.
 
 use rayon::prelude::*;
 

@@ -4,18 +4,26 @@
 //! A short tour:
 //!
 //! 1. **Leaves.** The scene graph is walked with the other methods' refinement
-//!    ([`SceneFiles::collect_surfels`](crate::SceneFiles)), but no cut is chosen: every leaf
-//!    whose support may be seen (frustum and normal-cone culling of the scaled spheres)
-//!    becomes a camera-space [`Surfel`] `(p, n, r, colour)` with its instance's transform and
-//!    tint applied; groups, instances and inlines are followed as for any method, and
-//!    `--max-nodes` bounds the leaves (32 bytes each).
+//!    ([`SceneFiles::collect_surfels`](crate::SceneFiles)): every leaf whose support may be
+//!    seen (frustum and normal-cone culling of the scaled spheres) becomes a camera-space
+//!    [`Surfel`] `(p, n, r, colour)` with its instance's transform and tint applied; groups,
+//!    instances and inlines are followed as for any method, and `--max-nodes` bounds the
+//!    work (32 bytes a splat). The paper uses every point; here an internal node whose
+//!    sphere projects to at most [`LOD_FRACTION`] × `--pixel-error` stands for its leaves,
+//!    so that far instances cost about a splat per pixel: `compare`'s 20 × 20 bunny grid
+//!    (275 M leaves) at 512² traces 576k splats in 1.2 s and scores 16.8 dB / IoU 0.963
+//!    against the mesh (zbuffer 12.9 dB / 0.894). A single model at preview sizes is all
+//!    leaves.
 //! 2. **Structure.** A bounding-volume hierarchy of the surfels' supports (spheres of radius
 //!    leaf radius × `--wald-radius-scale`), split at the median of the longest axis down to
 //!    [`LEAF_SIZE`] surfels. The scene's own sphere tree is not traced directly: instances
 //!    and inlines would need the ray transformed into each use, group leaves expanded per
 //!    ray and blocks decoded from many threads; one flat hierarchy in camera space serves
-//!    every scene alike. Wald's SAH k-d tree with leaf shrinking is not built (see
-//!    "intervals" below for what stands in for its tight cells).
+//!    every scene alike. On the bunny (310k splats, 384²) it builds in 0.05–0.1 s, holds
+//!    17 MB and costs 21 node visits per ray (the paper's k-d tree: 41–55 traversal steps).
+//!    Tracing the scene's sphere tree per ray was not measured against it. Wald's SAH k-d
+//!    tree with leaf shrinking is not built (see "intervals" below for what stands in for
+//!    its tight cells).
 //! 3. **Surface.** Each splat weighs a point `x` with the hat `w_i = 1 − |x − p_i| / r_i`
 //!    inside its sphere (paper §3.1); with `W = Σ w_i` the surface is the zero set of
 //!    `F(x) = (W·x − Σ w_i p_i) · Σ w_i n_i` (EQ 1–2: `W²` times the distance to the
@@ -45,6 +53,11 @@ use rayon::prelude::*;
 use crate::camera::View;
 use crate::raster::{alpha_passes, Frame};
 use crate::shade::{self, linear_to_srgb8, srgb_to_linear_lut, Shading};
+
+/// Internal nodes whose sphere projects to at most this fraction of `--pixel-error` (px)
+/// become splats instead of their leaves: at the default 1 px, half a pixel, so what the
+/// coarser splat loses is below the pixel.
+pub const LOD_FRACTION: f32 = 0.5;
 
 /// Surfels per leaf of the hierarchy.
 pub const LEAF_SIZE: usize = 4;
