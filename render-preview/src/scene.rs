@@ -336,6 +336,10 @@ impl SceneFiles {
             let rows = (y1.min(h - 1) - y0.max(0) + 1).max(0);
             sum.saturating_add(cols.saturating_mul(rows) as u64)
         });
+        // A ray-traced splat costs a ray per pixel its support's projection covers (the
+        // `wald` method): the same bound, so that a large radius scale or a close-up fails
+        // fast instead of tracing for hours.
+        let pixels = surfels.iter().fold(pixels, |sum, sf| sum.saturating_add(crate::wald::support_pixels(sf, view)));
         if pixels > p.max_splat_pixels {
             let e = sct_format::Error::LimitExceeded { what: lod::PIXELS_COVERED, value: pixels, limit: p.max_splat_pixels };
             return Err(Error::sct(&self.files[0].path, e));

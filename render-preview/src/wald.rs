@@ -65,6 +65,14 @@ pub const LEAF_SIZE: usize = 4;
 /// The paper's samples per cell (§3.2.1: "a constant number of k = 4 samples").
 pub const DEFAULT_K: u32 = 4;
 
+/// Largest radius scale: each doubling quadruples the splats a ray meets, and beyond a few
+/// leaf radii the surface is only a blur of the model.
+pub const MAX_RADIUS_SCALE: f32 = 8.0;
+
+/// Most intervals one cluster is cut into (see `Tracer::sample_cluster`): at the default
+/// radii a cluster holds about ten splats (twenty boundaries), so only wide supports reach it.
+pub const MAX_INTERVALS: usize = 32;
+
 /// Most samples per interval (`--wald-k`): more only costs time.
 pub const MAX_K: u32 = 1024;
 
@@ -87,8 +95,8 @@ impl Default for WaldOptions {
 impl WaldOptions {
     /// Checks the settings (a usage error otherwise).
     pub fn validate(&self) -> std::result::Result<(), String> {
-        if !(self.radius_scale.is_finite() && self.radius_scale > 0.0 && self.radius_scale <= 64.0) {
-            return Err(format!("wald radius scale {} must lie in (0, 64]", self.radius_scale));
+        if !(self.radius_scale.is_finite() && self.radius_scale > 0.0 && self.radius_scale <= MAX_RADIUS_SCALE) {
+            return Err(format!("wald radius scale {} must lie in (0, {MAX_RADIUS_SCALE}]", self.radius_scale));
         }
         if !(2..=MAX_K).contains(&self.k) {
             return Err(format!("wald k {} must lie in 2..={MAX_K} (samples per interval, both ends included)", self.k));
@@ -423,6 +431,18 @@ impl Tracer<'_> {
         }
         sc.ends.sort_unstable_by(f32::total_cmp);
         sc.ends.dedup();
+        // Wide supports (a large radius scale) make runs of hundreds of splats, and samples
+        // at every boundary would cost samples × splats ∝ m²: past MAX_INTERVALS the
+        // boundaries are thinned evenly, the cluster's two ends kept.
+        if sc.ends.len() > MAX_INTERVALS + 1 {
+            let n = sc.ends.len() - 1;
+            let mut j = 0;
+            sc.ends.retain(|_| {
+                let keep = j * MAX_INTERVALS % n < MAX_INTERVALS || j == n;
+                j += 1;
+                keep
+            });
+        }
         let steps = self.k - 1;
         let mut old: Option<(f32, f32)> = None; // (t, F) of the last sample with W > 0
         for w in sc.ends.windows(2) {
@@ -457,7 +477,11 @@ impl Tracer<'_> {
         let mut dp = [0.0f32; 3]; // Σ w (x − p), i.e. W·x − Σ w p
         let mut nn = [0.0f32; 3]; // Σ w n
         for s in spans {
-            if t < s.t0 || t > s.t1 {
+            // Spans are sorted by entry: none after this one reaches back to `t`.
+            if s.t0 > t {
+                break;
+            }
+            if t > s.t1 {
                 continue;
             }
             cn.weights += 1;
@@ -484,6 +508,9 @@ impl Tracer<'_> {
         let mut nn = [0.0f32; 3];
         let mut col = [0.0f32; 4];
         for s in spans {
+            if s.t0 > t {
+                break;
+            }
             let sf = &self.bvh.surfels[s.i as usize];
             let v = [x[0] - sf.c[0], x[1] - sf.c[1], x[2] - sf.c[2]];
             let w = 1.0 - (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() / sf.r;
@@ -561,6 +588,21 @@ pub fn trace(frame: &mut Frame, bvh: &Bvh, view: &View, opts: &WaldOptions, shad
     }
 }
 
+/// Pixels whose centre may see `s`'s support: its projected bounding box clipped to the
+/// image, the whole image when the support reaches the eye plane.
+pub(crate) fn support_pixels(s: &Surfel, view: &View) -> u64 {
+    let (w, h) = (f64::from(view.width), f64::from(view.height));
+    let r = view.projected_radius(s.c, s.r);
+    if !r.is_finite() {
+        return (w * h) as u64;
+    }
+    let [x, y] = view.project(s.c);
+    let (r, x, y) = (f64::from(r), f64::from(x), f64::from(y));
+    let cols = ((x + r).min(w) - (x - r).max(0.0)).max(0.0) + 1.0;
+    let rows = ((y + r).min(h) - (y - r).max(0.0)).max(0.0) + 1.0;
+    (cols.min(w) * rows.min(h)) as u64
+}
+
 /// Ray–splat pairs of a traced frame (the `fragments` of [`crate::Work`]).
 pub(crate) fn fragments(s: &WaldStats) -> u64 {
     (s.splats_per_ray * s.rays as f64).round() as u64
@@ -605,6 +647,18 @@ mod tests {
         let tr = Tracer { bvh: &bvh, k: 4, near: 1e-3, lut: srgb_to_linear_lut() };
         let h = tr.trace([0.0, 0.0, 1.0], (0, 0), &mut Scratch::default(), &mut Counts::default()).unwrap();
         assert!((h.t - 2.0).abs() < 1e-3, "{}", h.t);
+    }
+
+    #[test]
+    fn wide_supports_are_sampled_within_the_interval_cap() {
+        // Supports of five spacings: a ray meets about 80 of them, 160 boundaries, thinned
+        // to MAX_INTERVALS; the plane is still found, at its depth.
+        let bvh = Bvh::build(plane(40, 0.1, 5.0).into_iter().map(|s| Surfel { r: 0.5, ..s }).collect());
+        let tr = Tracer { bvh: &bvh, k: 4, near: 1e-3, lut: srgb_to_linear_lut() };
+        let mut cn = Counts::default();
+        let h = tr.trace([0.013, -0.021, 1.0], (0, 0), &mut Scratch::default(), &mut cn).unwrap();
+        assert!((h.t - 5.0).abs() < 1e-3, "{}", h.t);
+        assert!(cn.splats > 40 && cn.samples <= (MAX_INTERVALS as u64 + 2) * 3 + 1, "{} splats, {} samples", cn.splats, cn.samples);
     }
 
     #[test]
