@@ -116,8 +116,9 @@ struct RenderArgs {
     /// canopy: draw the stage-3 discs through a depth buffer instead of in reverse mask order.
     #[arg(long)]
     canopy_zbuffer: bool,
-    /// wald: support radius of each splat as a multiple of its leaf's radius (the method's
-    /// quality knob; 1: the radii as stored, as the paper uses its radii).
+    /// wald: support radius of each splat as a multiple of its leaf's radius, in (0, 8] (the
+    /// method's quality knob; 1: the radii as stored, as the paper uses its radii; a ray
+    /// meets about scale² as many splats).
     #[arg(long, default_value_t = render_preview::WaldOptions::default().radius_scale)]
     wald_radius_scale: f32,
     /// wald: samples of the implicit function per ray interval, both ends included (the

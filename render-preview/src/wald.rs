@@ -37,7 +37,10 @@
 //!    same splats overlap the ray (the 1-D counterpart of a k-d cell, as tight as the
 //!    supports allow). `F` is sampled at `k` evenly spaced points of each interval
 //!    (`--wald-k`, ends shared), using only the cluster's splats; the first sign change is
-//!    interpolated linearly (the paper's INTERSECT, §3.2.1).
+//!    interpolated linearly (the paper's INTERSECT, §3.2.1). Wide supports make long runs
+//!    whose boundaries are thinned to [`MAX_INTERVALS`], so that a ray costs samples ×
+//!    splats, not splats²: radius scale 4 on the bunny at 384² traces in 5 s (20 s
+//!    without), scale 1 is unchanged (33.1 dB).
 //! 6. **Shading.** At the hit, the normal is `Σ w_i n_i` normalized, the colour the
 //!    `w`-weighted mean of the splat colours in linear light, lit by the same Lambert
 //!    headlight as every method ([`crate::shade`]). A blended alpha below 255 takes the
