@@ -548,6 +548,7 @@ pub fn trace(frame: &mut Frame, bvh: &Bvh, view: &View, opts: &WaldOptions, shad
     let t0 = Instant::now();
     let w = frame.width;
     let tracer = Tracer { bvh, k: opts.k.clamp(2, MAX_K), near: view.near, lut: srgb_to_linear_lut() };
+    let mask = reach_mask(bvh, view);
     let counts = frame
         .color
         .par_chunks_mut(w.max(1))
@@ -557,6 +558,11 @@ pub fn trace(frame: &mut Frame, bvh: &Bvh, view: &View, opts: &WaldOptions, shad
             let mut cn = Counts::default();
             let dy = -((y as f32 + 0.5) - view.cy) / view.focal;
             for (x, (c, z)) in crow.iter_mut().zip(drow.iter_mut()).enumerate() {
+                if !mask[y * w + x] {
+                    // No support projects onto this pixel: the ray meets nothing.
+                    cn.rays += 1;
+                    continue;
+                }
                 let d = [((x as f32 + 0.5) - view.cx) / view.focal, dy, 1.0];
                 let Some(h) = tracer.trace(d, (x, y), sc, &mut cn) else { continue };
                 let k = if shading == Shading::Lambert {
@@ -604,6 +610,38 @@ pub(crate) fn support_pixels(s: &Surfel, view: &View) -> u64 {
     let cols = ((x + r).min(w) - (x - r).max(0.0)).max(0.0) + 1.0;
     let rows = ((y + r).min(h) - (y - r).max(0.0)).max(0.0) + 1.0;
     (cols.min(w) * rows.min(h)) as u64
+}
+
+/// Pixels whose ray may meet a support: the union of the supports' projected bounding
+/// boxes (widened by a pixel against rounding). Most pixels of a preview are background,
+/// and their rays would otherwise walk the hierarchy down to the supports they pass by.
+fn reach_mask(bvh: &Bvh, view: &View) -> Vec<bool> {
+    let (w, h) = (view.width as usize, view.height as usize);
+    let mut mask = vec![false; w * h];
+    for s in &bvh.surfels {
+        let r = view.projected_radius(s.c, s.r);
+        if !r.is_finite() {
+            // The support reaches the eye plane: it may be met anywhere.
+            mask.fill(true);
+            return mask;
+        }
+        let [x, y] = view.project(s.c);
+        let span = |c: f32, n: usize| {
+            let lo = (c - r - 1.0).floor().max(0.0);
+            let hi = (c + r + 1.0).ceil().min(n as f32 - 1.0);
+            (lo as usize, hi as usize, hi >= lo)
+        };
+        let ((x0, x1, okx), (y0, y1, oky)) = (span(x, w), span(y, h));
+        if okx && oky {
+            for row in mask[y0 * w..=y1 * w + x1].chunks_mut(w) {
+                let end = x1.min(row.len() - 1);
+                if x0 <= end {
+                    row[x0..=end].fill(true);
+                }
+            }
+        }
+    }
+    mask
 }
 
 /// Ray–splat pairs of a traced frame (the `fragments` of [`crate::Work`]).
