@@ -146,7 +146,8 @@ pub struct CompareResult {
     pub scenes: Vec<SceneResult>,
 }
 
-/// `base` with method `m` at knob value `k` (`pixel_error`, or canopy's `t3`).
+/// `base` with method `m` at knob value `k` (`pixel_error`, canopy's `t3` or wald's
+/// `radius_scale`).
 fn with_knob(base: &RenderOptions, m: Method, k: f32) -> RenderOptions {
     match m {
         Method::Zbuffer | Method::Gauss | Method::Parilov => RenderOptions { method: m, pixel_error: k, ..base.clone() },
@@ -154,6 +155,7 @@ fn with_knob(base: &RenderOptions, m: Method, k: f32) -> RenderOptions {
             let c = base.canopy;
             RenderOptions { method: m, canopy: crate::CanopyOptions { t3: k, t2: c.t2.max(k), t1: c.t1.max(k), ..c }, ..base.clone() }
         }
+        Method::Wald => RenderOptions { method: m, wald: crate::WaldOptions { radius_scale: k, ..base.wald }, ..base.clone() },
     }
 }
 
@@ -261,7 +263,8 @@ pub fn run(o: &CompareOptions, mut progress: impl FnMut(&str)) -> Result<Compare
                 let (r, secs, min, raster) = timed(&scene.sct, &opts, o.repeat)?;
                 let mt = metrics::compare(&r.frame, &refr);
                 let (vs, culling) = match m {
-                    Method::Zbuffer => (None, None),
+                    // `wald` draws no LOD cut: it has no depth-buffered twin to order against.
+                    Method::Zbuffer | Method::Wald => (None, None),
                     Method::Gauss | Method::Parilov => (zframes[ki].as_ref().map(|z| metrics::compare(&r.frame, z)), None),
                     Method::Canopy => {
                         // Ordering: the same discs through a depth buffer; culling: the same

@@ -8,8 +8,9 @@
 //!
 //! [`method`] lists the preview methods behind [`RenderOptions::method`]: `zbuffer` (the
 //! above, the default), [`gauss`] (Coconu & Hege's elliptical Gaussian splats blended back
-//! to front) and [`canopy`] (the thesis's image-graph occlusion culling and depth-buffer-free
-//! order); each reports [`Work`] counters.
+//! to front), [`canopy`] (the thesis's image-graph occlusion culling and depth-buffer-free
+//! order) and [`wald`] (Wald & Seidel: one ray per pixel through the implicit surface of
+//! hat-weighted splats); each reports [`Work`] counters.
 //!
 //! [`reference`](mod@reference) renders the source mesh with a triangle rasterizer under the same camera
 //! and shading, and [`metrics`] compares the two (PSNR, SSIM, silhouette IoU, holes);
@@ -42,6 +43,7 @@ pub mod scenes;
 pub mod shade;
 pub mod sweep;
 pub mod synth;
+pub mod wald;
 
 use std::path::Path;
 use std::time::Instant;
@@ -56,6 +58,7 @@ pub use lod::{LodStats, NODES_EXAMINED, PIXELS_COVERED};
 pub use raster::{Frame, Splat};
 pub use scene::SceneFiles;
 pub use shade::Shading;
+pub use wald::{WaldOptions, WaldStats};
 
 use sct_format::view;
 use sct_format::Limits;
@@ -104,6 +107,8 @@ pub struct RenderOptions {
     pub canopy: CanopyOptions,
     /// Settings of [`Method::Parilov`].
     pub parilov: ParilovOptions,
+    /// Settings of [`Method::Wald`].
+    pub wald: WaldOptions,
     /// Image width in pixels.
     pub width: u32,
     /// Image height in pixels.
@@ -166,6 +171,7 @@ impl Default for RenderOptions {
             gauss: GaussOptions::default(),
             canopy: CanopyOptions::default(),
             parilov: ParilovOptions::default(),
+            wald: WaldOptions::default(),
             width: view::DEFAULT_WIDTH,
             height: view::DEFAULT_HEIGHT,
             view: ViewPreset::Front,
@@ -284,6 +290,8 @@ pub struct RenderStats {
     pub canopy: Option<CanopyStats>,
     /// Cells, re-sorts and samples (`parilov` only).
     pub parilov: Option<ParilovStats>,
+    /// Per-ray counters (`wald` only).
+    pub wald: Option<WaldStats>,
     /// Splats rasterized.
     pub splats: u64,
     /// Refinement counters.
@@ -373,6 +381,7 @@ fn setup(files: &SceneFiles, opts: &RenderOptions) -> Result<(Camera, f64, View,
         lod_size: opts.lod_size,
         outline_refine: OUTLINE_REFINE,
         kernel: (opts.method == Method::Gauss).then(|| gauss::Kernel::new(&opts.gauss)),
+        leaves: (opts.method == Method::Wald).then_some(opts.wald.radius_scale),
     };
     Ok((camera, near, view, params, up, t0.elapsed().as_secs_f64()))
 }
@@ -407,7 +416,38 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             return Err(Error::Invalid(format!("canopy t_OccCull {} and t_OccClip {} must be numbers (t_OccClip ≥ 0)", c.occ_cull, c.occ_clip)));
         }
     }
+    if opts.method == Method::Wald {
+        opts.wald.validate().map_err(Error::Invalid)?;
+    }
     let (camera, near, view, params, up_axis, frame_secs) = setup(files, opts)?;
+    if opts.method == Method::Wald {
+        let (surfels, lod) = files.collect_surfels(&view, &params)?;
+        let t1 = Instant::now();
+        let bvh = wald::Bvh::build(surfels);
+        let t2 = Instant::now();
+        let [r, g, b] = opts.background;
+        let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
+        let mut ws = wald::trace(&mut frame, &bvh, &view, &opts.wald, opts.shading);
+        let t3 = Instant::now();
+        ws.collect_seconds = (t1 - t0).as_secs_f64() - frame_secs;
+        ws.build_seconds = (t2 - t1).as_secs_f64();
+        let covered = frame.covered() as u64;
+        let stats = RenderStats {
+            method: opts.method,
+            work: Work::new(lod.nodes_visited, ws.splats, wald::fragments(&ws), covered, files.bytes_read()),
+            canopy: None,
+            parilov: None,
+            wald: Some(ws),
+            splats: ws.splats,
+            lod,
+            bytes_read: files.bytes_read(),
+            file_size: files.file_len(),
+            files: files.file_count(),
+            covered_pixels: covered,
+            seconds: Phases { open: 0.0, frame: frame_secs, traverse: (t2 - t0).as_secs_f64(), raster: (t3 - t2).as_secs_f64(), sort: 0.0, total: (t3 - t0).as_secs_f64() },
+        };
+        return Ok(Rendered { frame, camera, stats, near, up_axis, provenance: files.provenance() });
+    }
     let mask_order = opts.method == Method::Gauss && opts.gauss.order == gauss::Order::Mask;
     if opts.method == Method::Canopy || mask_order {
         let [r, g, b] = opts.background;
@@ -422,6 +462,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             work: Work::new(lod.nodes_visited, cs.nodes_rasterized, fragments, covered, files.bytes_read()),
             canopy: Some(cs),
             parilov: None,
+            wald: None,
             splats: cs.nodes_rasterized,
             lod,
             bytes_read: files.bytes_read(),
@@ -444,6 +485,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             work: Work::new(lod.nodes_visited, ps.samples, ps.samples + ps.holes_filled, covered, files.bytes_read()),
             canopy: None,
             parilov: Some(ps),
+            wald: None,
             splats: ps.samples,
             lod,
             bytes_read: files.bytes_read(),
@@ -460,7 +502,8 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
     let mut sort = 0.0;
     let fragments = match opts.method {
-        Method::Zbuffer | Method::Canopy | Method::Parilov => {
+        // `Parilov` and `Wald` returned above.
+        Method::Zbuffer | Method::Canopy | Method::Parilov | Method::Wald => {
             raster::rasterize(&mut frame, &splats);
             raster::fill_holes(&mut frame);
             None
@@ -482,6 +525,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         work: Work::new(lod.nodes_visited, splats.len() as u64, fragments, covered, files.bytes_read()),
         canopy: None,
         parilov: None,
+        wald: None,
         splats: splats.len() as u64,
         lod,
         bytes_read: files.bytes_read(),

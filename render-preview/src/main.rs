@@ -19,6 +19,7 @@ Examples:
   sct-render-preview duck.sct -o g.png --method gauss --reference Duck.glb --json
   sct-render-preview duck.sct -o g.png --method gauss --gauss-weighting normalized --gauss-lowpass 0
   sct-render-preview pair.sct -o c.png --method canopy --canopy-t3 1.7 --canopy-occ-cull 1.9 --json
+  sct-render-preview bunny.sct -o w.png --method wald --wald-radius-scale 1.2 --wald-k 8 --json
   sct-render-preview spot.sct -o s.png --reference spot_triangulated.obj --min-psnr 30 --min-iou 0.97
   sct-render-preview scan.sct -o scan.png --up z --view iso
   sct-render-preview sweep --model bunny.sct=bun_zipper.ply --pixel-errors 0.5,1,2,4,8 -o chart
@@ -34,7 +35,7 @@ Exit status: 0 success; 1 invalid input (malformed file, degenerate camera), not
 or I/O error.";
 
 #[derive(Parser, Debug)]
-#[command(name = "sct-render-preview", version, about = "Render a preview image of an SCT scene file on the CPU (LOD splatting: --method zbuffer, gauss or canopy).", after_help = EXAMPLES, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+#[command(name = "sct-render-preview", version, about = "Render a preview image of an SCT scene file on the CPU (LOD splatting: --method zbuffer, gauss or canopy; ray tracing: wald).", after_help = EXAMPLES, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
@@ -75,8 +76,10 @@ struct Cli {
 struct RenderArgs {
     /// Preview method: zbuffer (opaque splats, depth buffer), gauss (elliptical Gaussian
     /// splats blended back to front, no depth buffer; Coconu & Hege; both refine the LOD cut
-    /// of --pixel-error) or canopy (the thesis: image-graph occlusion culling, discs in
-    /// reverse occlusion-mask order; knobs --canopy-*).
+    /// of --pixel-error), canopy (the thesis: image-graph occlusion culling, discs in
+    /// reverse occlusion-mask order; knobs --canopy-*) or wald (Wald & Seidel: one ray per
+    /// pixel through the implicit surface of hat-weighted splats of every leaf; knobs
+    /// --wald-*).
     #[arg(long, value_enum, default_value_t = Method::Zbuffer)]
     method: Method,
     /// gauss: blend (alpha blending back to front, EQ 1) or normalized (EQ 2 over the
@@ -118,6 +121,15 @@ struct RenderArgs {
     /// the paper's practice, artifacts at most a pixel wide).
     #[arg(long, value_name = "DEG", default_value_t = 70.0)]
     parilov_threshold: f32,
+    /// wald: support radius of each splat as a multiple of its leaf's radius, in (0, 8] (the
+    /// method's quality knob; 1: the radii as stored, as the paper uses its radii; a ray
+    /// meets about scale² as many splats).
+    #[arg(long, default_value_t = render_preview::WaldOptions::default().radius_scale)]
+    wald_radius_scale: f32,
+    /// wald: samples of the implicit function per ray interval, both ends included (the
+    /// paper's k = 4); more find roots that small k steps over.
+    #[arg(long, default_value_t = render_preview::WaldOptions::default().k)]
+    wald_k: u32,
     /// Image width in pixels (1 to 16384).
     #[arg(long, default_value_t = view::DEFAULT_WIDTH, value_parser = clap::value_parser!(u32).range(1..=i64::from(render_preview::camera::MAX_SIDE)))]
     width: u32,
@@ -147,7 +159,8 @@ struct RenderArgs {
     /// Vertical field of view in degrees, in (0.01, 179).
     #[arg(long, default_value_t = view::DEFAULT_FOV_Y_DEG, value_parser = fov_degrees)]
     fov: f64,
-    /// LOD threshold: largest projected splat radius in pixels (see --lod-size).
+    /// LOD threshold: largest projected splat radius in pixels (see --lod-size); wald:
+    /// internal nodes whose sphere projects to at most half of it stand for their leaves.
     #[arg(long, default_value_t = 1.0, value_parser = positive_f32)]
     pixel_error: f32,
     /// Lambert + ambient headlight, or the stored colour only.
@@ -192,6 +205,7 @@ impl RenderArgs {
                 zbuffer: self.canopy_zbuffer,
             },
             parilov: render_preview::ParilovOptions { threshold_deg: self.parilov_threshold },
+            wald: render_preview::WaldOptions { radius_scale: self.wald_radius_scale, k: self.wald_k },
             width: self.width,
             height: self.height,
             view: self.view,
@@ -250,11 +264,12 @@ enum Command {
         /// N×N instances) or block:MESH:N (dense N×N×N instances); repeat per scene.
         #[arg(long = "scene", required = true)]
         scenes: Vec<render_preview::scenes::SceneSpec>,
-        /// Methods to compare: zbuffer, gauss, canopy, parilov (zbuffer is always rendered: it
-        /// is the ordering baseline of gauss and parilov).
+        /// Methods to compare: zbuffer, gauss, canopy, parilov, wald (zbuffer is always
+        /// rendered: it is the ordering baseline of gauss and parilov).
         #[arg(long, value_delimiter = ',', default_values_t = Method::ALL)]
         methods: Vec<Method>,
-        /// Knob values (--pixel-error for zbuffer, gauss and parilov, --canopy-t3 for canopy).
+        /// Knob values (--pixel-error for zbuffer, gauss and parilov, --canopy-t3 for canopy,
+        /// --wald-radius-scale for wald).
         #[arg(long, value_delimiter = ',', default_values_t = [0.5f32, 1.0, 2.0, 4.0])]
         knobs: Vec<f32>,
         /// Timed frames per point after a warm-up frame (the median counts).
@@ -456,6 +471,7 @@ fn preview(cli: &Cli, file: &Path, output: &Path) -> anyhow::Result<()> {
         "gauss": (opts.method == Method::Gauss).then_some(opts.gauss),
         "canopy": out.stats.canopy.map(|s| serde_json::json!({ "options": opts.canopy, "stats": s })),
         "parilov": out.stats.parilov.map(|s| serde_json::json!({ "options": opts.parilov, "stats": s })),
+        "wald": out.stats.wald.map(|s| serde_json::json!({ "options": opts.wald, "stats": s })),
         "work": out.stats.work,
         "splats": out.stats.splats,
         "nodes_visited": out.stats.lod.nodes_visited,

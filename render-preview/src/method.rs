@@ -6,10 +6,12 @@
 //! | `gauss` | elliptical Gaussian kernels of the same cut (Coconu & Hege) | per-frame depth sort, back to front, no depth buffer | `--pixel-error` (the sample spacing `d_t` on screen) |
 //! | `canopy` | EQ 46 discs of the nodes' spheres, cut at `t3`, after image-graph occlusion culling (thesis) | reverse occlusion-mask order, no depth buffer | `--canopy-t3` (px) |
 //! | `parilov` | one pixel per node of the cut (nodes at most `--pixel-error` px wide), in cells | cells back to front by split planes, each cell's kept sample order (Parilov & Stuerzlinger), no depth buffer | `--pixel-error` (px wide); `--parilov-threshold` (°) |
+//! | `wald` | the implicit surface of hat-weighted splats of every leaf in view (Wald & Seidel; far internal nodes below half of `--pixel-error` stand for their leaves), one ray per pixel | first sign change along each ray | `--wald-radius-scale` (and `--wald-k`) |
 //!
 //! Every method walks the same scene graph (groups, instances, tints, inlines). `zbuffer` and
 //! `gauss` refine it with the same LOD test, so at equal `--pixel-error` they draw the same cut
-//! and differ only in how they composite it; `canopy` has its own three-stage refinement.
+//! and differ only in how they composite it; `canopy` has its own three-stage refinement;
+//! `wald` takes every leaf in view (but for subtrees below half a pixel) and ray-traces them.
 
 use rayon::prelude::*;
 
@@ -30,11 +32,14 @@ pub enum Method {
     /// Multi-view visibility orderings: one pixel per sample in kept per-cell orders, cells
     /// back to front, no depth buffer (Parilov & Stuerzlinger).
     Parilov,
+    /// One ray per pixel through the implicit surface of hat-weighted splats of every leaf
+    /// (Wald & Seidel 2005).
+    Wald,
 }
 
 impl Method {
     /// Every method, in the order charts list them.
-    pub const ALL: [Method; 4] = [Method::Zbuffer, Method::Gauss, Method::Canopy, Method::Parilov];
+    pub const ALL: [Method; 5] = [Method::Zbuffer, Method::Gauss, Method::Canopy, Method::Parilov, Method::Wald];
 
     /// The name used on the command line and in JSON.
     pub fn name(self) -> &'static str {
@@ -43,6 +48,7 @@ impl Method {
             Method::Gauss => "gauss",
             Method::Canopy => "canopy",
             Method::Parilov => "parilov",
+            Method::Wald => "wald",
         }
     }
 
@@ -51,6 +57,7 @@ impl Method {
         match self {
             Method::Zbuffer | Method::Gauss | Method::Parilov => "pixel_error",
             Method::Canopy => "t3",
+            Method::Wald => "radius_scale",
         }
     }
 }
@@ -64,7 +71,7 @@ impl std::fmt::Display for Method {
 impl std::str::FromStr for Method {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        Method::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| format!("unknown method {s:?} (zbuffer, gauss, canopy, parilov)"))
+        Method::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| format!("unknown method {s:?} (zbuffer, gauss, canopy, parilov, wald)"))
     }
 }
 

@@ -241,11 +241,27 @@ impl SceneFiles {
 
     /// Refines the whole scene for `view`, returning splats in a deterministic order.
     pub(crate) fn collect(&mut self, view: &View, p: &LodParams) -> Result<(Vec<Splat>, LodStats)> {
+        let (splats, _, stats) = self.walk(view, p)?;
+        Ok((splats, stats))
+    }
+
+    /// Every leaf of the scene in the view, as camera-space surfels with their instance's
+    /// placement and tint applied, in a deterministic order (`p.leaves` must be set: the
+    /// `wald` method). Bounded by `p.max_nodes` like any refinement.
+    pub(crate) fn collect_surfels(&mut self, view: &View, p: &LodParams) -> Result<(Vec<crate::wald::Surfel>, LodStats)> {
+        debug_assert!(p.leaves.is_some());
+        let (_, surfels, stats) = self.walk(view, p)?;
+        Ok((surfels, stats))
+    }
+
+    /// The graph walk behind [`Self::collect`] and [`Self::collect_surfels`].
+    fn walk(&mut self, view: &View, p: &LodParams) -> Result<(Vec<Splat>, Vec<crate::wald::Surfel>, LodStats)> {
         let mut splats = Vec::new();
+        let mut surfels = Vec::new();
         let mut stats = LodStats::default();
         let mut queue = VecDeque::new();
         if self.files.is_empty() {
-            return Ok((splats, stats));
+            return Ok((splats, surfels, stats));
         }
         let root = self.files[0].reader.graph().root;
         let chain = Rc::new(Chain { file: 0, parent: None, depth: 0 });
@@ -275,6 +291,7 @@ impl SceneFiles {
                     let mut out = TreeOut::default();
                     lod::traverse(&f.reader, cache, &pl, view, p, group, stats.nodes_visited, &mut out)?;
                     splats.append(&mut out.splats);
+                    surfels.append(&mut out.surfels);
                     stats.add(&out.stats);
                     if let GraphNode::Group { children, .. } = &gnode {
                         for j in out.group_leaves {
@@ -298,7 +315,8 @@ impl SceneFiles {
                     let mut st = LodStats::default();
                     let by_bound = lod::LodParams { backface: false, ..*p };
                     match lod::decide(&bound, true, true, &pl, view, &by_bound, &mut st) {
-                        Decision::Cull | Decision::Refine => {}
+                        // Inline bounds are decided as group leaves: never a `Leaf`.
+                        Decision::Cull | Decision::Refine | Decision::Leaf(_) => {}
                         Decision::Draw(s) => splats.push(s),
                         Decision::Descend => {
                             let k = self.follow_inline(&v.chain, &path, &hash).map_err(|kind| Error::Inline {
@@ -326,11 +344,15 @@ impl SceneFiles {
             let rows = (y1.min(h - 1) - y0.max(0) + 1).max(0);
             sum.saturating_add(cols.saturating_mul(rows) as u64)
         });
+        // A ray-traced splat costs a ray per pixel its support's projection covers (the
+        // `wald` method): the same bound, so that a large radius scale or a close-up fails
+        // fast instead of tracing for hours.
+        let pixels = surfels.iter().fold(pixels, |sum, sf| sum.saturating_add(crate::wald::support_pixels(sf, view)));
         if pixels > p.max_splat_pixels {
             let e = sct_format::Error::LimitExceeded { what: lod::PIXELS_COVERED, value: pixels, limit: p.max_splat_pixels };
             return Err(Error::sct(&self.files[0].path, e));
         }
-        Ok((splats, stats))
+        Ok((splats, surfels, stats))
     }
 }
 

@@ -53,7 +53,7 @@ fn compare_writes_json_chart_and_table() {
     assert_eq!(scenes[1]["spec"]["kind"], "grid");
     for sc in scenes {
         let methods = sc["methods"].as_array().unwrap();
-        assert_eq!(methods.iter().map(|m| m["method"].as_str().unwrap()).collect::<Vec<_>>(), ["zbuffer", "gauss", "canopy", "parilov"]);
+        assert_eq!(methods.iter().map(|m| m["method"].as_str().unwrap()).collect::<Vec<_>>(), ["zbuffer", "gauss", "canopy", "parilov", "wald"]);
         let mut pareto = 0;
         for m in methods {
             let points = m["points"].as_array().unwrap();
@@ -65,7 +65,7 @@ fn compare_writes_json_chart_and_table() {
                 assert!(p["seconds"].as_f64().unwrap() > 0.0 && p["metrics"]["fg_psnr_db"].as_f64().unwrap() > floor, "{p}");
                 assert!(p["work"]["fragments"].as_u64().unwrap() >= p["work"]["covered_pixels"].as_u64().unwrap(), "{p}");
                 assert_eq!(p["culling"].is_null(), m["method"] != "canopy", "{p}");
-                assert_eq!(p["vs_zbuffer"].is_null(), m["method"] == "zbuffer", "{p}");
+                assert_eq!(p["vs_zbuffer"].is_null(), m["method"] == "zbuffer" || m["method"] == "wald", "{p}");
                 pareto += p["pareto"].as_bool().unwrap() as usize;
             }
             let t = &m["temporal"];
@@ -80,7 +80,7 @@ fn compare_writes_json_chart_and_table() {
     let png = image::open(dir.path().join("cmp.png")).unwrap();
     assert_eq!((png.width(), png.height()), (880, 704));
     let svg = std::fs::read_to_string(dir.path().join("cmp.svg")).unwrap();
-    assert!(svg.contains("zbuffer") && svg.contains("gauss") && svg.contains("canopy") && svg.contains("Pareto"), "legend");
+    assert!(svg.contains("zbuffer") && svg.contains("gauss") && svg.contains("canopy") && svg.contains("wald") && svg.contains("Pareto"), "legend");
     assert!(dir.path().join("cmp.scenes/one-ball.sct").exists());
 }
 

@@ -218,7 +218,9 @@ impl SceneFiles {
                     let n = self.item_node(&it)?;
                     let by_bound = LodParams { backface: false, ..*p };
                     match lod::decide(&n.node, true, true, &pl, view, &by_bound, stats) {
-                        Decision::Cull | Decision::Refine => {}
+                        // `Leaf` comes only from leaf collection, which walks the graph in
+                        // `SceneFiles::walk`.
+                        Decision::Cull | Decision::Refine | Decision::Leaf(_) => {}
                         Decision::Draw(s) => splats.push(s),
                         Decision::Descend => queue.extend(self.item_children(&it)?),
                     }
