@@ -7,7 +7,8 @@
 //! - representation: `zbuffer` at the same knob against the mesh (the `zbuffer` points'
 //!   `metrics`);
 //! - ordering: `gauss` against the same LOD cut drawn by `zbuffer`, `canopy` against its own
-//!   discs drawn through a depth buffer (`vs_zbuffer`);
+//!   discs drawn through a depth buffer (`vs_zbuffer`); `wand` (knob: its square side `d`,
+//!   rounded) against `zbuffer` at the same knob value;
 //! - culling: `canopy` against the same frame without occlusion culling (`culling`).
 
 use std::path::{Path, PathBuf};
@@ -146,13 +147,18 @@ pub struct CompareResult {
     pub scenes: Vec<SceneResult>,
 }
 
-/// `base` with method `m` at knob value `k` (`pixel_error`, or canopy's `t3`).
+/// `base` with method `m` at knob value `k` (`pixel_error`, canopy's `t3`, or wand's square
+/// side `d`: the knob rounded, at least 1).
 fn with_knob(base: &RenderOptions, m: Method, k: f32) -> RenderOptions {
     match m {
         Method::Zbuffer | Method::Gauss => RenderOptions { method: m, pixel_error: k, ..base.clone() },
         Method::Canopy => {
             let c = base.canopy;
             RenderOptions { method: m, canopy: crate::CanopyOptions { t3: k, t2: c.t2.max(k), t1: c.t1.max(k), ..c }, ..base.clone() }
+        }
+        Method::Wand => {
+            let d = if k.is_finite() { k.round().clamp(1.0, crate::wand::MAX_D as f32) as u32 } else { 1 };
+            RenderOptions { method: m, wand: crate::WandOptions { d, ..base.wand }, ..base.clone() }
         }
     }
 }
@@ -262,7 +268,9 @@ pub fn run(o: &CompareOptions, mut progress: impl FnMut(&str)) -> Result<Compare
                 let mt = metrics::compare(&r.frame, &refr);
                 let (vs, culling) = match m {
                     Method::Zbuffer => (None, None),
-                    Method::Gauss => (zframes[ki].as_ref().map(|z| metrics::compare(&r.frame, z)), None),
+                    // Against the depth-buffered LOD cut at the same knob: what the random
+                    // points add to (or take from) the splats.
+                    Method::Gauss | Method::Wand => (zframes[ki].as_ref().map(|z| metrics::compare(&r.frame, z)), None),
                     Method::Canopy => {
                         // Ordering: the same discs through a depth buffer; culling: the same
                         // frame without occlusion culling.

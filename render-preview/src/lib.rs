@@ -41,6 +41,7 @@ pub mod scenes;
 pub mod shade;
 pub mod sweep;
 pub mod synth;
+pub mod wand;
 
 use std::path::Path;
 use std::time::Instant;
@@ -54,6 +55,7 @@ pub use lod::{LodStats, NODES_EXAMINED, PIXELS_COVERED};
 pub use raster::{Frame, Splat};
 pub use scene::SceneFiles;
 pub use shade::Shading;
+pub use wand::{WandOptions, WandStats};
 
 use sct_format::view;
 use sct_format::Limits;
@@ -100,6 +102,8 @@ pub struct RenderOptions {
     pub gauss: GaussOptions,
     /// Settings of [`Method::Canopy`].
     pub canopy: CanopyOptions,
+    /// Settings of [`Method::Wand`].
+    pub wand: WandOptions,
     /// Image width in pixels.
     pub width: u32,
     /// Image height in pixels.
@@ -161,6 +165,7 @@ impl Default for RenderOptions {
             method: Method::Zbuffer,
             gauss: GaussOptions::default(),
             canopy: CanopyOptions::default(),
+            wand: WandOptions::default(),
             width: view::DEFAULT_WIDTH,
             height: view::DEFAULT_HEIGHT,
             view: ViewPreset::Front,
@@ -277,6 +282,8 @@ pub struct RenderStats {
     pub work: Work,
     /// The thesis's Table 14 columns (`canopy` only).
     pub canopy: Option<CanopyStats>,
+    /// Samples, boxes and splat-path counters (`wand` only).
+    pub wand: Option<WandStats>,
     /// Splats rasterized.
     pub splats: u64,
     /// Refinement counters.
@@ -397,7 +404,33 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             return Err(Error::Invalid(format!("canopy t_OccCull {} and t_OccClip {} must be numbers (t_OccClip ≥ 0)", c.occ_cull, c.occ_clip)));
         }
     }
+    if opts.method == Method::Wand {
+        opts.wand.check().map_err(Error::Invalid)?;
+    }
     let (camera, near, view, params, up_axis, frame_secs) = setup(files, opts)?;
+    if opts.method == Method::Wand {
+        let [r, g, b] = opts.background;
+        let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
+        let (ws, lod, fragments, primitives) = wand::render(files, &view, &params, &opts.wand, &mut frame)?;
+        let t2 = Instant::now();
+        let covered = frame.covered() as u64;
+        let draw = ws.draw_seconds;
+        let total = (t2 - t0).as_secs_f64();
+        let stats = RenderStats {
+            method: opts.method,
+            work: Work::new(lod.nodes_visited, primitives, fragments, covered, files.bytes_read()),
+            canopy: None,
+            wand: Some(ws),
+            splats: primitives,
+            lod,
+            bytes_read: files.bytes_read(),
+            file_size: files.file_len(),
+            files: files.file_count(),
+            covered_pixels: covered,
+            seconds: Phases { open: 0.0, frame: frame_secs, traverse: total - draw, raster: draw, sort: 0.0, total },
+        };
+        return Ok(Rendered { frame, camera, stats, near, up_axis, provenance: files.provenance() });
+    }
     let mask_order = opts.method == Method::Gauss && opts.gauss.order == gauss::Order::Mask;
     if opts.method == Method::Canopy || mask_order {
         let [r, g, b] = opts.background;
@@ -411,6 +444,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             method: opts.method,
             work: Work::new(lod.nodes_visited, cs.nodes_rasterized, fragments, covered, files.bytes_read()),
             canopy: Some(cs),
+            wand: None,
             splats: cs.nodes_rasterized,
             lod,
             bytes_read: files.bytes_read(),
@@ -427,7 +461,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
     let mut sort = 0.0;
     let fragments = match opts.method {
-        Method::Zbuffer | Method::Canopy => {
+        Method::Zbuffer | Method::Canopy | Method::Wand => {
             raster::rasterize(&mut frame, &splats);
             raster::fill_holes(&mut frame);
             None
@@ -448,6 +482,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         method: opts.method,
         work: Work::new(lod.nodes_visited, splats.len() as u64, fragments, covered, files.bytes_read()),
         canopy: None,
+        wand: None,
         splats: splats.len() as u64,
         lod,
         bytes_read: files.bytes_read(),

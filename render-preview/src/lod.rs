@@ -167,6 +167,13 @@ impl TreeCache {
         Ok(NodeAt { node: b.nodes[local], internal: b.internal[local], first_child: 2 * rank, leaf_no: leaves_before + i - rank })
     }
 
+    /// Leaves of the whole tree, from the index's level counts (nothing decoded).
+    pub(crate) fn leaf_count(&self, reader: &SctReader) -> u64 {
+        let Some(t) = reader.trees().get(self.tree) else { return 0 };
+        let last = t.levels.len().saturating_sub(1);
+        self.leaves_before.get(last).copied().unwrap_or(0) + t.levels.get(last).map_or(0, |l| l.node_count)
+    }
+
     /// Two-sided trees are never culled as back-facing (spec §6.2).
     pub(crate) fn two_sided(&self, reader: &SctReader) -> bool {
         reader.trees().get(self.tree).is_some_and(|t| t.two_sided())

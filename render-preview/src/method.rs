@@ -5,10 +5,13 @@
 //! | `zbuffer` (default) | opaque elliptical splats of the LOD cut | depth buffer | `--pixel-error` |
 //! | `gauss` | elliptical Gaussian kernels of the same cut (Coconu & Hege) | per-frame depth sort, back to front, no depth buffer | `--pixel-error` (the sample spacing `d_t` on screen) |
 //! | `canopy` | EQ 46 discs of the nodes' spheres, cut at `t3`, after image-graph occlusion culling (thesis) | reverse occlusion-mask order, no depth buffer | `--canopy-t3` (px) |
+//! | `wand` | fresh random leaf points each frame, ∝ projected area, `ln v` per pixel, as `d × d` squares; leaves larger than `d / ln v` px² as `zbuffer` splats (Wand et al.) | depth buffer | `--wand-d` (px) |
 //!
 //! Every method walks the same scene graph (groups, instances, tints, inlines). `zbuffer` and
 //! `gauss` refine it with the same LOD test, so at equal `--pixel-error` they draw the same cut
-//! and differ only in how they composite it; `canopy` has its own three-stage refinement.
+//! and differ only in how they composite it; `canopy` has its own three-stage refinement;
+//! `wand` draws no level of detail at all (its randomness is the LOD) and refines group trees
+//! and inlines only, with the same test.
 
 use rayon::prelude::*;
 
@@ -26,11 +29,14 @@ pub enum Method {
     /// The thesis's image-graph occlusion culling and reverse-mask-order discs, no depth
     /// buffer (§3.3, §5.4–5.8).
     Canopy,
+    /// The randomized z-buffer: random surface points drawn with probability proportional
+    /// to projected area, as `d × d` squares through a depth buffer (Wand et al.).
+    Wand,
 }
 
 impl Method {
     /// Every method, in the order charts list them.
-    pub const ALL: [Method; 3] = [Method::Zbuffer, Method::Gauss, Method::Canopy];
+    pub const ALL: [Method; 4] = [Method::Zbuffer, Method::Gauss, Method::Canopy, Method::Wand];
 
     /// The name used on the command line and in JSON.
     pub fn name(self) -> &'static str {
@@ -38,6 +44,7 @@ impl Method {
             Method::Zbuffer => "zbuffer",
             Method::Gauss => "gauss",
             Method::Canopy => "canopy",
+            Method::Wand => "wand",
         }
     }
 
@@ -46,6 +53,7 @@ impl Method {
         match self {
             Method::Zbuffer | Method::Gauss => "pixel_error",
             Method::Canopy => "t3",
+            Method::Wand => "d",
         }
     }
 }
@@ -59,7 +67,7 @@ impl std::fmt::Display for Method {
 impl std::str::FromStr for Method {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        Method::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| format!("unknown method {s:?} (zbuffer, gauss, canopy)"))
+        Method::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| format!("unknown method {s:?} (zbuffer, gauss, canopy, wand)"))
     }
 }
 
