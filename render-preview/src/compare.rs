@@ -31,7 +31,7 @@ pub struct CompareOptions {
     pub scenes: Vec<SceneSpec>,
     /// Methods, in chart order.
     pub methods: Vec<Method>,
-    /// Knob values (each method's own knob; `pixel_error` for both present methods).
+    /// Knob values (each method's own knob: `pixel_error`, canopy's `t3`, wand's `d`).
     pub knobs: Vec<f32>,
     /// Timed frames per point after one warm-up frame (the median counts).
     pub repeat: u32,

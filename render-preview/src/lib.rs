@@ -8,8 +8,9 @@
 //!
 //! [`method`] lists the preview methods behind [`RenderOptions::method`]: `zbuffer` (the
 //! above, the default), [`gauss`] (Coconu & Hege's elliptical Gaussian splats blended back
-//! to front) and [`canopy`] (the thesis's image-graph occlusion culling and depth-buffer-free
-//! order); each reports [`Work`] counters.
+//! to front), [`canopy`] (the thesis's image-graph occlusion culling and depth-buffer-free
+//! order) and [`wand`] (the randomized z-buffer: fresh random surface points ∝ projected area
+//! each frame, no LOD); each reports [`Work`] counters.
 //!
 //! [`reference`](mod@reference) renders the source mesh with a triangle rasterizer under the same camera
 //! and shading, and [`metrics`] compares the two (PSNR, SSIM, silhouette IoU, holes);
