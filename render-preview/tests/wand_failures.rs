@@ -286,8 +286,8 @@ fn far_field_error_is_noise_that_averages_out() {
             for dy in 0..4 {
                 for dx in 0..4 {
                     let i = (4 * y + dy) * 640 + 4 * x + dx;
-                    for k in 0..3 {
-                        acc[k] += r4.color[i][k] as f64 / 16.0;
+                    for (a, c) in acc.iter_mut().zip(r4.color[i]) {
+                        *a += c as f64 / 16.0;
                     }
                     covered += r4.depth[i].is_finite() as usize;
                 }
@@ -307,10 +307,10 @@ fn far_field_error_is_noise_that_averages_out() {
     let n = refr.color.len();
     let mut mean = refr.clone();
     let mut sd = vec![0.0; n];
-    for i in 0..n {
+    for (i, sd) in sd.iter_mut().enumerate() {
         let l: Vec<f64> = frames.iter().map(|f| luma(f.color[i])).collect();
         let m = l.iter().sum::<f64>() / l.len() as f64;
-        sd[i] = (l.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / l.len() as f64).sqrt();
+        *sd = (l.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / l.len() as f64).sqrt();
         for k in 0..3 {
             mean.color[i][k] = (frames.iter().map(|f| f.color[i][k] as f64).sum::<f64>() / frames.len() as f64).round() as u8;
         }
