@@ -49,7 +49,7 @@ use sct_format::{Node, SctReader};
 
 use crate::camera::View;
 use crate::error::{Error, Result};
-use crate::lod::{self, Decision, LodParams, LodStats, NodeAt, Placement, TreeCache, TreeOut};
+use crate::lod::{self, Cursor, Decision, LodParams, LodStats, NodeAt, Placement, TreeCache, TreeOut};
 use crate::raster::{self, Frame, Splat, BAND};
 use crate::scene::{Item, SceneFiles};
 use crate::shade::{self, Shading};
@@ -463,10 +463,11 @@ fn draw_samples(files: &SceneFiles, ctx: &Ctx<'_>, boxes: &[SampleBox], st: &mut
             let (reader, cache) = files.tree(b.file, b.tree).ok_or_else(|| Error::Invalid(format!("graph refers to missing tree {}", b.tree)))?;
             let job = Job { reader, cache, ctx, b, bx: bi as u64 };
             let us = sorted_uniforms(ctx.o.seed, bi as u64, b.count as usize);
-            let at = cache.node_at(reader, b.d, b.i)?;
+            let mut cur = Cursor::default();
+            let at = cur.node_at(cache, reader, b.d, b.i)?;
             let mut out = Vec::with_capacity(us.len());
             let mut t = Tally::default();
-            job.descend(b.d, at, &us, 0.0, 1.0, 0, &mut out, &mut t)?;
+            job.descend(&mut cur, b.d, at, &us, 0.0, 1.0, 0, &mut out, &mut t)?;
             Ok((out, t))
         })
         .collect();
@@ -519,7 +520,7 @@ impl Job<'_> {
     /// area) from node `at` of level `d` down to leaves: a child's share is proportional to
     /// its area (§6.3). `rank` is the first sample's rank in the box, its random key.
     #[allow(clippy::too_many_arguments)]
-    fn descend(&self, d: usize, at: NodeAt, us: &[f64], lo: f64, hi: f64, rank: u64, out: &mut Vec<Sample>, t: &mut Tally) -> Result<()> {
+    fn descend(&self, cur: &mut Cursor, d: usize, at: NodeAt, us: &[f64], lo: f64, hi: f64, rank: u64, out: &mut Vec<Sample>, t: &mut Tally) -> Result<()> {
         if us.is_empty() {
             return Ok(());
         }
@@ -530,8 +531,8 @@ impl Job<'_> {
             }
             return Ok(());
         }
-        let a = self.cache.node_at(self.reader, d + 1, at.first_child)?;
-        let b = self.cache.node_at(self.reader, d + 1, at.first_child + 1)?;
+        let a = cur.node_at(self.cache, self.reader, d + 1, at.first_child)?;
+        let b = cur.node_at(self.cache, self.reader, d + 1, at.first_child + 1)?;
         let (aa, ab) = (f64::from(a.node.area.max(0.0)), f64::from(b.node.area.max(0.0)));
         let share = if aa + ab > 0.0 && (aa + ab).is_finite() { aa / (aa + ab) } else { 0.5 };
         let mid = lo + share * (hi - lo);
@@ -540,12 +541,12 @@ impl Job<'_> {
         if us.len() > PARALLEL_SAMPLES {
             let (lo_part, hi_part) = rayon::join(
                 || {
-                    let (mut o, mut t) = (Vec::with_capacity(left.len()), Tally::default());
-                    self.descend(d + 1, a, left, lo, mid, rank, &mut o, &mut t).map(|_| (o, t))
+                    let (mut o, mut t, mut c) = (Vec::with_capacity(left.len()), Tally::default(), cur.clone());
+                    self.descend(&mut c, d + 1, a, left, lo, mid, rank, &mut o, &mut t).map(|_| (o, t))
                 },
                 || {
-                    let (mut o, mut t) = (Vec::with_capacity(right.len()), Tally::default());
-                    self.descend(d + 1, b, right, mid, hi, rank + split as u64, &mut o, &mut t).map(|_| (o, t))
+                    let (mut o, mut t, mut c) = (Vec::with_capacity(right.len()), Tally::default(), cur.clone());
+                    self.descend(&mut c, d + 1, b, right, mid, hi, rank + split as u64, &mut o, &mut t).map(|_| (o, t))
                 },
             );
             let ((lo_out, lo_t), (hi_out, hi_t)) = (lo_part?, hi_part?);
@@ -555,8 +556,8 @@ impl Job<'_> {
             t.add(&hi_t);
             return Ok(());
         }
-        self.descend(d + 1, a, left, lo, mid, rank, out, t)?;
-        self.descend(d + 1, b, right, mid, hi, rank + split as u64, out, t)
+        self.descend(cur, d + 1, a, left, lo, mid, rank, out, t)?;
+        self.descend(cur, d + 1, b, right, mid, hi, rank + split as u64, out, t)
     }
 
     /// One sample in `leaf`: a uniform point of its tangent disc, back-face tested, shaded
