@@ -35,6 +35,18 @@
 //! depends on the seed only, never on the number of threads. Isolated unsampled pixels are
 //! closed by [`raster::fill_holes`] as for `zbuffer`.
 //!
+//! Measured (bunny res2 as 717 k leaves of r/200, front view, against its mesh; 2 shared
+//! cores): at 1280 × 720 every leaf projects above the threshold, so the default frame is the
+//! leaves as splats, 32.46 dB / IoU 0.9976 in 0.28–0.45 s (`zbuffer` 32.42 / 0.9976,
+//! 0.25–0.28 s); sampling every leaf (`--wand-large inf`) gives d = 1 28.69 dB / 0.9939,
+//! 6.7 M samples, 1.2–1.3 s; d = 2 25.73 / 0.9886, 1.5 M samples, 0.44–0.55 s; d = 4
+//! 22.49 / 0.9781, 0.34 M, 0.28–0.40 s, all from 2,502 boxes. At 384² (`zbuffer` 30.13 /
+//! 0.9966): default 31.01 / 0.9969; sampled d = 1 25.45 / 0.9878 (1.25 M samples), d = 2
+//! 22.27 / 0.9771 (275 k). The sampled frames lose mostly at outlines (`tests/wand_failures.rs`).
+//! A 10 × 10 grid of the same bunny (iso view, 1280 × 720) is sampled by default: 2.2 M
+//! samples, 12.9 per covered pixel, 3.0 s against `zbuffer`'s 0.3 s — the descents read
+//! 13 M nodes, memory-bound, as the paper's dynamic variant is the slow one (§6.3).
+//!
 //! What it does not do: occlusion culling (the cost is linear in projected area, hidden area
 //! included, §2), the filtered high-quality mode (§5.3), orientation classes (the normal cone
 //! bounds `cos β` per box instead) and sampling through instances below a box (group trees
