@@ -344,9 +344,8 @@ fn far_field_error_is_noise_that_averages_out() {
 /// its orientation bound). 160², d = 2, every leaf sampled. Measured when set: alone 14,188
 /// samples over 5,712 covered pixels (2.5 each, 696 boxes); with the pile 23,053 samples (315
 /// back-facing) over 7,700 pixels (3.0 each, 5,872 boxes). The paper's octree boxes bound
-/// only the distance factor; here each box's normal cone also bounds `cos β`, and box
-/// selection goes deep enough that the pile's boxes hold one orientation, so the overcost
-/// stays at +20 % per covered pixel on this scene. Bounds: more than the quad alone, at most
+/// only the distance factor; here each box's normal cone also bounds `cos β`, and the
+/// overcost stays at +20 % per covered pixel on this scene. Bounds: more than the quad alone, at most
 /// 1.5 × as many samples per covered pixel.
 #[test]
 fn edge_on_pile_costs_samples_for_few_pixels() {
