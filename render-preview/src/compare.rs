@@ -7,7 +7,8 @@
 //! - representation: `zbuffer` at the same knob against the mesh (the `zbuffer` points'
 //!   `metrics`);
 //! - ordering: `gauss` against the same LOD cut drawn by `zbuffer`, `canopy` against its own
-//!   discs drawn through a depth buffer (`vs_zbuffer`);
+//!   discs drawn through a depth buffer (`vs_zbuffer`); `wand` (knob: its square side `d`,
+//!   rounded) against `zbuffer` at the same knob value;
 //! - culling: `canopy` against the same frame without occlusion culling (`culling`).
 
 use std::path::{Path, PathBuf};
@@ -30,7 +31,7 @@ pub struct CompareOptions {
     pub scenes: Vec<SceneSpec>,
     /// Methods, in chart order.
     pub methods: Vec<Method>,
-    /// Knob values (each method's own knob; `pixel_error` for both present methods).
+    /// Knob values (each method's own knob: `pixel_error`, canopy's `t3`, wand's `d`).
     pub knobs: Vec<f32>,
     /// Timed frames per point after one warm-up frame (the median counts).
     pub repeat: u32,
@@ -146,8 +147,8 @@ pub struct CompareResult {
     pub scenes: Vec<SceneResult>,
 }
 
-/// `base` with method `m` at knob value `k` (`pixel_error`, canopy's `t3` or wald's
-/// `radius_scale`).
+/// `base` with method `m` at knob value `k` (`pixel_error`, canopy's `t3`, wald's
+/// `radius_scale`, or wand's square side `d`: the knob rounded, at least 1).
 fn with_knob(base: &RenderOptions, m: Method, k: f32) -> RenderOptions {
     match m {
         Method::Zbuffer | Method::Gauss | Method::Parilov => RenderOptions { method: m, pixel_error: k, ..base.clone() },
@@ -156,6 +157,10 @@ fn with_knob(base: &RenderOptions, m: Method, k: f32) -> RenderOptions {
             RenderOptions { method: m, canopy: crate::CanopyOptions { t3: k, t2: c.t2.max(k), t1: c.t1.max(k), ..c }, ..base.clone() }
         }
         Method::Wald => RenderOptions { method: m, wald: crate::WaldOptions { radius_scale: k, ..base.wald }, ..base.clone() },
+        Method::Wand => {
+            let d = if k.is_finite() { k.round().clamp(1.0, crate::wand::MAX_D as f32) as u32 } else { 1 };
+            RenderOptions { method: m, wand: crate::WandOptions { d, ..base.wand }, ..base.clone() }
+        }
     }
 }
 
@@ -265,7 +270,9 @@ pub fn run(o: &CompareOptions, mut progress: impl FnMut(&str)) -> Result<Compare
                 let (vs, culling) = match m {
                     // `wald` draws no LOD cut: it has no depth-buffered twin to order against.
                     Method::Zbuffer | Method::Wald => (None, None),
-                    Method::Gauss | Method::Parilov => (zframes[ki].as_ref().map(|z| metrics::compare(&r.frame, z)), None),
+                    // Against zbuffer's depth-buffered LOD cut at the same knob: what the
+                    // compositing, the orders or the random points add to or take from it.
+                    Method::Gauss | Method::Parilov | Method::Wand => (zframes[ki].as_ref().map(|z| metrics::compare(&r.frame, z)), None),
                     Method::Canopy => {
                         // Ordering: the same discs through a depth buffer; culling: the same
                         // frame without occlusion culling.

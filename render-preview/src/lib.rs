@@ -9,8 +9,10 @@
 //! [`method`] lists the preview methods behind [`RenderOptions::method`]: `zbuffer` (the
 //! above, the default), [`gauss`] (Coconu & Hege's elliptical Gaussian splats blended back
 //! to front), [`canopy`] (the thesis's image-graph occlusion culling and depth-buffer-free
-//! order) and [`wald`] (Wald & Seidel: one ray per pixel through the implicit surface of
-//! hat-weighted splats); each reports [`Work`] counters.
+//! order), [`parilov`] (Parilov & Stuerzlinger's multi-view visibility orderings), [`wald`]
+//! (Wald & Seidel: one ray per pixel through the implicit surface of hat-weighted splats) and
+//! [`wand`] (the randomized z-buffer: fresh random surface points ∝ projected area each frame,
+//! no LOD); each reports [`Work`] counters.
 //!
 //! [`reference`](mod@reference) renders the source mesh with a triangle rasterizer under the same camera
 //! and shading, and [`metrics`] compares the two (PSNR, SSIM, silhouette IoU, holes);
@@ -44,6 +46,7 @@ pub mod shade;
 pub mod sweep;
 pub mod synth;
 pub mod wald;
+pub mod wand;
 
 use std::path::Path;
 use std::time::Instant;
@@ -59,6 +62,7 @@ pub use raster::{Frame, Splat};
 pub use scene::SceneFiles;
 pub use shade::Shading;
 pub use wald::{WaldOptions, WaldStats};
+pub use wand::{WandOptions, WandStats};
 
 use sct_format::view;
 use sct_format::Limits;
@@ -109,6 +113,8 @@ pub struct RenderOptions {
     pub parilov: ParilovOptions,
     /// Settings of [`Method::Wald`].
     pub wald: WaldOptions,
+    /// Settings of [`Method::Wand`].
+    pub wand: WandOptions,
     /// Image width in pixels.
     pub width: u32,
     /// Image height in pixels.
@@ -172,6 +178,7 @@ impl Default for RenderOptions {
             canopy: CanopyOptions::default(),
             parilov: ParilovOptions::default(),
             wald: WaldOptions::default(),
+            wand: WandOptions::default(),
             width: view::DEFAULT_WIDTH,
             height: view::DEFAULT_HEIGHT,
             view: ViewPreset::Front,
@@ -292,6 +299,8 @@ pub struct RenderStats {
     pub parilov: Option<ParilovStats>,
     /// Per-ray counters (`wald` only).
     pub wald: Option<WaldStats>,
+    /// Samples, boxes and splat-path counters (`wand` only).
+    pub wand: Option<WandStats>,
     /// Splats rasterized.
     pub splats: u64,
     /// Refinement counters.
@@ -419,6 +428,9 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     if opts.method == Method::Wald {
         opts.wald.validate().map_err(Error::Invalid)?;
     }
+    if opts.method == Method::Wand {
+        opts.wand.check().map_err(Error::Invalid)?;
+    }
     let (camera, near, view, params, up_axis, frame_secs) = setup(files, opts)?;
     if opts.method == Method::Wald {
         let (surfels, lod) = files.collect_surfels(&view, &params)?;
@@ -438,6 +450,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             canopy: None,
             parilov: None,
             wald: Some(ws),
+            wand: None,
             splats: ws.splats,
             lod,
             bytes_read: files.bytes_read(),
@@ -445,6 +458,31 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             files: files.file_count(),
             covered_pixels: covered,
             seconds: Phases { open: 0.0, frame: frame_secs, traverse: (t2 - t0).as_secs_f64(), raster: (t3 - t2).as_secs_f64(), sort: 0.0, total: (t3 - t0).as_secs_f64() },
+        };
+        return Ok(Rendered { frame, camera, stats, near, up_axis, provenance: files.provenance() });
+    }
+    if opts.method == Method::Wand {
+        let [r, g, b] = opts.background;
+        let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
+        let (ws, lod, fragments, primitives) = wand::render(files, &view, &params, &opts.wand, &mut frame)?;
+        let t2 = Instant::now();
+        let covered = frame.covered() as u64;
+        let draw = ws.draw_seconds;
+        let total = (t2 - t0).as_secs_f64();
+        let stats = RenderStats {
+            method: opts.method,
+            work: Work::new(lod.nodes_visited, primitives, fragments, covered, files.bytes_read()),
+            canopy: None,
+            parilov: None,
+            wald: None,
+            wand: Some(ws),
+            splats: primitives,
+            lod,
+            bytes_read: files.bytes_read(),
+            file_size: files.file_len(),
+            files: files.file_count(),
+            covered_pixels: covered,
+            seconds: Phases { open: 0.0, frame: frame_secs, traverse: total - draw, raster: draw, sort: 0.0, total },
         };
         return Ok(Rendered { frame, camera, stats, near, up_axis, provenance: files.provenance() });
     }
@@ -463,6 +501,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             canopy: Some(cs),
             parilov: None,
             wald: None,
+            wand: None,
             splats: cs.nodes_rasterized,
             lod,
             bytes_read: files.bytes_read(),
@@ -486,6 +525,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
             canopy: None,
             parilov: Some(ps),
             wald: None,
+            wand: None,
             splats: ps.samples,
             lod,
             bytes_read: files.bytes_read(),
@@ -502,8 +542,8 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     let mut frame = Frame::new(opts.width as usize, opts.height as usize, [r, g, b, 255]);
     let mut sort = 0.0;
     let fragments = match opts.method {
-        // `Parilov` and `Wald` returned above.
-        Method::Zbuffer | Method::Canopy | Method::Parilov | Method::Wald => {
+        // `Parilov`, `Wald` and `Wand` returned above.
+        Method::Zbuffer | Method::Canopy | Method::Parilov | Method::Wald | Method::Wand => {
             raster::rasterize(&mut frame, &splats);
             raster::fill_holes(&mut frame);
             None
@@ -526,6 +566,7 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         canopy: None,
         parilov: None,
         wald: None,
+        wand: None,
         splats: splats.len() as u64,
         lod,
         bytes_read: files.bytes_read(),

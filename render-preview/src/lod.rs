@@ -161,10 +161,22 @@ impl TreeCache {
     pub(crate) fn node_at(&self, reader: &SctReader, d: usize, i: u64) -> Result<NodeAt> {
         let k = self.block_of(reader, d, i)?;
         let b = self.get(reader, d, k)?;
+        self.at_in(reader, &b, d, i)
+    }
+
+    /// Node `i` of level `d`, found in its decoded block `b`.
+    fn at_in(&self, reader: &SctReader, b: &Block, d: usize, i: u64) -> Result<NodeAt> {
         let local = i.checked_sub(b.first_node).filter(|&l| l < b.nodes.len() as u64).ok_or_else(|| self.malformed(reader, format!("level {d} has no node {i}")))? as usize;
         let rank = b.internal_before + b.rank_before[local] as u64;
         let leaves_before = self.leaves_before.get(d).copied().unwrap_or(0);
         Ok(NodeAt { node: b.nodes[local], internal: b.internal[local], first_child: 2 * rank, leaf_no: leaves_before + i - rank })
+    }
+
+    /// Leaves of the whole tree, from the index's level counts (nothing decoded).
+    pub(crate) fn leaf_count(&self, reader: &SctReader) -> u64 {
+        let Some(t) = reader.trees().get(self.tree) else { return 0 };
+        let last = t.levels.len().saturating_sub(1);
+        self.leaves_before.get(last).copied().unwrap_or(0) + t.levels.get(last).map_or(0, |l| l.node_count)
     }
 
     /// Two-sided trees are never culled as back-facing (spec §6.2).
@@ -181,6 +193,33 @@ impl TreeCache {
         // Parents first, sequentially, so that no parent block is decoded twice.
         let jobs: Vec<(usize, Vec<Node>)> = missing.iter().map(|&k| Ok((k, self.parents_of(reader, d, k)?))).collect::<Result<_>>()?;
         jobs.par_iter().try_for_each(|(k, p)| self.decode_with(reader, d, *k, p).map(|_| ()))
+    }
+}
+
+/// [`TreeCache::node_at`] for walks down one tree that read many nodes of the same few
+/// blocks (the `wand` descents): the last block of each level is kept, so a node in it costs
+/// a range check instead of a block search and a shared reference count update. One per
+/// thread; cloning shares the blocks.
+#[derive(Clone, Default)]
+pub(crate) struct Cursor {
+    blocks: Vec<Option<Arc<Block>>>,
+}
+
+impl Cursor {
+    pub(crate) fn node_at(&mut self, cache: &TreeCache, reader: &SctReader, d: usize, i: u64) -> Result<NodeAt> {
+        if let Some(Some(b)) = self.blocks.get(d) {
+            if i >= b.first_node && i < b.end() {
+                return cache.at_in(reader, b, d, i);
+            }
+        }
+        let k = cache.block_of(reader, d, i)?;
+        let b = cache.get(reader, d, k)?;
+        let at = cache.at_in(reader, &b, d, i)?;
+        if self.blocks.len() <= d {
+            self.blocks.resize(d + 1, None);
+        }
+        self.blocks[d] = Some(b);
+        Ok(at)
     }
 }
 

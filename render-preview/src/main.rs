@@ -19,7 +19,9 @@ Examples:
   sct-render-preview duck.sct -o g.png --method gauss --reference Duck.glb --json
   sct-render-preview duck.sct -o g.png --method gauss --gauss-weighting normalized --gauss-lowpass 0
   sct-render-preview pair.sct -o c.png --method canopy --canopy-t3 1.7 --canopy-occ-cull 1.9 --json
+  sct-render-preview bunny.sct -o p.png --method parilov --parilov-threshold 45 --json
   sct-render-preview bunny.sct -o w.png --method wald --wald-radius-scale 1.2 --wald-k 8 --json
+  sct-render-preview bunny.sct -o w.png --method wand --wand-d 2 --wand-seed 7 --json
   sct-render-preview spot.sct -o s.png --reference spot_triangulated.obj --min-psnr 30 --min-iou 0.97
   sct-render-preview scan.sct -o scan.png --up z --view iso
   sct-render-preview sweep --model bunny.sct=bun_zipper.ply --pixel-errors 0.5,1,2,4,8 -o chart
@@ -35,7 +37,7 @@ Exit status: 0 success; 1 invalid input (malformed file, degenerate camera), not
 or I/O error.";
 
 #[derive(Parser, Debug)]
-#[command(name = "sct-render-preview", version, about = "Render a preview image of an SCT scene file on the CPU (LOD splatting: --method zbuffer, gauss or canopy; ray tracing: wald).", after_help = EXAMPLES, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+#[command(name = "sct-render-preview", version, about = "Render a preview image of an SCT scene file on the CPU (LOD splatting: --method zbuffer, gauss, canopy; visibility orders: parilov; ray tracing: wald; randomized z-buffer: wand).", after_help = EXAMPLES, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
@@ -77,9 +79,12 @@ struct RenderArgs {
     /// Preview method: zbuffer (opaque splats, depth buffer), gauss (elliptical Gaussian
     /// splats blended back to front, no depth buffer; Coconu & Hege; both refine the LOD cut
     /// of --pixel-error), canopy (the thesis: image-graph occlusion culling, discs in
-    /// reverse occlusion-mask order; knobs --canopy-*) or wald (Wald & Seidel: one ray per
-    /// pixel through the implicit surface of hat-weighted splats of every leaf; knobs
-    /// --wald-*).
+    /// reverse occlusion-mask order; knobs --canopy-*), parilov (Parilov & Stuerzlinger: one
+    /// pixel per sample in kept per-cell visibility orders, no depth buffer; knob
+    /// --parilov-threshold), wald (Wald & Seidel: one ray per pixel through the implicit
+    /// surface of hat-weighted splats of every leaf; knobs --wald-*) or wand (the randomized
+    /// z-buffer of Wand et al.: fresh random surface points ∝ projected area as d × d squares;
+    /// knobs --wand-*).
     #[arg(long, value_enum, default_value_t = Method::Zbuffer)]
     method: Method,
     /// gauss: blend (alpha blending back to front, EQ 1) or normalized (EQ 2 over the
@@ -130,6 +135,24 @@ struct RenderArgs {
     /// paper's k = 4); more find roots that small k steps over.
     #[arg(long, default_value_t = render_preview::WaldOptions::default().k)]
     wald_k: u32,
+    /// wand: side of each sample's square, pixels (1 = per-pixel reconstruction), the
+    /// method's quality knob.
+    #[arg(long, default_value_t = render_preview::WandOptions::default().d, value_parser = clap::value_parser!(u32).range(1..=i64::from(render_preview::wand::MAX_D)))]
+    wand_d: u32,
+    /// wand: box selection's depth accuracy ε (> 1): a sampling box's far/near depth ratio is
+    /// at most √ε.
+    #[arg(long, default_value_t = render_preview::WandOptions::default().eps)]
+    wand_eps: f32,
+    /// wand: seed of the frame's random numbers (same seed, same image, on any thread count).
+    #[arg(long, default_value_t = render_preview::WandOptions::default().seed)]
+    wand_seed: u64,
+    /// wand: multiple of the paper's large-leaf threshold d / ln(pixels) px² above which a
+    /// leaf is drawn as a splat instead of sampled ("inf": sample every leaf).
+    #[arg(long, default_value_t = render_preview::WandOptions::default().large)]
+    wand_large: f32,
+    /// wand: multiple of the ln(pixels / d²) samples per d × d cell.
+    #[arg(long, default_value_t = render_preview::WandOptions::default().oversample)]
+    wand_oversample: f32,
     /// Image width in pixels (1 to 16384).
     #[arg(long, default_value_t = view::DEFAULT_WIDTH, value_parser = clap::value_parser!(u32).range(1..=i64::from(render_preview::camera::MAX_SIDE)))]
     width: u32,
@@ -206,6 +229,7 @@ impl RenderArgs {
             },
             parilov: render_preview::ParilovOptions { threshold_deg: self.parilov_threshold },
             wald: render_preview::WaldOptions { radius_scale: self.wald_radius_scale, k: self.wald_k },
+            wand: render_preview::WandOptions { d: self.wand_d, eps: self.wand_eps, seed: self.wand_seed, large: self.wand_large, oversample: self.wand_oversample },
             width: self.width,
             height: self.height,
             view: self.view,
@@ -264,12 +288,12 @@ enum Command {
         /// N×N instances) or block:MESH:N (dense N×N×N instances); repeat per scene.
         #[arg(long = "scene", required = true)]
         scenes: Vec<render_preview::scenes::SceneSpec>,
-        /// Methods to compare: zbuffer, gauss, canopy, parilov, wald (zbuffer is always
-        /// rendered: it is the ordering baseline of gauss and parilov).
+        /// Methods to compare: zbuffer, gauss, canopy, parilov, wald, wand (zbuffer is always
+        /// rendered: it is the ordering baseline of gauss, parilov and wand).
         #[arg(long, value_delimiter = ',', default_values_t = Method::ALL)]
         methods: Vec<Method>,
         /// Knob values (--pixel-error for zbuffer, gauss and parilov, --canopy-t3 for canopy,
-        /// --wald-radius-scale for wald).
+        /// --wald-radius-scale for wald, --wand-d rounded, at least 1, for wand).
         #[arg(long, value_delimiter = ',', default_values_t = [0.5f32, 1.0, 2.0, 4.0])]
         knobs: Vec<f32>,
         /// Timed frames per point after a warm-up frame (the median counts).
@@ -472,6 +496,7 @@ fn preview(cli: &Cli, file: &Path, output: &Path) -> anyhow::Result<()> {
         "canopy": out.stats.canopy.map(|s| serde_json::json!({ "options": opts.canopy, "stats": s })),
         "parilov": out.stats.parilov.map(|s| serde_json::json!({ "options": opts.parilov, "stats": s })),
         "wald": out.stats.wald.map(|s| serde_json::json!({ "options": opts.wald, "stats": s })),
+        "wand": out.stats.wand.map(|s| serde_json::json!({ "options": opts.wand, "stats": s })),
         "work": out.stats.work,
         "splats": out.stats.splats,
         "nodes_visited": out.stats.lod.nodes_visited,

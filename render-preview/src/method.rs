@@ -7,11 +7,14 @@
 //! | `canopy` | EQ 46 discs of the nodes' spheres, cut at `t3`, after image-graph occlusion culling (thesis) | reverse occlusion-mask order, no depth buffer | `--canopy-t3` (px) |
 //! | `parilov` | one pixel per node of the cut (nodes at most `--pixel-error` px wide), in cells | cells back to front by split planes, each cell's kept sample order (Parilov & Stuerzlinger), no depth buffer | `--pixel-error` (px wide); `--parilov-threshold` (°) |
 //! | `wald` | the implicit surface of hat-weighted splats of every leaf in view (Wald & Seidel; far internal nodes below half of `--pixel-error` stand for their leaves), one ray per pixel | first sign change along each ray | `--wald-radius-scale` (and `--wald-k`) |
+//! | `wand` | fresh random leaf points each frame, ∝ projected area, `ln v` per pixel, as `d × d` squares; leaves larger than `d / ln v` px² as `zbuffer` splats (Wand et al.) | depth buffer | `--wand-d` (px) |
 //!
 //! Every method walks the same scene graph (groups, instances, tints, inlines). `zbuffer` and
 //! `gauss` refine it with the same LOD test, so at equal `--pixel-error` they draw the same cut
 //! and differ only in how they composite it; `canopy` has its own three-stage refinement;
 //! `wald` takes every leaf in view (but for subtrees below half a pixel) and ray-traces them.
+//! `wand` draws no level of detail at all (its randomness is the LOD) and refines group trees
+//! and inlines only, with the same test.
 
 use rayon::prelude::*;
 
@@ -35,11 +38,14 @@ pub enum Method {
     /// One ray per pixel through the implicit surface of hat-weighted splats of every leaf
     /// (Wald & Seidel 2005).
     Wald,
+    /// The randomized z-buffer: random surface points drawn with probability proportional
+    /// to projected area, as `d × d` squares through a depth buffer (Wand et al.).
+    Wand,
 }
 
 impl Method {
     /// Every method, in the order charts list them.
-    pub const ALL: [Method; 5] = [Method::Zbuffer, Method::Gauss, Method::Canopy, Method::Parilov, Method::Wald];
+    pub const ALL: [Method; 6] = [Method::Zbuffer, Method::Gauss, Method::Canopy, Method::Parilov, Method::Wald, Method::Wand];
 
     /// The name used on the command line and in JSON.
     pub fn name(self) -> &'static str {
@@ -49,6 +55,7 @@ impl Method {
             Method::Canopy => "canopy",
             Method::Parilov => "parilov",
             Method::Wald => "wald",
+            Method::Wand => "wand",
         }
     }
 
@@ -58,6 +65,7 @@ impl Method {
             Method::Zbuffer | Method::Gauss | Method::Parilov => "pixel_error",
             Method::Canopy => "t3",
             Method::Wald => "radius_scale",
+            Method::Wand => "d",
         }
     }
 }
@@ -71,7 +79,7 @@ impl std::fmt::Display for Method {
 impl std::str::FromStr for Method {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        Method::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| format!("unknown method {s:?} (zbuffer, gauss, canopy, parilov, wald)"))
+        Method::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| format!("unknown method {s:?} (zbuffer, gauss, canopy, parilov, wald, wand)"))
     }
 }
 

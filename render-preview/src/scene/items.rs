@@ -64,6 +64,16 @@ impl Item {
     }
 }
 
+/// Where a tree item sits (see [`SceneFiles::item_spot`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct TreeSpot {
+    pub file: usize,
+    pub tree: usize,
+    pub group: bool,
+    pub d: usize,
+    pub i: u64,
+}
+
 /// What a renderer needs to know about an item.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct ItemNode {
@@ -184,6 +194,22 @@ impl SceneFiles {
                 self.expand(chain, root, it.state)
             }
         }
+    }
+
+    /// Where a tree item sits: its file, tree, whether the tree is a group tree, and its
+    /// level and index (`None` for an inline). Lets a renderer walk the tree below the item
+    /// with [`SceneFiles::tree`], off the item queue and in parallel.
+    pub(crate) fn item_spot(&self, it: &Item) -> Option<TreeSpot> {
+        match it.kind {
+            Kind::Tree { tree, group, d, i, .. } => Some(TreeSpot { file: it.chain.file, tree: tree as usize, group, d: d as usize, i }),
+            Kind::Inline { .. } => None,
+        }
+    }
+
+    /// The reader and block cache of tree `tree` of open file `file`.
+    pub(crate) fn tree(&self, file: usize, tree: usize) -> Option<(&sct_format::SctReader, &lod::TreeCache)> {
+        let f = self.files.get(file)?;
+        Some((&f.reader, f.trees.get(tree)?))
     }
 
     /// Camera-space placement of an item.
