@@ -61,7 +61,7 @@ for f in tree-identical dag dag-built inlines; do
     run "sct-inspect --export-ply $f.sct" "$bin/sct-inspect" "$dir/$f.sct" --export-ply "$out/e.ply"
     run "sct-inspect --dump $f.sct" "$bin/sct-inspect" "$dir/$f.sct" --dump
     run "sct-render-preview $f.sct" "$bin/sct-render-preview" "$dir/$f.sct" -o "$out/r.png"
-    for m in gauss canopy parilov wald; do
+    for m in gauss canopy parilov wald wand; do
         run "sct-render-preview --method $m $f.sct" "$bin/sct-render-preview" "$dir/$f.sct" -o "$out/r.png" --method "$m"
     done
 done
