@@ -15,7 +15,7 @@ cargo build --release -p render-preview --quiet
 target_dir=$(cargo metadata --format-version 1 --no-deps | python3 -c 'import json,sys; print(json.load(sys.stdin)["target_directory"])')
 bin="$target_dir/release/sct-render-preview"
 mkdir -p "$out"
-methods=${METHODS:-zbuffer gauss canopy parilov}
+methods=${METHODS:-zbuffer gauss canopy parilov wald wand}
 echo "methods: $(date -u '+%Y-%m-%d %H:%M UTC'), $(git rev-parse --short HEAD), $(nproc) cores, load $(cut -d' ' -f1 /proc/loadavg)" >&2
 echo "| model (leaves) | method | ms | fg PSNR | fg SSIM | IoU | primitives |"
 echo "|---|---|---|---|---|---|---|"
