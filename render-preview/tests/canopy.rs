@@ -4,27 +4,18 @@
 //! on a model in front of another (the thesis's halo failure mode, §3.7). Figures measured
 //! when the bounds were set are in each test's comment; `--nocapture` prints them.
 
+mod common;
+use common::{shared, reference_for};
+
 use std::path::{Path, PathBuf};
 
-use render_preview::reference::{render_reference, WorldMesh};
-use render_preview::{metrics, render_file, synth, CanopyOptions, Frame, Method, RenderOptions, Shading, View, ViewPreset};
+use render_preview::reference::WorldMesh;
+use render_preview::{metrics, render_file, synth, CanopyOptions, Method, RenderOptions, Shading, View, ViewPreset};
 use sct_format::graph::GraphNode;
 use sct_format::write::{write_scene_file, Scene, WriteOptions};
 
 fn canopy(o: RenderOptions) -> RenderOptions {
     RenderOptions { method: Method::Canopy, ..o }
-}
-
-fn shared(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models").join(rel);
-    p.exists().then_some(p).or_else(|| {
-        eprintln!("skipping: {rel} not found");
-        None
-    })
-}
-
-fn reference_for(mesh: &WorldMesh, out: &render_preview::Rendered, opts: &RenderOptions) -> Frame {
-    render_reference(mesh, &View::new(&out.camera, out.near).unwrap(), opts.shading, opts.background)
 }
 
 /// Default thresholds at 384², front: Duck and bunny (res2) against the mesh, and against

@@ -3,21 +3,16 @@
 //! Each test prints its measurements (`--nocapture`) and asserts, per method, the behaviour
 //! measured when it was written, with its bound.
 
-use std::path::{Path, PathBuf};
+mod common;
+use common::{shared};
+
+use std::path::Path;
 
 use render_preview::reference::{render_reference, WorldMesh};
 use render_preview::{metrics, render_file, synth, Method, RenderOptions, View};
 use sct_format::write::{write_scene_file, Scene, WriteOptions};
 
 const METHODS: [Method; 6] = [Method::Zbuffer, Method::Gauss, Method::Canopy, Method::Parilov, Method::Wald, Method::Wand];
-
-fn shared(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models").join(rel);
-    p.exists().then_some(p).or_else(|| {
-        eprintln!("skipping: {rel} not found");
-        None
-    })
-}
 
 fn against_mesh(mesh: &WorldMesh, sct: &Path, o: &RenderOptions) -> metrics::Metrics {
     let out = render_file(sct, o).unwrap();

@@ -3,10 +3,13 @@
 //! its determinism, its documented failure mode (background leaking through blended
 //! kernels), and the work counters in `--json`.
 
+mod common;
+use common::{shared, reference_for};
+
 use std::path::{Path, PathBuf};
 
-use render_preview::reference::{render_reference, WorldMesh};
-use render_preview::{metrics, render_file, synth, Frame, Method, RenderOptions, Shading, View, ViewPreset, Weighting};
+use render_preview::reference::WorldMesh;
+use render_preview::{metrics, render_file, synth, Method, RenderOptions, Shading, View, ViewPreset, Weighting};
 use sct_format::graph::GraphNode;
 use sct_format::write::{write_scene_file, Scene, WriteOptions};
 
@@ -16,21 +19,6 @@ fn small(w: u32, h: u32) -> RenderOptions {
 
 fn gauss(o: RenderOptions) -> RenderOptions {
     RenderOptions { method: Method::Gauss, ..o }
-}
-
-fn shared(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models").join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("skipping: {} not found", p.display());
-        None
-    }
-}
-
-fn reference_for(mesh: &WorldMesh, out: &render_preview::Rendered, opts: &RenderOptions) -> Frame {
-    let view = View::new(&out.camera, out.near).unwrap();
-    render_reference(mesh, &view, opts.shading, opts.background)
 }
 
 /// Floors for `gauss` against the mesh at 384², front and iso, default settings; leaves at

@@ -3,20 +3,15 @@
 //! Table 4 measure), the paper's worst case (a solid sample cube seen towards its corner)
 //! at both thresholds, instances, and an empty tree. Measurements print with `--nocapture`.
 
+mod common;
+use common::{shared};
+
 use std::path::{Path, PathBuf};
 
 use render_preview::reference::{render_reference, WorldMesh};
 use render_preview::{metrics, render, render_file, synth, Method, ParilovOptions, RenderOptions, SceneFiles, View};
 use sct_format::write::{write_scene_file, Scene, WriteOptions};
 use sct_format::{Limits, Node};
-
-fn shared(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models").join(rel);
-    p.exists().then_some(p).or_else(|| {
-        eprintln!("skipping: {rel} not found");
-        None
-    })
-}
 
 fn parilov(o: RenderOptions) -> RenderOptions {
     RenderOptions { method: Method::Parilov, ..o }

@@ -1,6 +1,9 @@
 //! End-to-end tests: files built with the synthetic builder are rendered and compared with
 //! the mesh reference, with golden images, and through the CLI.
 
+mod common;
+use common::{reference_for};
+
 use std::path::{Path, PathBuf};
 
 use render_preview::reference::{render_reference, WorldMesh};
@@ -20,11 +23,6 @@ fn sphere_file(dir: &Path) -> (PathBuf, WorldMesh) {
     let path = dir.join("sphere.sct");
     synth::write_mesh_sct(&mesh, 0.02, &path, &WriteOptions::default()).unwrap();
     (path, mesh)
-}
-
-fn reference_for(mesh: &WorldMesh, out: &render_preview::Rendered, opts: &RenderOptions) -> Frame {
-    let view = View::new(&out.camera, out.near).unwrap();
-    render_reference(mesh, &view, opts.shading, opts.background)
 }
 
 #[test]

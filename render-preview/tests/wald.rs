@@ -5,9 +5,12 @@
 //! Figures measured when the bounds were set are in each test's comment; `--nocapture`
 //! prints them.
 
+mod common;
+use common::{shared, reference_for};
+
 use std::path::{Path, PathBuf};
 
-use render_preview::reference::{render_reference, WorldMesh};
+use render_preview::reference::WorldMesh;
 use render_preview::{metrics, render_file, synth, Frame, Method, RenderOptions, Shading, View, ViewPreset, WaldOptions};
 use sct_format::graph::GraphNode;
 use sct_format::write::{write_scene_file, Scene, WriteOptions};
@@ -18,18 +21,6 @@ fn wald(o: RenderOptions) -> RenderOptions {
 
 fn with(o: &RenderOptions, radius_scale: f32, k: u32) -> RenderOptions {
     RenderOptions { wald: WaldOptions { radius_scale, k }, ..o.clone() }
-}
-
-fn shared(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models").join(rel);
-    p.exists().then_some(p).or_else(|| {
-        eprintln!("skipping: {rel} not found");
-        None
-    })
-}
-
-fn reference_for(mesh: &WorldMesh, out: &render_preview::Rendered, opts: &RenderOptions) -> Frame {
-    render_reference(mesh, &View::new(&out.camera, out.near).unwrap(), opts.shading, opts.background)
 }
 
 fn write_tree(leaves: Vec<sct_format::Node>, path: &Path) {

@@ -4,26 +4,17 @@
 //! counters. Figures measured when the bounds were set are in each test's comment;
 //! `--nocapture` prints them.
 
+mod common;
+use common::{shared, reference_for};
+
 use std::path::{Path, PathBuf};
 
-use render_preview::reference::{render_reference, WorldMesh};
-use render_preview::{metrics, render_file, synth, Frame, Method, RenderOptions, Shading, View, ViewPreset, WandOptions};
+use render_preview::reference::WorldMesh;
+use render_preview::{metrics, render_file, synth, Method, RenderOptions, Shading, View, ViewPreset, WandOptions};
 use sct_format::write::{write_scene_file, WriteOptions};
 
 fn wand(o: RenderOptions, w: WandOptions) -> RenderOptions {
     RenderOptions { method: Method::Wand, wand: w, ..o }
-}
-
-fn shared(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models").join(rel);
-    p.exists().then_some(p).or_else(|| {
-        eprintln!("skipping: {rel} not found");
-        None
-    })
-}
-
-fn reference_for(mesh: &WorldMesh, out: &render_preview::Rendered, opts: &RenderOptions) -> Frame {
-    render_reference(mesh, &View::new(&out.camera, out.near).unwrap(), opts.shading, opts.background)
 }
 
 /// The bunny (res2) as leaves of side r/200, with its mesh.

@@ -4,6 +4,9 @@
 //! (`large = ∞`) so that the random part of the method is what is measured; each
 //! measurement is printed (`--nocapture`).
 
+mod common;
+use common::{shared};
+
 use std::path::{Path, PathBuf};
 
 use render_preview::reference::{render_reference, WorldMesh};
@@ -125,14 +128,6 @@ fn silhouettes_grow_with_the_square() {
         assert!(m.extra_fraction > last && m.extra_fraction < max_extra && m.missing_fraction < 0.002, "d {d}: {m:?}");
         last = m.extra_fraction;
     }
-}
-
-fn shared(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models").join(rel);
-    p.exists().then_some(p).or_else(|| {
-        eprintln!("skipping: {rel} not found");
-        None
-    })
 }
 
 /// Thin two-sided objects (§5.1.2: "These have dark backsides which can leak through if the
