@@ -4,7 +4,7 @@
 //! kernels), and the work counters in `--json`.
 
 mod common;
-use common::{shared, reference_for};
+use common::{shared, reference_for, synth_shared};
 
 use std::path::{Path, PathBuf};
 
@@ -79,12 +79,8 @@ fn gauss_matches_the_mesh_on_real_models() {
 /// vs 28.24 dB, SSIM 0.951 vs 0.893 when measured (no leak: much higher SSIM).
 #[test]
 fn normalized_weighting_removes_the_leak_at_equal_psnr() {
-    let Some(path) = shared("scans/stanford-bunny-original-ply/bun_zipper_res2.ply") else { return };
-    let mesh = WorldMesh::load(&path).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let sct = dir.path().join("b.sct");
-    let (_, r) = mesh.bound().unwrap();
-    synth::write_mesh_sct(&mesh, (r / 200.0) as f32, &sct, &WriteOptions::default()).unwrap();
+    let Some((mesh, sct)) = synth_shared("scans/stanford-bunny-original-ply/bun_zipper_res2.ply", dir.path()) else { return };
     let base = gauss(small(384, 384));
     let blend = render_file(&sct, &base).unwrap();
     let refr = reference_for(&mesh, &blend, &base);
@@ -265,12 +261,8 @@ fn cli_method_flag_and_work_counters() {
 /// at most 1.2 dB, and the same image on one thread.
 #[test]
 fn gauss_in_mask_order() {
-    let Some(path) = shared("scans/stanford-bunny-original-ply/bun_zipper_res2.ply") else { return };
-    let mesh = WorldMesh::load(&path).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let sct = dir.path().join("b.sct");
-    let (_, r) = mesh.bound().unwrap();
-    synth::write_mesh_sct(&mesh, (r / 200.0) as f32, &sct, &WriteOptions::default()).unwrap();
+    let Some((mesh, sct)) = synth_shared("scans/stanford-bunny-original-ply/bun_zipper_res2.ply", dir.path()) else { return };
     let depth = gauss(small(384, 384));
     let d = render_file(&sct, &depth).unwrap();
     let refr = reference_for(&mesh, &d, &depth);

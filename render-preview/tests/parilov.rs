@@ -4,7 +4,7 @@
 //! at both thresholds, instances, and an empty tree. Measurements print with `--nocapture`.
 
 mod common;
-use common::{shared};
+use common::{shared, synth_shared};
 
 use std::path::{Path, PathBuf};
 
@@ -24,12 +24,8 @@ fn parilov(o: RenderOptions) -> RenderOptions {
 /// frame). Bars: the measured values less 1 dB / 0.01.
 #[test]
 fn parilov_matches_the_mesh_and_the_depth_buffered_cut() {
-    let Some(path) = shared("scans/stanford-bunny-original-ply/bun_zipper_res2.ply") else { return };
-    let mesh = WorldMesh::load(&path).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let sct = dir.path().join("b.sct");
-    let (_, r) = mesh.bound().unwrap();
-    synth::write_mesh_sct(&mesh, (r / 200.0) as f32, &sct, &WriteOptions::default()).unwrap();
+    let Some((mesh, sct)) = synth_shared("scans/stanford-bunny-original-ply/bun_zipper_res2.ply", dir.path()) else { return };
     let o = parilov(RenderOptions { width: 384, height: 384, ..RenderOptions::default() });
     let out = render_file(&sct, &o).unwrap();
     let refr = render_reference(&mesh, &View::new(&out.camera, out.near).unwrap(), o.shading, o.background);

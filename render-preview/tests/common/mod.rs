@@ -21,3 +21,13 @@ pub fn shared(rel: &str) -> Option<PathBuf> {
 pub fn reference_for(mesh: &WorldMesh, out: &render_preview::Rendered, opts: &RenderOptions) -> Frame {
     render_reference(mesh, &View::new(&out.camera, out.near).unwrap(), opts.shading, opts.background)
 }
+
+/// A shared model made into an SCT file in `dir` by the synthetic builder, leaves at 1/200
+/// of its bounding radius: the mesh and the file, or `None` when the model is not there.
+pub fn synth_shared(rel: &str, dir: &Path) -> Option<(WorldMesh, PathBuf)> {
+    let mesh = WorldMesh::load(&shared(rel)?).unwrap();
+    let sct = dir.join("m.sct");
+    let (_, r) = mesh.bound().unwrap();
+    render_preview::synth::write_mesh_sct(&mesh, (r / 200.0) as f32, &sct, &sct_format::write::WriteOptions::default()).unwrap();
+    Some((mesh, sct))
+}
