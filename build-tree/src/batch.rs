@@ -36,7 +36,7 @@ pub const REPORT_SCHEMA: &str = "sct-build-tree-batch/1";
 
 /// Bump when the sampler, tree builder or encoders change their output for the same
 /// inputs and flags without a crate version change, so batch runs redo old outputs.
-pub const ENCODER_REVISION: u32 = 2;
+pub const ENCODER_REVISION: u32 = 3;
 
 /// Temporary files of other processes younger than this are left alone: they may belong
 /// to a run still in progress (a retried shard, another host on shared storage).
@@ -96,6 +96,8 @@ pub struct BatchOptions {
     pub profile: Profile,
     /// zstd level override.
     pub compression_level: Option<i32>,
+    /// Default profile: store centre offsets (spec 1.2).
+    pub centre_offsets: bool,
     /// Tree options.
     pub build: BuildOptions,
     /// Convert even when the output is up to date.
@@ -192,6 +194,7 @@ pub fn job_key(opts: &BatchOptions) -> String {
         "profile": opts.profile.name(),
         // The effective level, so a changed default invalidates old outputs.
         "compression_level": opts.compression_level.unwrap_or(sct_format::write::DEFAULT_ZSTD_LEVEL),
+        "centre_offsets": opts.centre_offsets,
         "weld": weld,
         "depth_slack": opts.build.depth_slack,
     });
@@ -513,6 +516,7 @@ fn run_one(opts: &BatchOptions, key: &str, rel: &Path, out_rel: &Path) -> (JobRe
         scene: None,
         profile: opts.profile,
         compression_level: opts.compression_level,
+        centre_offsets: opts.centre_offsets,
         build: opts.build,
     };
     let tag = BatchTag { key, root: &opts.input_dir, sidecar: &sidecar };

@@ -55,6 +55,10 @@ struct Cli {
     /// zstd level for tree blocks (0 disables; default: the profile's own).
     #[arg(long)]
     compression_level: Option<i32>,
+    /// Leave out the centre offsets that put the default profile's leaves back on their
+    /// surface (SCT 1.2), so that SCT 1.0/1.1 readers can read the file.
+    #[arg(long)]
+    no_centre_offsets: bool,
     /// Weld samples whose centres' bounding box is at most this wide (absolute units;
     /// 0 = exact duplicates only). Default: 1% of the mean sample radius.
     #[arg(long, conflicts_with = "no_weld")]
@@ -253,6 +257,7 @@ fn main() -> ExitCode {
             sampling,
             profile: cli.profile,
             compression_level: cli.compression_level,
+            centre_offsets: !cli.no_centre_offsets,
             build,
             force: cli.force,
             shard: cli.shard,
@@ -270,6 +275,7 @@ fn main() -> ExitCode {
         scene: cli.scene,
         profile: cli.profile,
         compression_level: cli.compression_level,
+        centre_offsets: !cli.no_centre_offsets,
         build,
     };
     // A spinner only for a person watching: never in pipes or logs.

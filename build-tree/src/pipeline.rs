@@ -25,6 +25,8 @@ pub struct Config {
     pub profile: Profile,
     /// zstd level override.
     pub compression_level: Option<i32>,
+    /// Default profile: store centre offsets (spec 1.2) that put leaves back on their surface.
+    pub centre_offsets: bool,
     /// Tree options.
     pub build: BuildOptions,
 }
@@ -212,7 +214,7 @@ pub fn run_samples(
     let generator = generator(cfg, &upstream, &composed.inlines)?;
     let scene = Scene { generator, graph: composed.graph, trees: composed.trees };
     drop(samples);
-    let wopts = WriteOptions { profile: cfg.profile, compression_level: cfg.compression_level, ..Default::default() };
+    let wopts = WriteOptions { profile: cfg.profile, compression_level: cfg.compression_level, centre_offsets: cfg.centre_offsets, ..Default::default() };
     // Consumed: the trees' nodes are freed as their blocks are written.
     let ws = write_scene_file_owned(&cfg.output, scene, &wopts).map_err(|e| match e {
         sct_format::Error::Io { .. } => BuildError::Io(e.to_string()),
@@ -446,6 +448,7 @@ fn generator(cfg: &Config, upstream: &Upstream, inlines: &[(String, String)]) ->
     let mut parameters = serde_json::json!({
         "profile": cfg.profile.name(),
         "compression_level": cfg.compression_level,
+        "centre_offsets": cfg.centre_offsets,
         "weld": weld,
         "depth_slack": cfg.build.depth_slack,
         "splitter": "centre of largest extent",
@@ -547,6 +550,7 @@ mod tests {
             scene: None,
             profile: sct_format::Profile::Raw,
             compression_level: None,
+            centre_offsets: true,
             build: BuildOptions::default(),
         }
     }

@@ -54,6 +54,7 @@ fn cfg(samples: &Path, out: &Path, scene: Option<&Path>) -> Config {
         scene: scene.map(Into::into),
         profile: Profile::Raw,
         compression_level: None,
+        centre_offsets: true,
         build: BuildOptions::default(),
     }
 }

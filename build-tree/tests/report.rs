@@ -37,6 +37,7 @@ fn report_figures_are_consistent() {
             scene: None,
             profile,
             compression_level: None,
+            centre_offsets: true,
             build: BuildOptions::default(),
         };
         let rep = run(&cfg, &mut |_| {}).unwrap();

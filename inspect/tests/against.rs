@@ -34,6 +34,7 @@ fn build_mesh(dir: &Path, mesh: &Path, name: &str, profile: Profile) -> PathBuf 
         scene: None,
         profile,
         compression_level: None,
+        centre_offsets: true,
         build: Default::default(),
     };
     build_tree::pipeline::run(&cfg, &mut |_| {}).expect("build");

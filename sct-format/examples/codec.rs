@@ -65,7 +65,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let nodes = tree.len() as f64;
     let scene = Scene::single_tree(Generator::default(), tree);
     for (profile, level, block_nodes) in configs {
-        let opts = WriteOptions { profile, compression_level: level, block_nodes };
+        let opts = WriteOptions { profile, compression_level: level, block_nodes, ..Default::default() };
         let mut enc = Vec::new();
         let mut enc_cpu = Vec::new();
         let mut dec_cpu = Vec::new();

@@ -77,7 +77,7 @@ fn balanced(leaves: &[Node]) -> SceneTree {
 }
 
 fn scene_bytes(graph: SceneGraph, trees: Vec<SceneTree>) -> Vec<u8> {
-    let opts = WriteOptions { profile: Profile::Raw, compression_level: Some(3), block_nodes: 1 << 21 };
+    let opts = WriteOptions { profile: Profile::Raw, compression_level: Some(3), block_nodes: 1 << 21, ..Default::default() };
     let mut out = Vec::new();
     write_scene(&Scene { generator: Generator::default(), graph, trees }, &opts, &mut out).expect("write scene");
     out

@@ -270,7 +270,7 @@ fn main() {
         );
         println!("\n| profile | bytes/leaf | bytes/node | pos err max / mean (leaf radii) | radius growth max / mean (leaf radii) | normal err max / mean (°) | colour err max / mean (steps) | area rel. err max | encode Mnodes/s | decode Mnodes/s |");
         println!("|---|---|---|---|---|---|---|---|---|---|");
-        let params = CodecParams { alpha: false };
+        let params = CodecParams::default();
         for profile in [Profile::Raw, Profile::Canopy, Profile::Default] {
             // Encode top-down.
             let t0 = Instant::now();

@@ -11,9 +11,9 @@ use crate::raw::{Cursor, FileHeader, SectionEntry, FILE_HEADER_LEN, SECTION_ENTR
 /// The major version this crate reads and writes.
 pub const MAJOR: u16 = 1;
 /// The newest minor version this crate writes. A writer labels a file with the smallest
-/// minor version whose features it uses (1.1: two-sided trees, spec §6.2), so files without
-/// them stay byte-for-byte 1.0 files.
-pub const MINOR: u16 = 1;
+/// minor version whose features it uses (1.1: two-sided trees; 1.2: centre offsets; spec
+/// §6.2), so files without them stay byte-for-byte files of the older version.
+pub const MINOR: u16 = 2;
 
 /// A section to be written (low-level API: [`crate::write`] and [`crate::samples`] build these).
 pub struct SectionOut {

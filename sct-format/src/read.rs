@@ -472,8 +472,11 @@ pub(crate) fn parse_tree_index(src: &Source<'_>, e: &SectionEntry, limits: &Limi
     let header = TreeHeader::parse(&mut c)?;
     let at = e.offset;
     let profile = Profile::from_id(header.profile).ok_or_else(|| Error::malformed(at, format!("unknown profile id {}", header.profile)))?;
-    if header.flags & !3 != 0 || header.root_internal > 1 {
+    if header.flags & !7 != 0 || header.root_internal > 1 {
         return Err(Error::malformed(at + 1, "reserved tree flag bits set"));
+    }
+    if header.flags & 4 != 0 && profile != Profile::Default {
+        return Err(Error::malformed(at + 1, format!("centre offsets (tree flag bit 2) need the default profile, not {}", profile.name())));
     }
     Limits::check("tree levels", header.level_count as u64, limits.max_tree_levels as u64)?;
     Limits::check("tree nodes", header.node_count, limits.max_tree_nodes)?;
@@ -496,7 +499,7 @@ pub(crate) fn parse_tree_index(src: &Source<'_>, e: &SectionEntry, limits: &Limi
     drop(tables);
     // Offsets are relative to the section; block data starts after the tables.
     let index_len = TREE_HEADER_LEN as u64 + table_len;
-    let params = CodecParams { alpha: header.flags & 1 == 1 };
+    let params = CodecParams::from_tree_flags(header.flags);
 
     // Structural consistency of the index, so decoding can trust it.
     let node_sum = levels.iter().try_fold(0u64, |s, l| s.checked_add(l.node_count)).ok_or_else(|| Error::malformed(at, "level counts overflow"))?;

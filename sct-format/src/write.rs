@@ -11,7 +11,7 @@ use std::path::Path;
 
 use rayon::prelude::*;
 
-use crate::codec::{encode_children, CodecParams, Profile};
+use crate::codec::{encode_children_with_leaves, CodecParams, Profile};
 use crate::container::{header_and_table, write_container_minor, SectionOut};
 use crate::error::{Error, Result};
 use crate::graph::{Generator, GraphNode, Propagation, SceneGraph};
@@ -62,15 +62,24 @@ pub struct WriteOptions {
     pub compression_level: Option<i32>,
     /// Most nodes per block (rounded down to even, at least 2).
     pub block_nodes: u32,
+    /// Default profile only: store centre offsets that move each leaf's centre back onto its
+    /// surface along its normal (spec 1.2, tree flag bit 2; about 0.5 bytes a leaf). Files
+    /// written without them stay readable by 1.0/1.1 readers.
+    pub centre_offsets: bool,
 }
 
 impl Default for WriteOptions {
     fn default() -> Self {
-        WriteOptions { profile: Profile::Default, compression_level: None, block_nodes: 16384 }
+        WriteOptions { profile: Profile::Default, compression_level: None, block_nodes: 16384, centre_offsets: true }
     }
 }
 
 impl WriteOptions {
+    /// The codec parameters of a tree with (`alpha`) or without translucent nodes.
+    fn codec_params(&self, alpha: bool) -> CodecParams {
+        CodecParams { alpha, centre_offsets: self.centre_offsets && self.profile == Profile::Default }
+    }
+
     fn zstd_level(&self) -> Option<i32> {
         match self.compression_level {
             Some(0) => None,
@@ -121,10 +130,15 @@ pub struct WriteStats {
     pub trees: Vec<TreeStats>,
 }
 
-/// The minor version a scene file is labelled with: 1 when a tree is two-sided (the only
-/// 1.1 feature), else 0, so that files without it stay byte-for-byte 1.0 files.
-fn scene_minor(two_sided: impl IntoIterator<Item = bool>) -> u16 {
-    two_sided.into_iter().any(|t| t) as u16
+/// The minor version a scene file is labelled with: the newest whose features it uses (1.2:
+/// centre offsets; 1.1: two-sided trees), so that files without them stay byte-for-byte
+/// files of the older version.
+fn scene_minor(two_sided: bool, opts: &WriteOptions) -> u16 {
+    if opts.codec_params(false).centre_offsets {
+        2
+    } else {
+        two_sided as u16
+    }
 }
 
 /// Encodes and writes `scene` to `w`.
@@ -138,7 +152,7 @@ pub fn write_scene<W: Write>(scene: &Scene, opts: &WriteOptions, w: W) -> Result
         tree_stats.push(stats);
         sections.push(SectionOut::plain(tags::TREE, bytes));
     }
-    let (bytes, _) = write_container_minor(SCT_MAGIC, scene_minor(scene.trees.iter().map(SceneTree::is_two_sided)), &sections, w)?;
+    let (bytes, _) = write_container_minor(SCT_MAGIC, scene_minor(scene.trees.iter().any(SceneTree::is_two_sided), opts), &sections, w)?;
     Ok(WriteStats {
         bytes,
         sections: sections.iter().map(|s| (s.tag.escape_ascii().to_string(), s.stored.len() as u64)).collect(),
@@ -253,7 +267,7 @@ fn stream_scene<'a, W: Write + Seek + Send>(
         tree_stats.push(st.stats);
     }
     w.seek(SeekFrom::Start(start))?;
-    w.write_all(&header_and_table(SCT_MAGIC, scene_minor([two_sided]), &entries, offset))?;
+    w.write_all(&header_and_table(SCT_MAGIC, scene_minor(two_sided, opts), &entries, offset))?;
     w.seek(SeekFrom::Start(start + offset))?;
     Ok(WriteStats {
         bytes: offset,
@@ -481,7 +495,7 @@ fn encode_block(
     let m = nodes.len();
     let mask_len = m.div_ceil(8);
     let mut payload: Vec<u8> = flags.chunks(8).map(|c| c.iter().rev().fold(0u8, |b, &f| b << 1 | f as u8)).collect();
-    let decoded = encode_children(profile, params, parents, nodes, &mut payload)?;
+    let decoded = encode_children_with_leaves(profile, params, parents, nodes, Some(flags), &mut payload)?;
     let raw_len = payload.len();
     let streams = crate::codec::streams(profile, params, m);
     let mut attribute_bytes = [0u64; 7];
@@ -682,7 +696,7 @@ struct StreamedTree {
 /// as parents and the part of the next already written (see [`ParentQueue`]).
 fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnMut(&[u8]) -> Result<()> + Send)) -> Result<StreamedTree> {
     let profile = opts.profile;
-    let params = CodecParams { alpha: tree.alpha };
+    let params = opts.codec_params(tree.alpha);
     let block_nodes = block_nodes(opts);
     let levels = tree.levels.len();
     let node_count = tree.len();
@@ -783,7 +797,7 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
     let mut index = Vec::with_capacity(index_len);
     TreeHeader {
         profile: profile.id(),
-        flags: params.alpha as u8 | (tree.two_sided as u8) << 1,
+        flags: params.alpha as u8 | (tree.two_sided as u8) << 1 | (params.centre_offsets as u8) << 2,
         root_internal: flags.first().copied().unwrap_or(false) as u8,
         level_count: levels as u32,
         node_count: node_count as u64,
@@ -859,7 +873,7 @@ mod tests {
         let tree = perfect_tree(10);
         for profile in [Profile::Raw, Profile::Canopy, Profile::Default] {
             for level in [None, Some(0), Some(3)] {
-                let opts = WriteOptions { profile, compression_level: level, block_nodes: 64 };
+                let opts = WriteOptions { profile, compression_level: level, block_nodes: 64, ..Default::default() };
                 let (bytes, st) = encode_tree(&tree, &opts).expect("encode");
                 let attrs: u64 = st.attribute_bytes.iter().map(|a| a.1).sum();
                 assert_eq!(attrs + st.index_bytes, st.section_bytes, "{profile:?} {level:?}: {:?}", st.attribute_bytes);

@@ -65,7 +65,10 @@ fn pairs(alpha: bool) -> impl Strategy<Value = (Vec<Node>, Vec<(Node, bool)>)> {
 }
 
 fn check(profile: Profile, alpha: bool, ps: &[Node], kids: &[(Node, bool)]) -> Result<(), TestCaseError> {
-    let params = CodecParams { alpha };
+    check_with(profile, CodecParams { alpha, centre_offsets: false }, ps, kids)
+}
+
+fn check_with(profile: Profile, params: CodecParams, ps: &[Node], kids: &[(Node, bool)]) -> Result<(), TestCaseError> {
     let children: Vec<Node> = kids.iter().map(|k| k.0).collect();
     let mut out = vec![0xAB]; // encoders append
     let res = encode_children(profile, params, ps, &children, &mut out);
@@ -136,10 +139,29 @@ proptest! {
     #[test]
     fn default_alpha_props((ps, kids) in pairs(true)) { check(Profile::Default, true, &ps, &kids)?; }
 
+    /// Centre offsets (1.2) keep every bound, and never move a centre away from the original
+    /// along the decoded normal.
+    #[test]
+    fn default_centre_offset_props((ps, kids) in pairs(false), alpha in any::<bool>()) {
+        let with = CodecParams { alpha, centre_offsets: true };
+        check_with(Profile::Default, with, &ps, &kids)?;
+        let children: Vec<Node> = kids.iter().map(|k| k.0).collect();
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        if let (Ok(plain), Ok(moved)) = (
+            encode_children(Profile::Default, CodecParams { alpha, centre_offsets: false }, &ps, &children, &mut a),
+            encode_children(Profile::Default, with, &ps, &children, &mut b),
+        ) {
+            for (i, ((c, d0), d1)) in children.iter().zip(&plain).zip(&moved).enumerate() {
+                let along = |d: &Node| (0..3).map(|k| (c.center[k] as f64 - d.center[k] as f64) * d0.normal[k] as f64).sum::<f64>().abs();
+                prop_assert!(along(d1) <= along(d0) + ps[i / 2].radius as f64 * 1e-6, "child {i}: offset moved the centre away along the normal");
+            }
+        }
+    }
+
     /// Arbitrary bytes, of arbitrary and of exactly the expected length, never panic.
     #[test]
     fn arbitrary_bytes_never_panic(ps in prop::collection::vec(parent(), 0..6), junk in prop::collection::vec(any::<u8>(), 0..300), alpha in any::<bool>()) {
-        let params = CodecParams { alpha };
+        let params = CodecParams { alpha, centre_offsets: false };
         for profile in [Profile::Canopy, Profile::Default] {
             let mut out = Vec::new();
             let _ = decode_children(profile, params, &ps, &junk, 5, &mut out);

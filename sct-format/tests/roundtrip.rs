@@ -7,9 +7,12 @@ use sct_format::read::SctReader;
 use sct_format::{write_scene, Generator, Limits, Node, Profile, Scene, SceneTree, WriteOptions};
 
 fn write(tree: &SceneTree, profile: Profile) -> Vec<u8> {
+    write_with(tree, WriteOptions { profile, block_nodes: 4096, ..Default::default() })
+}
+
+fn write_with(tree: &SceneTree, opts: WriteOptions) -> Vec<u8> {
     let scene = Scene::single_tree(Generator { tool: "test".into(), version: "0".into(), ..Default::default() }, tree.clone());
     let mut bytes = Vec::new();
-    let opts = WriteOptions { profile, block_nodes: 4096, ..Default::default() };
     let stats = write_scene(&scene, &opts, &mut bytes).expect("write");
     assert_eq!(stats.bytes as usize, bytes.len());
     bytes
@@ -132,15 +135,16 @@ fn output_is_identical_with_one_and_two_threads() {
 #[test]
 fn two_sided_flag_round_trips_and_labels_the_file_1_1() {
     let mut tree = common::random_tree(11, 2_001, false);
-    let one_sided = write(&tree, Profile::Default);
-    // Without a two-sided tree the file is a 1.0 file, byte for byte as before.
+    let v10 = |profile| WriteOptions { profile, block_nodes: 4096, centre_offsets: false, ..Default::default() };
+    let one_sided = write_with(&tree, v10(Profile::Default));
+    // Without a two-sided tree (or centre offsets) the file is a 1.0 file, byte for byte as before.
     assert_eq!(u16::from_le_bytes([one_sided[10], one_sided[11]]), 0, "minor version");
     let r = SctReader::from_bytes(one_sided, &Limits::default()).expect("read");
     assert!(!r.trees()[0].two_sided() && !r.read_tree(0).expect("decode").is_two_sided());
 
     tree.set_two_sided(true);
     for profile in [Profile::Raw, Profile::Canopy, Profile::Default] {
-        let bytes = write(&tree, profile);
+        let bytes = write_with(&tree, v10(profile));
         assert_eq!(u16::from_le_bytes([bytes[10], bytes[11]]), 1, "minor version ({profile:?})");
         let r = SctReader::from_bytes(bytes, &Limits::default()).expect("read");
         assert!(r.trees()[0].two_sided(), "{profile:?}");
@@ -150,8 +154,46 @@ fn two_sided_flag_round_trips_and_labels_the_file_1_1() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("two.sct");
     let scene = Scene::single_tree(Generator { tool: "test".into(), version: "0".into(), ..Default::default() }, tree.clone());
-    sct_format::write::write_scene_file(&path, &scene, &WriteOptions::default()).expect("write file");
+    sct_format::write::write_scene_file(&path, &scene, &WriteOptions { centre_offsets: false, ..Default::default() }).expect("write file");
     let r = SctReader::open(&path, &Limits::default()).expect("open");
     assert_eq!(r.header().minor, 1);
     assert!(r.trees()[0].two_sided());
+}
+
+/// Centre offsets (1.2, the default) put the leaves of a plane back on the plane: without
+/// them the position code leaves them up to about a fifth of their parent's radius off it.
+/// Raw and canopy files never carry them; a file with them is labelled 1.2 by both writers.
+#[test]
+fn centre_offsets_put_leaves_on_their_plane_and_label_the_file_1_2() {
+    let tree = common::planar_tree(5, 20_001);
+    let worst = |bytes: Vec<u8>| {
+        let r = SctReader::from_bytes(bytes, &Limits::default()).expect("read");
+        let t = r.read_tree(0).expect("decode");
+        let mut worst = 0f32;
+        for i in 0..t.len() {
+            if !t.is_internal(i) {
+                // Relative to the leaf's own radius: the leaves are of every size.
+                let (n, k) = (t.nodes()[i], common::PLANE_NORMAL);
+                let off = (n.center[0] - 1.0) * k[0] + (n.center[1] + 2.0) * k[1] + (n.center[2] - 3.0) * k[2];
+                worst = worst.max(off.abs() / n.radius);
+            }
+        }
+        worst
+    };
+    let with = write_with(&tree, WriteOptions { block_nodes: 4096, ..Default::default() });
+    assert_eq!(u16::from_le_bytes([with[10], with[11]]), 2, "minor version");
+    let without = write_with(&tree, WriteOptions { block_nodes: 4096, centre_offsets: false, ..Default::default() });
+    assert_eq!(u16::from_le_bytes([without[10], without[11]]), 0, "minor version");
+    let (w, wo) = (worst(with), worst(without));
+    assert!(w <= 0.01, "with centre offsets leaves lie up to {w} of their radius off the plane");
+    assert!(wo >= 0.05, "without centre offsets the position code alone was expected to err (worst {wo})");
+    for profile in [Profile::Raw, Profile::Canopy] {
+        let bytes = write(&tree, profile);
+        assert_eq!(u16::from_le_bytes([bytes[10], bytes[11]]), 0, "minor version ({profile:?})");
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("offsets.sct");
+    let scene = Scene::single_tree(Generator { tool: "test".into(), version: "0".into(), ..Default::default() }, tree);
+    sct_format::write::write_scene_file(&path, &scene, &WriteOptions::default()).expect("write file");
+    assert_eq!(SctReader::open(&path, &Limits::default()).expect("open").header().minor, 2);
 }

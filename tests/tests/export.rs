@@ -69,6 +69,7 @@ fn samples_and_level_cuts_round_trip_through_a_ply_parser() {
         scene: None,
         profile: Profile::Default,
         compression_level: None,
+        centre_offsets: true,
         build: Default::default(),
     };
     build_tree::pipeline::run(&cfg, &mut |_| {}).expect("build");

@@ -26,6 +26,7 @@ fn build(samples: &Path, out: &Path, profile: Profile) -> build_tree::pipeline::
         scene: None,
         profile,
         compression_level: None,
+        centre_offsets: true,
         build: Default::default(),
     };
     build_tree::pipeline::run(&cfg, &mut |_| {}).expect("build")

@@ -285,7 +285,7 @@ mod tests {
     fn unusable_children_are_described_in_words() {
         let mut c = node([1e30, 0.0, 0.0], 1e30);
         c.area = f32::INFINITY;
-        let e = check_child(&c, 3, CodecParams { alpha: false }).unwrap_err().to_string();
+        let e = check_child(&c, 3, CodecParams { alpha: false, ..Default::default() }).unwrap_err().to_string();
         assert!(e.contains("area inf") && e.contains("child node 3") && e.contains("scale the model down"), "{e}");
         assert!(!e.contains("Node {") && !e.contains("center:"), "{e}");
     }
@@ -315,7 +315,7 @@ mod tests {
         let mut out = Vec::new();
         assert!(matches!(encode(CodecParams::default(), &[p], &kids, &mut out), Err(Error::Misuse(_))));
         assert!(out.is_empty());
-        let dec = encode(CodecParams { alpha: true }, &[p], &kids, &mut out).unwrap();
+        let dec = encode(CodecParams { alpha: true, ..Default::default() }, &[p], &kids, &mut out).unwrap();
         assert_eq!(out.len(), 24);
         assert_eq!(dec[1].color[3], 102);
     }

@@ -30,7 +30,23 @@
 //! | 10 | n | area code low byte |
 //! | 11 | n | area code high byte (code ≤ 4096) |
 //!
-//! Total `8m + 2n` bytes (`9m + 2n` with alpha), i.e. 9 (10) bytes per child before zstd.
+//! | 12 (centre offsets only) | m | `zz8(s)`: the child's centre moved by `s · r_P / 128` along its decoded normal |
+//!
+//! Total `8m + 2n` bytes (`9m + 2n` with alpha), i.e. 9 (10) bytes per child before zstd, and
+//! `m` more with centre offsets (1.2, tree flag bit 2).
+//!
+//! # Centre offsets (1.2)
+//!
+//! The position/radius state puts a child's centre on a grid of `r_P / 6` steps, so a leaf's
+//! centre may lie up to about a fifth of its parent's radius off the surface it stands for; a
+//! renderer draws it there (outlines grow, planes get relief). With tree flag bit 2 every child
+//! also carries a signed byte `s`: its centre moves by `s · r_P / 128` along its decoded
+//! normal, which brings a leaf back onto its surface to within `r_P / 256` (plus the tangential
+//! error times the normal's error). The encoder picks the `s` that best cancels the centre error
+//! along the normal, and only values that keep the original child contained and the decoded
+//! child inside the stick-out slack of its parent, so every bound below is unchanged. It refines
+//! leaves only and stores 0 for nodes with children ([`encode_with_leaves`]); a decoder
+//! applies whatever is stored.
 //!
 //! `zzb(d)`: the difference taken modulo `2^b`, read as a signed value in `[-2^(b-1),
 //! 2^(b-1))`, zigzag-mapped (`0,-1,1,-2,… → 0,1,2,3,…`). A byte ≥ `2^b` is malformed.
@@ -279,7 +295,51 @@ fn channels(params: CodecParams) -> usize {
 /// Payload size for `n` parents.
 pub(crate) fn payload_len(params: CodecParams, n: usize) -> Option<usize> {
     let m = n.checked_mul(2)?;
-    m.checked_mul(5 + channels(params))?.checked_add(n.checked_mul(2)?)
+    m.checked_mul(5 + channels(params) + params.centre_offsets as usize)?.checked_add(n.checked_mul(2)?)
+}
+
+/// Denominator of a centre offset: one step is `r_P / 128`.
+const OFFSET_STEPS: f32 = 128.0;
+
+/// Moves `node`'s centre by `s · r_P / 128` along its (decoded, unit) normal, in f32 in the
+/// order written (spec/SCT-profiles.md §3): the one definition the encoder and decoder share.
+#[inline]
+fn apply_offset(node: &mut Node, s: i8, parent_radius: f32) {
+    if s == 0 {
+        return;
+    }
+    let t = s as f32 * parent_radius / OFFSET_STEPS;
+    for a in 0..3 {
+        node.center[a] = node.center[a] + t * node.normal[a];
+    }
+}
+
+/// The centre offset for decoded child `dec` of original `orig` under parent `p`: the step
+/// count nearest to the centre error along the decoded normal, walked back toward 0 until the
+/// moved child still contains the original and stays within the stick-out bound of `p` (0
+/// always does: it is the child as decoded without offsets).
+fn pick_offset(p: &Node, orig: &Node, dec: &Node) -> i8 {
+    let step = p.radius as f64 / OFFSET_STEPS as f64;
+    if !(step > 0.0) || !step.is_finite() {
+        return 0;
+    }
+    let along: f64 = (0..3).map(|a| (orig.center[a] as f64 - dec.center[a] as f64) * dec.normal[a] as f64).sum();
+    let want = (along / step).round();
+    if !want.is_finite() {
+        return 0;
+    }
+    let mut s = want.clamp(i8::MIN as f64, i8::MAX as f64) as i8;
+    let bound = posrad::stick_out_bound() as f32;
+    while s != 0 {
+        let mut moved = *dec;
+        apply_offset(&mut moved, s, p.radius);
+        let contains_original = crate::geometry::sphere_contains(&moved, orig, 0.0);
+        if contains_original && moved.center.iter().all(|c| c.is_finite()) && crate::geometry::sphere_contains(p, &moved, bound) {
+            return s;
+        }
+        s -= s.signum();
+    }
+    0
 }
 
 /// The decoded child with codes `c` (`ch` colour channels), `axis = oct_decode(c.normal)` and
@@ -302,13 +362,25 @@ pub fn streams(params: CodecParams, m: usize) -> Vec<super::Stream> {
     let mut v = vec![Stream::of(0, m), Stream::of(0, m), Stream::of(1, m), Stream::of(1, m), Stream::of(2, m)];
     v.extend((0..channels(params)).map(|_| Stream::of(3, m)));
     v.extend([Stream::of(4, m / 2), Stream::of(4, m / 2)]);
+    if params.centre_offsets {
+        v.push(Stream::of(0, m));
+    }
     v
 }
 
-/// Encodes sibling pairs relative to their decoded parents; returns them as decoded.
+/// Encodes sibling pairs relative to their decoded parents; returns them as decoded. With
+/// centre offsets every child is refined (see [`encode_with_leaves`]).
 /// On error `out` is left as it was.
 pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mut Vec<u8>) -> Result<Vec<Node>> {
-    if children.len() != 2 * parents.len() {
+    encode_with_leaves(params, parents, children, None, out)
+}
+
+/// [`encode`], refining with centre offsets only the children that `has_children` marks
+/// `false` (all children when it is `None`). Nodes with children gain little from an offset
+/// (they are drawn only where they are smaller than the pixel error) and would cost a byte of
+/// entropy each; a stored 0 costs almost nothing.
+pub fn encode_with_leaves(params: CodecParams, parents: &[Node], children: &[Node], has_children: Option<&[bool]>, out: &mut Vec<u8>) -> Result<Vec<Node>> {
+    if children.len() != 2 * parents.len() || has_children.is_some_and(|f| f.len() != children.len()) {
         return Err(Error::Misuse(format!("{} children for {} parents", children.len(), parents.len())));
     }
     let n = parents.len();
@@ -322,7 +394,8 @@ pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mu
     let (states, rest) = buf.split_at_mut(2 * m);
     let (norms, rest) = rest.split_at_mut(2 * m);
     let (cones, rest) = rest.split_at_mut(m);
-    let (cols, area_bytes) = rest.split_at_mut(ch * m);
+    let (cols, rest) = rest.split_at_mut(ch * m);
+    let (area_bytes, offsets) = rest.split_at_mut(2 * n);
     let mut dec = Vec::with_capacity(m);
     let r = (|| -> Result<()> {
         // Pass 1: the equally tight position/radius states of every child, and how often the
@@ -367,8 +440,13 @@ pub fn encode(params: CodecParams, parents: &[Node], children: &[Node], out: &mu
                 for j in 0..ch {
                     cols[j * m + i] = zz(q[j], pc[j], color::BITS[j]);
                 }
-                let node = child_node(t, p, Codes { state: s, cone, color: q }, axis, ch, if h == 0 { area_a } else { area_b })
+                let mut node = child_node(t, p, Codes { state: s, cone, color: q }, axis, ch, if h == 0 { area_a } else { area_b })
                     .ok_or_else(|| Error::Misuse(format!("default encoder: state {s} of child {i} is not decodable (bug)")))?;
+                if params.centre_offsets && !has_children.is_some_and(|f| f[i]) {
+                    let o = pick_offset(p, c, &node);
+                    apply_offset(&mut node, o, p.radius);
+                    offsets[i] = zz(o as u8, 0, 8);
+                }
                 dec.push(node);
                 dec_a = Some(node);
             }
@@ -397,7 +475,8 @@ pub fn decode(params: CodecParams, parents: &[Node], bytes: &[u8], offset: u64, 
     let (states, rest) = bytes.split_at(2 * m);
     let (norms, rest) = rest.split_at(2 * m);
     let (cones, rest) = rest.split_at(m);
-    let (cols, area_bytes) = rest.split_at(ch * m);
+    let (cols, rest) = rest.split_at(ch * m);
+    let (area_bytes, offsets) = rest.split_at(2 * n);
     // Stream start offsets, for error positions.
     let col_off = offset + 5 * m as u64;
     let area_off = col_off + (ch * m) as u64;
@@ -427,10 +506,14 @@ pub fn decode(params: CodecParams, parents: &[Node], bytes: &[u8], offset: u64, 
                 })?;
             }
             let nc = u as u16 | (v as u16) << 8;
-            let node = child_node(t, p, Codes { state: s, cone: cones[i], color: q }, normal::oct_decode(nc), ch, if h == 0 { area_a } else { area_b })
+            let mut node = child_node(t, p, Codes { state: s, cone: cones[i], color: q }, normal::oct_decode(nc), ch, if h == 0 { area_a } else { area_b })
                 .ok_or_else(|| {
                     Error::malformed(offset + i as u64, format!("default block: position/radius state {s} ≥ {}", posrad::STATE_COUNT))
                 })?;
+            if let Some(&z) = offsets.get(i) {
+                // Every byte is a valid 8-bit zigzag code.
+                apply_offset(&mut node, unzz(z, 0, 8).unwrap_or(0) as i8, p.radius);
+            }
             out.push(node);
             dec_a = Some(node);
         }

@@ -91,6 +91,16 @@ impl std::str::FromStr for Profile {
 pub struct CodecParams {
     /// True when some node has alpha < 255 (Canopy switches from RGB565 to RGBA5654).
     pub alpha: bool,
+    /// Default profile only: every child carries a centre offset along its normal (1.2, tree
+    /// flag bit 2; [`default`]'s "Centre offsets").
+    pub centre_offsets: bool,
+}
+
+impl CodecParams {
+    /// The parameters a tree header's flags byte selects.
+    pub fn from_tree_flags(flags: u8) -> CodecParams {
+        CodecParams { alpha: flags & 1 != 0, centre_offsets: flags & 4 != 0 }
+    }
 }
 
 /// Encodes `children` (sibling pairs, `children.len() == 2 * parents.len()`), appending to
@@ -102,6 +112,22 @@ pub fn encode_children(
     children: &[Node],
     out: &mut Vec<u8>,
 ) -> Result<Vec<Node>> {
+    encode_children_with_leaves(profile, params, parents, children, None, out)
+}
+
+/// [`encode_children`] told which children have children of their own (`has_children`, one
+/// flag a child), so that centre offsets refine only leaves (see [`default::encode_with_leaves`]).
+pub fn encode_children_with_leaves(
+    profile: Profile,
+    params: CodecParams,
+    parents: &[Node],
+    children: &[Node],
+    has_children: Option<&[bool]>,
+    out: &mut Vec<u8>,
+) -> Result<Vec<Node>> {
+    if params.centre_offsets && profile != Profile::Default {
+        return Err(Error::Misuse(format!("centre offsets need the default profile, not {}", profile.name())));
+    }
     if children.len() != 2 * parents.len() {
         return Err(Error::Misuse(format!(
             "{} children for {} parents (need exactly two each)",
@@ -112,7 +138,7 @@ pub fn encode_children(
     match profile {
         Profile::Raw => Ok(raw::encode(children, out)),
         Profile::Canopy => canopy::encode(params, parents, children, out),
-        Profile::Default => default::encode(params, parents, children, out),
+        Profile::Default => default::encode_with_leaves(params, parents, children, has_children, out),
     }
 }
 
