@@ -448,6 +448,12 @@ fn decide_leaf(n: &Node, leaf: bool, group: bool, c: [f32; 3], r: f32, scale: f3
     if let Some(t) = pl.tint {
         color = sct_format::traverse::tint_color(color, t);
     }
+    // A leaf's decoded sphere may be far wider than its patch: positions and radii are
+    // quantized relative to the decoded parent, so a leaf whose parent spans a gap (a
+    // subtree holding parts of two objects) decodes to at least a thirteenth of the parent's
+    // radius plus the grid error (`sct_format::codec::posrad`). Its hat would spread the
+    // surface over that whole sphere; the support is kept within a few patch radii instead.
+    let r = if leaf && n.area > 0.0 { r.min(crate::wald::MAX_SUPPORT_PATCH_RATIO * (n.area / std::f32::consts::PI).sqrt() * pl.s) } else { r };
     Decision::Leaf(crate::wald::Surfel { c, n: nrm, r: r * scale, color })
 }
 

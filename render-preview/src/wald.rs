@@ -8,7 +8,9 @@
 //!    seen (frustum and normal-cone culling of the scaled spheres) becomes a camera-space
 //!    [`Surfel`] `(p, n, r, colour)` with its instance's transform and tint applied; groups,
 //!    instances and inlines are followed as for any method, and `--max-nodes` bounds the
-//!    work (32 bytes a splat). The paper uses every point; here an internal node whose
+//!    work (32 bytes a splat). A leaf's support is bounded by
+//!    [`MAX_SUPPORT_PATCH_RATIO`] × its patch's equal-area radius: the decoded sphere of a
+//!    leaf under a parent that spans a gap is far wider than the leaf. The paper uses every point; here an internal node whose
 //!    sphere projects to at most [`LOD_FRACTION`] × `--pixel-error` stands for its leaves,
 //!    so that far instances cost about a splat per pixel: `compare`'s 20 × 20 bunny grid
 //!    (275 M leaves) at 512² traces 576k splats in 1.2 s and scores 16.8 dB / IoU 0.963
@@ -61,6 +63,17 @@ use crate::shade::{self, linear_to_srgb8, srgb_to_linear_lut, Shading};
 /// become splats instead of their leaves: at the default 1 px, half a pixel, so what the
 /// coarser splat loses is below the pixel.
 pub const LOD_FRACTION: f32 = 0.5;
+
+/// A leaf's support radius (before `--wald-radius-scale`) is at most this multiple of its
+/// patch's equal-area radius `√(area / π)`. Sub-triangles of ordinary meshes have covering
+/// spheres of 1.5–2 equal-area radii (2–4 once quantized) and keep them; a leaf whose sphere
+/// was inflated on decoding by a parent spanning a gap does not (the `compare` pair scene,
+/// bunny before the dragon: a leaf of radius 0.19 around a patch of 0.0007 drew a 30 px
+/// disc; 18.97 → 35.95 dB). Measured at 384² against no bound: 8 changes neither the fuze
+/// nor the CesiumMilkTruck (long sliver triangles) and gains 0.1–0.5 dB on the bunny,
+/// dragon and duck; 4 costs the truck 2.2 dB (holes between slivers), 2 costs it 7 dB (the
+/// earlier bound at the splat methods' 1.3 opened holes everywhere).
+pub const MAX_SUPPORT_PATCH_RATIO: f32 = 8.0;
 
 /// Surfels per leaf of the hierarchy.
 pub const LEAF_SIZE: usize = 4;
