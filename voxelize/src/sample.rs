@@ -16,6 +16,12 @@
 //! measurement"; the sum equals the mesh area to rounding), or EQ 17 (triangle area / sample
 //! count) with [`AreaMode::Eq17`]. Attributes are interpolated at the piece's centroid.
 //!
+//! A piece whose colour varies (a texture or vertex colours) gets the mean colour of five
+//! points of it; where those differ by more than a threshold (detail finer than the voxel:
+//! lines, text), the piece is cut at its voxel's mid-planes across the projection plane and
+//! each quarter becomes a sample of its own (centroid, reach and colour of the quarter): the
+//! surface is sampled at half the voxel there, and only there.
+//!
 //! ## Scanline method (the thesis as written)
 //! One sample per column whose centre falls inside the projected triangle, at the plane
 //! point above that centre (keyed by the voxel that holds it), with the radius that reaches
@@ -31,7 +37,9 @@
 //! and normal are area-weighted means (the centre is the centroid of the merged pieces: on
 //! the surface where they are coplanar, under it where they meet at a crease or curve); the
 //! radius reaches every merged piece, and for the voxel method need not exceed the distance
-//! to the voxel's farthest corner. `merge = false` keeps one sample per triangle per voxel.
+//! to the voxel's farthest corner. Quarters of pieces sampled at half the voxel merge only
+//! with quarters in the same octant of the voxel. `merge = false` keeps one sample per
+//! triangle per voxel (and quarter).
 //!
 //! Radii are rounded up when stored, and grown by a bound on how far rounding the centre to
 //! f32 moves it, so containment survives the f32 storage. A voxel wider than the model is clamped to
@@ -593,5 +601,17 @@ mod tests {
         let area: f64 = nodes.iter().map(|n| f64::from(n.area)).sum();
         assert!((area - 1.0).abs() < 1e-5, "area {area}");
         assert!(nodes.iter().all(|n| n.area > 0.0));
+        // The samples' spheres still hold the surface: random points of the quad, and the
+        // corners of the texels next to the lines, each lie in some sample's sphere.
+        let mut rng = sct_format::rng::SplitMix64(5);
+        let mut pts: Vec<[f64; 2]> = (0..3000).map(|_| [rng.next_f64(), rng.next_f64()]).collect();
+        pts.extend((0..=64).flat_map(|i| [4.0, 5.0, 6.0, 20.0, 21.0, 22.0].map(|t| [t / 64.0, f64::from(i) / 64.0])));
+        for p in pts {
+            let held = nodes.iter().any(|n| {
+                let d = [p[0] - f64::from(n.center[0]), p[1] - f64::from(n.center[1]), f64::from(n.center[2])];
+                (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() <= f64::from(n.radius)
+            });
+            assert!(held, "point {p:?} of the quad in no sample's sphere");
+        }
     }
 }
