@@ -16,6 +16,12 @@
 //! measurement"; the sum equals the mesh area to rounding), or EQ 17 (triangle area / sample
 //! count) with [`AreaMode::Eq17`]. Attributes are interpolated at the piece's centroid.
 //!
+//! A piece whose colour varies (a texture or vertex colours) gets the mean colour of five
+//! points of it; where those differ by more than a threshold (detail finer than the voxel:
+//! lines, text), the piece is cut at its voxel's mid-planes across the projection plane and
+//! each quarter becomes a sample of its own (centroid, reach and colour of the quarter): the
+//! surface is sampled at half the voxel there, and only there.
+//!
 //! ## Scanline method (the thesis as written)
 //! One sample per column whose centre falls inside the projected triangle, at the plane
 //! point above that centre (keyed by the voxel that holds it), with the radius that reaches
@@ -31,7 +37,9 @@
 //! and normal are area-weighted means (the centre is the centroid of the merged pieces: on
 //! the surface where they are coplanar, under it where they meet at a crease or curve); the
 //! radius reaches every merged piece, and for the voxel method need not exceed the distance
-//! to the voxel's farthest corner. `merge = false` keeps one sample per triangle per voxel.
+//! to the voxel's farthest corner. Quarters of pieces sampled at half the voxel merge only
+//! with quarters in the same octant of the voxel. `merge = false` keeps one sample per
+//! triangle per voxel (and quarter).
 //!
 //! Radii are rounded up when stored, and grown by a bound on how far rounding the centre to
 //! f32 moves it, so containment survives the f32 storage. A voxel wider than the model is clamped to
@@ -539,6 +547,71 @@ mod tests {
             }
             let rel = (a.stats.sample_area - area) / area;
             assert!(rel.abs() < 1e-5, "{method:?}: area error {rel:e}");
+        }
+    }
+
+    /// A texture with lines one texel wide, a quarter of a voxel: the voxels the lines cross
+    /// are sampled at half the voxel (up to four samples each, whose colours keep the lines'
+    /// contrast), the voxels of plain black keep one sample; every sample stays on the
+    /// surface, in its voxel, and the areas still add up to the quad's.
+    #[test]
+    fn colour_detail_finer_than_the_voxel_is_sampled_at_half_the_voxel() {
+        // 64 × 64 texels, black with a white column every 16 texels (texels 5, 21, 37, 53).
+        let (w, h) = (64u32, 64u32);
+        let rgba: Vec<[u8; 4]> = (0..w * h).map(|i| if (i % w) % 16 == 5 { [255; 4] } else { [0, 0, 0, 255] }).collect();
+        let quad = Primitive {
+            positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
+            uvs: vec![vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]],
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            material: Some(0),
+            ..Default::default()
+        };
+        let tex = TextureRef { image: 0, tex_coord: 0, transform: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], wrap_s: Wrap::ClampToEdge, wrap_t: Wrap::ClampToEdge };
+        let scene = LoadedScene {
+            meshes: vec![Mesh { name: "quad".into(), primitives: vec![quad] }],
+            instances: vec![Instance { mesh: 0, transform: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]] }],
+            materials: vec![Material { base_color: [1.0; 4], texture: Some(tex), ..Default::default() }],
+            images: vec![Image { width: w, height: h, rgba, source: "lines".into() }],
+            ..Default::default()
+        };
+        // Voxels of 4 texels: 16 × 16 voxels over the quad, 4 columns of them crossed by a line.
+        let voxel = 1.0 / 16.0;
+        let opts = SampleOptions { density: Density::VoxelSize(voxel), ..Default::default() };
+        let s = sample_scene(&scene, &opts, &|_, _| {}).expect("samples");
+        let nodes = &s.meshes[0].samples;
+        let mut per_voxel = std::collections::BTreeMap::<(i64, i64), Vec<&Node>>::new();
+        for n in nodes {
+            assert!(n.center[2].abs() < 1e-6, "{n:?} off the quad");
+            let v = (f64::from(n.center[0]) / voxel).floor() as i64;
+            let u = (f64::from(n.center[1]) / voxel).floor() as i64;
+            per_voxel.entry((v, u)).or_default().push(n);
+        }
+        assert_eq!(per_voxel.len(), 256);
+        let lines = |x: i64| x % 4 == 1; // voxel columns holding texel 5 + 16k
+        for (&(x, y), ns) in &per_voxel {
+            if lines(x) {
+                assert!((2..=4).contains(&ns.len()), "voxel {x},{y}: {} samples", ns.len());
+                // One quarter holds the line: brighter than the voxel's mean (a quarter of white).
+                let brightest = ns.iter().map(|n| n.color[0]).max().unwrap_or(0);
+                assert!(brightest >= 170, "voxel {x},{y}: brightest sample {brightest}");
+            } else {
+                assert_eq!(ns.len(), 1, "voxel {x},{y}: plain black sampled finer");
+            }
+        }
+        let area: f64 = nodes.iter().map(|n| f64::from(n.area)).sum();
+        assert!((area - 1.0).abs() < 1e-5, "area {area}");
+        assert!(nodes.iter().all(|n| n.area > 0.0));
+        // The samples' spheres still hold the surface: random points of the quad, and the
+        // corners of the texels next to the lines, each lie in some sample's sphere.
+        let mut rng = sct_format::rng::SplitMix64(5);
+        let mut pts: Vec<[f64; 2]> = (0..3000).map(|_| [rng.next_f64(), rng.next_f64()]).collect();
+        pts.extend((0..=64).flat_map(|i| [4.0, 5.0, 6.0, 20.0, 21.0, 22.0].map(|t| [t / 64.0, f64::from(i) / 64.0])));
+        for p in pts {
+            let held = nodes.iter().any(|n| {
+                let d = [p[0] - f64::from(n.center[0]), p[1] - f64::from(n.center[1]), f64::from(n.center[2])];
+                (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() <= f64::from(n.radius)
+            });
+            assert!(held, "point {p:?} of the quad in no sample's sphere");
         }
     }
 }

@@ -7,6 +7,8 @@ use crate::mesh::floor_i64;
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Rec {
     pub(super) key: u64,
+    /// The piece's area; its sign marks a quarter of a piece sampled at half the voxel
+    /// (negative, merged only with quarters in the same octant of the voxel).
     pub(super) area: f32,
     pub(super) normal: [f32; 3],
     pub(super) color: [f32; 4],

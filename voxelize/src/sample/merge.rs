@@ -77,6 +77,7 @@ pub(super) fn merge_loop<const MERGE: bool, const KEYED: bool>(items: &[u64], id
     // A local vector: its length and pointer stay in registers across the loop.
     let mut nodes = std::mem::take(out);
     let mut surfaces = Surfaces::default();
+    let mut fine: Vec<u64> = Vec::new();
     nodes.reserve(items.len());
     let n = items.len();
     let mut i = 0;
@@ -113,16 +114,33 @@ pub(super) fn merge_loop<const MERGE: bool, const KEYED: bool>(items: &[u64], id
         };
         if j == i + 1 {
             // The common case: nothing to merge.
-            push((first.normal, (f64::from(first.area) * h2) as f32, first.color, first.off.map(f64::from), f64::from(first.r)));
+            push((first.normal, (f64::from(first.area.abs()) * h2) as f32, first.color, first.off.map(f64::from), f64::from(first.r)));
         } else {
             let run = &items[i..j];
             let rec = |it: u64| &recs[(it & idx_mask) as usize];
-            if run[1..].iter().all(|&it| same_surface(first.normal, rec(it).normal)) {
-                push(merge_run(run, idx_mask, recs, h2, in_voxel));
+            let mut merge_surfaces = |run: &[u64], push: &mut dyn FnMut(Merged)| {
+                if run[1..].iter().all(|&it| same_surface(rec(run[0]).normal, rec(it).normal)) {
+                    push(merge_run(run, idx_mask, recs, h2, in_voxel));
+                } else {
+                    surfaces.split(run, |it| rec(it));
+                    for s in 0..surfaces.count() {
+                        push(merge_run(surfaces.items(s), idx_mask, recs, h2, in_voxel));
+                    }
+                }
+            };
+            if !run.iter().any(|&it| rec(it).area.is_sign_negative()) {
+                merge_surfaces(run, &mut push);
             } else {
-                surfaces.split(run, |it| rec(it));
-                for s in 0..surfaces.count() {
-                    push(merge_run(surfaces.items(s), idx_mask, recs, h2, in_voxel));
+                // Quarters of pieces whose colour varies (the voxel sampled at half its size):
+                // the whole pieces merge as ever, the quarters by the octant of the voxel that
+                // holds their point, in octant order.
+                let octant = |r: &Rec| if r.area.is_sign_negative() { 1 + r.off.iter().enumerate().fold(0, |o, (k, &x)| o | (usize::from(x >= 0.0) << k)) } else { 0 };
+                for g in 0..9 {
+                    fine.clear();
+                    fine.extend(run.iter().copied().filter(|&it| octant(rec(it)) == g));
+                    if !fine.is_empty() {
+                        merge_surfaces(&fine, &mut push);
+                    }
                 }
             }
         }
@@ -165,10 +183,10 @@ impl Surfaces {
         self.normals.clear();
         self.label.clear();
         // A voxel of slivers only (a face lying on the voxel's boundary) splits them alike.
-        let any_area = run.iter().any(|&it| rec(it).area > 0.0);
+        let any_area = run.iter().any(|&it| rec(it).area.abs() > 0.0);
         for &it in run {
             let r = rec(it);
-            let l = if r.area > 0.0 || !any_area {
+            let l = if r.area.abs() > 0.0 || !any_area {
                 match self.normals.iter().position(|&n| same_surface(n, r.normal)) {
                     Some(s) => s,
                     None => {
@@ -216,8 +234,9 @@ pub(super) fn merge_run(run: &[u64], idx_mask: u64, recs: &[Rec], h2: f64, in_vo
     for &it in run {
         let x = &recs[(it & idx_mask) as usize];
         // Zero-area pieces (edge slivers) still count a little so colour is defined.
-        let w = f64::from(x.area).max(1e-12);
-        a += f64::from(x.area);
+        // A quarter's area carries its mark in the sign.
+        let w = f64::from(x.area.abs()).max(1e-12);
+        a += f64::from(x.area.abs());
         wsum += w;
         for (s, v) in nn.iter_mut().zip(x.normal) {
             *s += w * f64::from(v);
