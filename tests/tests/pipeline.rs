@@ -81,7 +81,7 @@ fn instanced_gltf_scenes_validate_deep_in_every_profile() {
 
 /// A quad is an open mesh, so it is built two-sided: seen from behind it is drawn (not
 /// culled as back-facing) and covers about what the mesh reference covers; the file says
-/// 1.1. A closed box keeps back-face culling: seen from inside, nothing is drawn.
+/// 1.2 (two-sided, 1.1, and centre offsets, 1.2). A closed box keeps back-face culling: seen from inside, nothing is drawn.
 #[test]
 fn two_sided_quad_is_drawn_from_behind_closed_box_is_culled_from_inside() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -94,7 +94,7 @@ fn two_sided_quad_is_drawn_from_behind_closed_box_is_culled_from_inside() {
     build(&samples, &sct, Profile::Default);
     let r = SctReader::open(&sct, &Limits::default()).expect("open");
     assert!(r.trees()[0].two_sided());
-    assert_eq!(r.header().minor, 1);
+    assert_eq!(r.header().minor, 2);
     let behind = render_preview::RenderOptions { width: 200, height: 200, eye: Some([0.0, 0.0, -4.0]), target: Some([0.0; 3]), ..Default::default() };
     let out = render_preview::render_file(&sct, &behind).expect("render from behind");
     let drawn = out.frame.depth.iter().filter(|d| d.is_finite()).count();
@@ -111,7 +111,7 @@ fn two_sided_quad_is_drawn_from_behind_closed_box_is_culled_from_inside() {
     let sct = dir.path().join("box.sct");
     build(&samples, &sct, Profile::Default);
     let r = SctReader::open(&sct, &Limits::default()).expect("open");
-    assert!(!r.trees()[0].two_sided() && r.header().minor == 0, "a closed single-sided box stays 1.0");
+    assert!(!r.trees()[0].two_sided() && r.header().minor == 2, "a closed single-sided box is one-sided (1.2 for the centre offsets)");
     let inside = render_preview::RenderOptions { width: 64, height: 64, eye: Some([0.0; 3]), target: Some([0.0, 0.0, -1.0]), ..Default::default() };
     let out = render_preview::render_file(&sct, &inside).expect("render from inside");
     assert!(out.stats.lod.backface_culled > 0, "back faces are culled");

@@ -316,8 +316,9 @@ fn apply_offset(node: &mut Node, s: i8, parent_radius: f32) {
 
 /// The centre offset for decoded child `dec` of original `orig` under parent `p`: the step
 /// count nearest to the centre error along the decoded normal, walked back toward 0 until the
-/// moved child still contains the original and stays within the stick-out bound of `p` (0
-/// always does: it is the child as decoded without offsets).
+/// moved child still contains the original, stays within the stick-out bound of `p` and is
+/// itself encodable under `p` (0 always qualifies: it is the child as decoded without
+/// offsets).
 fn pick_offset(p: &Node, orig: &Node, dec: &Node) -> i8 {
     let step = p.radius as f64 / OFFSET_STEPS as f64;
     if !(step > 0.0) || !step.is_finite() {
@@ -334,7 +335,14 @@ fn pick_offset(p: &Node, orig: &Node, dec: &Node) -> i8 {
         let mut moved = *dec;
         apply_offset(&mut moved, s, p.radius);
         let contains_original = crate::geometry::sphere_contains(&moved, orig, 0.0);
-        if contains_original && moved.center.iter().all(|c| c.is_finite()) && crate::geometry::sphere_contains(p, &moved, bound) {
+        // Within the stick-out bound, and encodable itself: a decoded tree written again
+        // must encode, and a child off the state grid that sticks out of its parent may fit
+        // no state.
+        if contains_original
+            && moved.center.iter().all(|c| c.is_finite())
+            && crate::geometry::sphere_contains(p, &moved, bound)
+            && posrad::encode_sphere(p.center, p.radius, moved.center, moved.radius).is_some()
+        {
             return s;
         }
         s -= s.signum();
