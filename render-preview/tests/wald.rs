@@ -298,11 +298,7 @@ fn coarse_models_lose_their_silhouette() {
         let n = leaves.len();
         let sct = dir.path().join(format!("b{div}.sct"));
         write_tree(leaves, &sct);
-        let out = render_file(&sct, &o).unwrap();
-        let m = metrics::compare(&out.frame, &reference_for(&mesh, &out, &o));
-        let zo = RenderOptions { method: Method::Zbuffer, ..o.clone() };
-        let z = render_file(&sct, &zo).unwrap();
-        let mz = metrics::compare(&z.frame, &reference_for(&mesh, &z, &zo));
+        let (m, mz) = against_zbuffer(&sct, &mesh, &o);
         eprintln!(
             "bunny res4 with {n} leaves: wald IoU {:.4}, missing {:.4}, extra {:.4}, {:?} dB; zbuffer IoU {:.4}, {:?} dB",
             m.silhouette_iou, m.missing_fraction, m.extra_fraction, m.fg_psnr_db, mz.silhouette_iou, mz.fg_psnr_db
@@ -437,11 +433,7 @@ fn leaves_inflated_by_a_parent_over_a_gap_keep_their_patch_size() {
     let sct = dir.path().join("gap.sct");
     synth::write_mesh_sct(&mesh, 0.02, &sct, &WriteOptions::default()).unwrap();
     let o = wald(RenderOptions { width: 320, height: 160, ..RenderOptions::default() });
-    let out = render_file(&sct, &o).unwrap();
-    let m = metrics::compare(&out.frame, &reference_for(&mesh, &out, &o));
-    let zo = RenderOptions { method: Method::Zbuffer, ..o.clone() };
-    let z = render_file(&sct, &zo).unwrap();
-    let mz = metrics::compare(&z.frame, &reference_for(&mesh, &z, &zo));
+    let (m, mz) = against_zbuffer(&sct, &mesh, &o);
     eprintln!(
         "two squares: wald extra {:.4}, missing {:.4}, IoU {:.4}, {:?} dB; zbuffer extra {:.4}, IoU {:.4}, {:?} dB",
         m.extra_fraction, m.missing_fraction, m.silhouette_iou, m.fg_psnr_db, mz.extra_fraction, mz.silhouette_iou, mz.fg_psnr_db
@@ -452,3 +444,12 @@ fn leaves_inflated_by_a_parent_over_a_gap_keep_their_patch_size() {
 
 /// (most extra pixels, least IoU) of [`leaves_inflated_by_a_parent_over_a_gap_keep_their_patch_size`].
 const GAP_BOUNDS: (f64, f64) = (0.07, 0.93);
+
+/// The metrics of `sct` drawn with `o` (wald) and with zbuffer, each against the mesh.
+fn against_zbuffer(sct: &Path, mesh: &WorldMesh, o: &RenderOptions) -> (metrics::Metrics, metrics::Metrics) {
+    let out = render_file(sct, o).unwrap();
+    let m = metrics::compare(&out.frame, &reference_for(mesh, &out, o));
+    let zo = RenderOptions { method: Method::Zbuffer, ..o.clone() };
+    let z = render_file(sct, &zo).unwrap();
+    (m, metrics::compare(&z.frame, &reference_for(mesh, &z, &zo)))
+}
