@@ -314,20 +314,21 @@ fn apply_offset(node: &mut Node, s: i8, parent_radius: f32) {
     }
 }
 
-/// The centre offset for decoded child `dec` of original `orig` under parent `p`: the step
+/// The centre offset for decoded child `dec` of original `orig` under parent `p`, with the
+/// child it decodes to: the step
 /// count nearest to the centre error along the decoded normal, walked back toward 0 until the
 /// moved child still contains the original, stays within the stick-out bound of `p` and is
 /// itself encodable under `p` (0 always qualifies: it is the child as decoded without
 /// offsets).
-fn pick_offset(p: &Node, orig: &Node, dec: &Node) -> i8 {
+fn pick_offset(p: &Node, orig: &Node, dec: &Node) -> (i8, Node) {
     let step = p.radius as f64 / OFFSET_STEPS as f64;
     if !(step > 0.0) || !step.is_finite() {
-        return 0;
+        return (0, *dec);
     }
     let along: f64 = (0..3).map(|a| (orig.center[a] as f64 - dec.center[a] as f64) * dec.normal[a] as f64).sum();
     let want = (along / step).round();
     if !want.is_finite() {
-        return 0;
+        return (0, *dec);
     }
     let mut s = want.clamp(i8::MIN as f64, i8::MAX as f64) as i8;
     let bound = posrad::stick_out_bound() as f32;
@@ -343,11 +344,11 @@ fn pick_offset(p: &Node, orig: &Node, dec: &Node) -> i8 {
             && crate::geometry::sphere_contains(p, &moved, bound)
             && posrad::encode_sphere(p.center, p.radius, moved.center, moved.radius).is_some()
         {
-            return s;
+            return (s, moved);
         }
         s -= s.signum();
     }
-    0
+    (0, *dec)
 }
 
 /// The decoded child with codes `c` (`ch` colour channels), `axis = oct_decode(c.normal)` and
@@ -451,8 +452,8 @@ pub fn encode_with_leaves(params: CodecParams, parents: &[Node], children: &[Nod
                 let mut node = child_node(t, p, Codes { state: s, cone, color: q }, axis, ch, if h == 0 { area_a } else { area_b })
                     .ok_or_else(|| Error::Misuse(format!("default encoder: state {s} of child {i} is not decodable (bug)")))?;
                 if params.centre_offsets && !has_children.is_some_and(|f| f[i]) {
-                    let o = pick_offset(p, c, &node);
-                    apply_offset(&mut node, o, p.radius);
+                    let (o, moved) = pick_offset(p, c, &node);
+                    node = moved;
                     offsets[i] = zz(o as u8, 0, 8);
                 }
                 dec.push(node);
