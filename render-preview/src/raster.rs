@@ -486,8 +486,12 @@ fn draw_any(s: &Splat, index: u32, cand: &mut [Cand], touched: &mut [bool], w: u
     }
 }
 
-/// Fills isolated background pixels (at least three of four neighbours covered) from the
-/// nearest covered neighbour: cracks between thin splats, never silhouette growth.
+/// Fills isolated background pixels from the nearest covered neighbour: cracks between thin
+/// splats, never silhouette growth. A pixel is filled when at least three of its four edge
+/// neighbours and seven of all eight neighbours are covered. The edge test alone also filled
+/// the notches of an outline's staircase (a notch has three edge neighbours covered but at
+/// most six of eight): that grew outlines on the reference's background and cost 0.4–0.6 dB
+/// of foreground PSNR on models with long outlines (spot's control mesh, the sphere grid).
 pub fn fill_holes(frame: &mut Frame) {
     let (w, h) = (frame.width, frame.height);
     if w < 3 || h < 3 {
@@ -511,7 +515,7 @@ pub fn fill_holes(frame: &mut Frame) {
                     }
                 }
             }
-            if n >= 3 {
+            if n >= 3 && n + [i - w - 1, i - w + 1, i + w - 1, i + w + 1].iter().filter(|&&j| frame.depth[j].is_finite()).count() >= 7 {
                 fills.push((i, best));
             }
         }
@@ -574,6 +578,28 @@ mod tests {
         assert_eq!(f.covered(), before + 1);
         // Filled from the nearest neighbour, (2, 3).
         assert_eq!((f.depth[3 * 8 + 3], f.color[3 * 8 + 3]), (3.0, [2, 0, 0, 255]));
+    }
+
+    /// The notch of a staircase outline (three edge neighbours covered, the outside
+    /// diagonals not) stays background: filling it grows the outline.
+    #[test]
+    fn fill_holes_leaves_outline_notches() {
+        let mut f = Frame::new(8, 8, [0; 4]);
+        // Columns 0-3 of rows 1-6 covered, row 3 to x = 5 and row 5 to x = 4: (4, 4) is a
+        // notch with its left, upper and lower neighbours covered, its right-hand ones not.
+        let covered = |x: usize, y: usize| x < 4 || (y == 3 && x < 6) || (y == 5 && x < 5);
+        for y in 1..7 {
+            for x in 0..8 {
+                if covered(x, y) {
+                    f.depth[y * 8 + x] = 1.0;
+                }
+            }
+        }
+        let notch = 4 * 8 + 4;
+        assert!(!f.depth[notch].is_finite() && f.depth[notch - 1].is_finite() && f.depth[notch - 8].is_finite() && f.depth[notch + 8].is_finite());
+        let before = f.covered();
+        fill_holes(&mut f);
+        assert_eq!(f.covered(), before, "an outline notch was filled");
     }
 
     #[test]

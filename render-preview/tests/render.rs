@@ -36,7 +36,11 @@ fn sphere_matches_its_mesh() {
     let m = metrics::compare(&out.frame, &reference_for(&mesh, &out, &opts));
     assert!(m.fg_psnr_db.unwrap() >= FG_PSNR_BAR, "{m:?}");
     assert!(m.silhouette_iou >= 0.97, "{m:?}");
-    assert!(m.hole_fraction < 0.001, "{m:?}");
+    // Holes as `hole_fraction` counts them (three of four neighbours covered) include the
+    // notches of the outline, which `raster::fill_holes` leaves open since it stopped
+    // growing outlines: 0.25 % of this 160 × 120 sphere's pixels, against 0.02 % when it
+    // filled them (and 0.1-0.6 dB more foreground PSNR on most shared models at 1280 × 720).
+    assert!(m.hole_fraction < 0.004, "{m:?}");
 }
 
 /// Foreground PSNR the synthetic sphere and the bunny must reach at the default threshold
