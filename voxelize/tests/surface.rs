@@ -209,6 +209,27 @@ fn scan_centres_lie_near_the_surface() {
     }
 }
 
+/// A piece cut by a depth face whose upper part is a sliver (no polygon of its own, only the
+/// rounding of the lower part's area) stands at a point of the piece, not at a centroid by
+/// difference: that division by almost nothing put a sample of spot's control mesh 4 voxels
+/// off its surface, with a 4-voxel radius to reach its piece (at the default view's voxel).
+#[test]
+fn sliver_parts_at_depth_faces_stay_on_the_surface() {
+    let Some(path) = model("textured-obj/spot/spot_control_mesh.obj") else { return };
+    let scene = load(&path, &LoadOptions::default()).expect("spot control mesh");
+    let tris = world_triangles(&scene);
+    let h = 0.005_380_232_215_109_83;
+    for merge in [false, true] {
+        let s = run(&scene, h, (Method::Voxel, merge, AreaMode::Exact));
+        let sph = spheres(&s);
+        let d = surface_distances(&tris, &centres(&s), 2.0 * h);
+        let max = d.iter().fold(0.0f64, |m, &x| m.max(x)) / h;
+        // A piece lies in its voxel and its centroid in the piece: within √3 voxels.
+        let widest = sph.iter().fold(0.0f64, |m, s| m.max(s.1)) / h;
+        assert!(max <= if merge { 0.5 } else { 1e-4 } && widest <= 3f64.sqrt(), "merge {merge}: centres up to {max} voxels off the surface, radii up to {widest} voxels");
+    }
+}
+
 /// Figures for a report, not a check: the distance from a samples file's centres to the
 /// surface of a model, in voxel units. `SCT_SAMPLES=… SCT_MODEL=… SCT_VOXEL=… cargo test
 /// --release -p voxelize --test surface -- --ignored --nocapture measure`.

@@ -187,6 +187,20 @@ fn piece_color(planes: &Planes, cen: [f64; 2], at_cen: [f32; 4], piece: Piece) -
     (sum.map(|x| x / n), spread)
 }
 
+/// The mean of the vertices of `poly` whose depth (`dv`, per vertex) is at least `kf`: a
+/// point of the piece at or past that depth face (the piece is convex), or `None`.
+#[inline]
+fn upper_vertices_mean(poly: &Poly2, dv: &[f64], kf: f64) -> Option<[f64; 2]> {
+    let (mut m, mut n) = ([0.0f64; 2], 0usize);
+    for (p, &d) in poly.v[..poly.n].iter().zip(dv) {
+        if d >= kf {
+            m = [m[0] + p[0], m[1] + p[1]];
+            n += 1;
+        }
+    }
+    (n > 0).then(|| [m[0] / n as f64, m[1] / n as f64])
+}
+
 /// Largest distance from the point (`c`, depth `dc`) to the vertices of `poly` lifted onto
 /// the triangle's plane (vertex `i` at depth `depth_at(i, vertex)`): a piece is convex, so
 /// the ball of this radius around the point holds it.
@@ -419,7 +433,12 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
                 }
                 if au > 0.0 && keep(kmax) {
                     let (ad, cd) = if upper.n >= 3 { upper.area_centroid() } else { (0.0, cen) };
-                    let cu = if ad > 0.0 { cd } else { [(area2 * cen[0] - al * cl[0]) / au, (area2 * cen[1] - al * cl[1]) / au] };
+                    // An upper part without area of its own is a sliver at the depth face:
+                    // `au` is then rounding left over from the lower part's area, and a
+                    // centroid by difference divides by it (it put a sample of the spot's
+                    // control mesh 4 voxels off its surface, with a radius of 4 voxels to
+                    // reach its piece). The piece's vertices past the face stand for it.
+                    let cu = if ad > 0.0 { cd } else { upper_vertices_mean(poly, &dv, kf).unwrap_or(cen) };
                     let dc = depth(&cu);
                     // A part too thin for its own polygon lies in the piece.
                     let reach = if upper.n >= 3 { reach(&upper, cu, dc, |i, _| du[i]) } else { reach(poly, cu, dc, |i, _| dv[i]) };
