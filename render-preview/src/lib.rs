@@ -31,6 +31,8 @@ pub mod canopy;
 pub mod compare;
 pub mod compare_chart;
 pub mod error;
+pub mod failure_chart;
+pub mod failure_map;
 pub mod gauss;
 pub mod image_file;
 mod lod;
