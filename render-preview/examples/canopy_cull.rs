@@ -4,7 +4,10 @@
 //! `cargo run --release -p render-preview --example canopy_cull -- FILE.sct VIEW W H T1 T2 T3 CLIP RUNS CULL...`
 //!
 //! VIEW is a preset (`front`, `iso`, …); T1–T3 are the thresholds in pixels; CULL is a
-//! t_OccCull value or `off`. Each run renders every CULL once, in the order given, so load
+//! t_OccCull value, `off`, or `plain`: no image graph at all, the thesis's §6.8 baseline ("a
+//! simpler depth first refinement that replaces stages one to three": t1 = t2 = f32::MAX, so the
+//! mask holds the roots and stage 3 refines them to T3, drawing the same discs through a
+//! depth buffer, as the thesis's baseline did). Each run renders every CULL once, in the order given, so load
 //! changes fall on all of them alike. Prints per CULL the median frame time, the median
 //! seconds per stage, the counters of the last run and the share of pixels that differ from
 //! the unculled frame by more than 24 levels in some channel (the first `off` in the list,
@@ -36,10 +39,15 @@ fn main() -> anyhow::Result<()> {
     let (w, h): (u32, u32) = (a[2].parse()?, a[3].parse()?);
     let (t1, t2, t3, clip): (f32, f32, f32, f32) = (a[4].parse()?, a[5].parse()?, a[6].parse()?, a[7].parse()?);
     let runs: usize = a[8].parse()?;
-    let culls: Vec<f32> = a[9..].iter().map(|s| if s == "off" { Ok(f32::INFINITY) } else { s.parse::<f32>() }).collect::<Result<_, _>>()?;
+    // NaN stands for `plain`.
+    let culls: Vec<f32> = a[9..].iter().map(|s| match s.as_str() { "off" => Ok(f32::INFINITY), "plain" => Ok(f32::NAN), _ => s.parse::<f32>() }).collect::<Result<_, _>>()?;
     let opts = |cull: f32| RenderOptions {
         method: Method::Canopy,
-        canopy: CanopyOptions { t1, t2, t3, occ_cull: cull, occ_clip: clip, zbuffer: false },
+        canopy: if cull.is_nan() {
+            CanopyOptions { t1: f32::MAX, t2: f32::MAX, t3, occ_cull: f32::INFINITY, occ_clip: clip, zbuffer: true }
+        } else {
+            CanopyOptions { t1, t2, t3, occ_cull: cull, occ_clip: clip, zbuffer: false }
+        },
         width: w,
         height: h,
         view,
@@ -84,7 +92,7 @@ fn main() -> anyhow::Result<()> {
     for (k, &c) in culls.iter().enumerate() {
         let Some((s, diff)) = last[k] else { continue };
         let st: Vec<f64> = stages[k].iter_mut().map(|v| median(v)).collect();
-        let name = if c.is_finite() { format!("{c}") } else { "off".to_string() };
+        let name = if c.is_nan() { "plain".to_string() } else if c.is_finite() { format!("{c}") } else { "off".to_string() };
         println!(
             "| {name} | {:.3} s | {:.3} / {:.3} / {:.3} / {:.3} | {} / {} / {} | {} / {} / {} | {} | {} | {:.3} % |",
             median(&mut totals[k]),
