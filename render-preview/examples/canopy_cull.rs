@@ -7,11 +7,11 @@
 //! t_OccCull value, `off`, or `plain`: no image graph at all, the thesis's §6.8 baseline ("a
 //! simpler depth first refinement that replaces stages one to three": t1 = t2 = f32::MAX, so the
 //! mask holds the roots and stage 3 refines them to T3, drawing the same discs through a
-//! depth buffer, as the thesis's baseline did). Each run renders every CULL once, in the order given, so load
-//! changes fall on all of them alike. Prints per CULL the median frame time, the median
-//! seconds per stage, the counters of the last run and the share of pixels that differ from
-//! the unculled frame by more than 24 levels in some channel (the first `off` in the list,
-//! else a separate unculled render). First it prints the ceiling: the unculled mask nodes
+//! depth buffer, as the thesis's baseline did). Each run renders every CULL once, in the
+//! order given, so load changes fall on all of them alike. Prints per CULL the median frame
+//! time, the median seconds per stage, the counters of the last run and the share of pixels
+//! that differ from the unculled frame (a warm-up render before the runs) by more than 24
+//! levels in some channel. First it prints the ceiling: the unculled mask nodes
 //! that show no pixel when their discs are drawn through a depth buffer, and their share of
 //! the discs (what a perfect culling at the mask's level of detail would remove).
 
