@@ -107,6 +107,12 @@ pub struct CanopyStats {
     /// Times stage 2 found every waiting node waiting on another (a dependency cycle) and
     /// took the one with the fewest unfinished dominators, nearest first.
     pub cycles_broken: u64,
+    /// With the discs drawn through a depth buffer (`zbuffer`): mask nodes none of whose
+    /// discs is in front at any pixel, and their discs. What a perfect occlusion culling at
+    /// the mask's level of detail could remove (0 in the painter's order, which cannot tell).
+    pub hidden_mask_nodes: u64,
+    /// Discs of [`CanopyStats::hidden_mask_nodes`].
+    pub hidden_rasterized: u64,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -502,6 +508,7 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
         g.files.refine_item(&item, view, &p3, &mut s, &mut lod)?;
         sets.push(s);
     }
+    let sizes: Vec<usize> = sets.iter().rev().map(Vec::len).collect();
     let splats: Vec<Splat> = sets.into_iter().rev().flatten().collect();
     g.stats.nodes_rasterized = splats.len() as u64;
     let t3 = Instant::now();
@@ -514,6 +521,9 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Can
         Draw::Discs => {
             if o.zbuffer {
                 raster::rasterize(frame, &splats);
+                let (n, d) = hidden_sets(frame, &splats, &sizes);
+                g.stats.hidden_mask_nodes = n;
+                g.stats.hidden_rasterized = d;
             } else {
                 paint(frame, &splats);
             }
@@ -544,6 +554,29 @@ fn release(g: &mut Graph<'_>, rel: &[(u32, Class, bool)], u: &mut Vec<u32>, occl
             u.push(q);
         }
     }
+}
+
+/// Of `splats` cut into consecutive sets of `sizes`, after a depth-buffered draw into
+/// `frame`: the sets none of whose splats holds the depth at any pixel, and their splats.
+fn hidden_sets(frame: &Frame, splats: &[Splat], sizes: &[usize]) -> (u64, u64) {
+    let (w, h) = (frame.width, frame.height);
+    let (mut sets, mut discs, mut at) = (0u64, 0u64, 0usize);
+    for &n in sizes {
+        let set = &splats[at..at + n];
+        at += n;
+        let mut seen = false;
+        for s in set {
+            s.for_each_pixel(w, h, |i| seen |= frame.depth[i] == s.z);
+            if seen {
+                break;
+            }
+        }
+        if !seen {
+            sets += 1;
+            discs += n as u64;
+        }
+    }
+    (sets, discs)
 }
 
 /// Opaque splats in the given order, each overwriting what is under it (no depth test).

@@ -13,14 +13,14 @@ use crate::compare::{CompareResult, Point};
 use crate::error::{Error, Result};
 
 /// The chart font (DejaVu Sans Mono, Bitstream Vera licence: see assets/).
-static FONT: &[u8] = include_bytes!("../assets/DejaVuSansMono.ttf");
+pub(crate) static FONT: &[u8] = include_bytes!("../assets/DejaVuSansMono.ttf");
 
 const PANEL_W: u32 = 440;
 const PANEL_H: u32 = 330;
 const LEGEND_H: u32 = 44;
 
 /// Method colours, in method order.
-fn color(i: usize) -> RGBColor {
+pub(crate) fn color(i: usize) -> RGBColor {
     const C: [RGBColor; 6] = [RGBColor(31, 119, 180), RGBColor(214, 39, 40), RGBColor(44, 160, 44), RGBColor(148, 103, 189), RGBColor(255, 127, 14), RGBColor(23, 190, 207)];
     C[i % C.len()]
 }

@@ -31,6 +31,8 @@ pub mod canopy;
 pub mod compare;
 pub mod compare_chart;
 pub mod error;
+pub mod failure_chart;
+pub mod failure_map;
 pub mod gauss;
 pub mod image_file;
 mod lod;
@@ -546,6 +548,11 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
         Method::Zbuffer | Method::Canopy | Method::Parilov | Method::Wald | Method::Wand => {
             raster::rasterize(&mut frame, &splats);
             raster::fill_holes(&mut frame);
+            // Cracks of a near surface over a farther one (BENCHMARKS.md, "Where every method
+            // fails"): covered, so `fill_holes` leaves them.
+            if opts.method == Method::Zbuffer {
+                raster::fill_depth_pits(&mut frame);
+            }
             None
         }
         Method::Gauss => {

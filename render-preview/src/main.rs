@@ -285,7 +285,7 @@ enum Command {
     /// spec/render-preview-compare-json.md), a table on stdout.
     Compare {
         /// Scene: one:MESH, pair:FRONT,BACK (FRONT in front of BACK), grid:MESH:N (jittered
-        /// N×N instances) or block:MESH:N (dense N×N×N instances); repeat per scene.
+        /// N×N instances) or block:MESH:N[:S] (dense N×N×N instances, S model radii apart, default 2); repeat per scene.
         #[arg(long = "scene", required = true)]
         scenes: Vec<render_preview::scenes::SceneSpec>,
         /// Methods to compare: zbuffer, gauss, canopy, parilov, wald, wand (zbuffer is always

@@ -526,6 +526,55 @@ pub fn fill_holes(frame: &mut Frame) {
     }
 }
 
+/// Depth pits narrower than a pixel's neighbourhood, as a share of depth: a covered pixel
+/// whose depth lies this far behind all four of its neighbours shows a farther surface
+/// through a crack of the nearer one (2 · 10⁻³: about three pixel footprints at the default
+/// 1280-pixel, 40° view; a smooth surface has nearer neighbours on one side only).
+pub const PIT_DEPTH: f32 = 2e-3;
+
+/// Closes cracks through which a farther surface shows (the holes [`fill_holes`] cannot see,
+/// as the crack pixel is covered): each covered pixel lying more than [`PIT_DEPTH`] of its
+/// depth behind all four of its neighbours takes the nearest neighbour's colour and depth.
+/// Three of four would close more of a crack (the plates of BENCHMARKS.md: 0.1 % of the
+/// front plate dark instead of 0.9 %) but also eats single pixels of a farther model seen
+/// between nearer ones (0.1 dB and 0.01 SSIM on the 30 × 30 grid and the 8³ block); all four
+/// leaves those scenes within 0.02 dB. Returns the pixels filled.
+pub fn fill_depth_pits(frame: &mut Frame) -> usize {
+    let (w, h) = (frame.width, frame.height);
+    if w < 3 || h < 3 {
+        return 0;
+    }
+    let mut fills = Vec::new();
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            let i = y * w + x;
+            let d = frame.depth[i];
+            if !d.is_finite() {
+                continue;
+            }
+            let far = d * (1.0 - PIT_DEPTH);
+            let mut n = 0;
+            let mut best = i;
+            for j in [i - 1, i + 1, i - w, i + w] {
+                if frame.depth[j] < far {
+                    n += 1;
+                    if frame.depth[j] < frame.depth[best] {
+                        best = j;
+                    }
+                }
+            }
+            if n == 4 {
+                fills.push((i, best));
+            }
+        }
+    }
+    for &(i, j) in &fills {
+        frame.depth[i] = frame.depth[j];
+        frame.color[i] = frame.color[j];
+    }
+    fills.len()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -600,6 +649,26 @@ mod tests {
         let before = f.covered();
         fill_holes(&mut f);
         assert_eq!(f.covered(), before, "an outline notch was filled");
+    }
+
+    #[test]
+    fn depth_pits_take_the_nearer_surface_but_slopes_do_not() {
+        let mut f = Frame::new(8, 8, [0; 4]);
+        // A near plane at depth 1 with one pixel showing a plane at 1.05 behind it, and a
+        // ramp (row 6) whose pixels step back by 1 % each: nearer on one side only.
+        for i in 0..64 {
+            f.depth[i] = 1.0;
+            f.color[i] = [200, 0, 0, 255];
+        }
+        f.depth[3 * 8 + 3] = 1.05;
+        f.color[3 * 8 + 3] = [0, 0, 9, 255];
+        for x in 0..8 {
+            f.depth[6 * 8 + x] = 1.0 + 0.01 * x as f32;
+        }
+        let before = f.clone();
+        assert_eq!(fill_depth_pits(&mut f), 1);
+        assert_eq!((f.depth[3 * 8 + 3], f.color[3 * 8 + 3]), (1.0, [200, 0, 0, 255]));
+        assert_eq!(f.depth[6 * 8..7 * 8], before.depth[6 * 8..7 * 8]);
     }
 
     #[test]

@@ -169,3 +169,29 @@ fn popping_along_an_orbit() {
 
 /// See [`popping_along_an_orbit`].
 const POPPING_BOUND: f64 = 0.8;
+
+/// The culling ceiling (`hidden_mask_nodes`, BENCHMARKS.md "the dense block"): with the
+/// discs drawn through a depth buffer, the unculled row of twelve spheres along the view axis
+/// (as in [`row_of_models_at_a_shallow_angle`]) has mask nodes that show no pixel, and they
+/// hold discs; the painter's order counts none.
+#[test]
+fn hidden_mask_nodes_are_counted_through_the_depth_buffer() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut leaves = Vec::new();
+    for k in 0..12 {
+        let m = synth::uv_sphere([0.0, 0.0, -3.0 * k as f32], 1.0, 16, [0.3 + 0.05 * k as f32, 0.6, 0.4, 1.0]);
+        leaves.extend(synth::sample_mesh(&m, 0.03));
+    }
+    let tree = synth::build_tree(leaves).unwrap();
+    let sct = dir.path().join("row.sct");
+    sct_format::write::write_scene_file(&sct, &sct_format::write::Scene::single_tree(Default::default(), tree), &WriteOptions::default()).unwrap();
+    let (s, c) = 8f64.to_radians().sin_cos();
+    let o = canopy(RenderOptions { width: 256, height: 256, eye: Some([0.0, 6.0 * s, 4.0 + 6.0 * c]), target: Some([0.0, 0.0, -4.0]), ..RenderOptions::default() });
+    let off = CanopyOptions { occ_cull: f32::INFINITY, ..o.canopy };
+    let zb = render_file(&sct, &RenderOptions { canopy: CanopyOptions { zbuffer: true, ..off }, ..o.clone() }).unwrap().stats.canopy.unwrap();
+    let painted = render_file(&sct, &RenderOptions { canopy: off, ..o.clone() }).unwrap().stats.canopy.unwrap();
+    eprintln!("row unculled: {} of {} mask nodes hidden, {} of {} discs", zb.hidden_mask_nodes, zb.nodes_stage2, zb.hidden_rasterized, zb.nodes_rasterized);
+    assert!(zb.hidden_mask_nodes > 0 && zb.hidden_mask_nodes < zb.nodes_stage2, "{zb:?}");
+    assert!(zb.hidden_rasterized > 0 && zb.hidden_rasterized < zb.nodes_rasterized, "{zb:?}");
+    assert_eq!((painted.hidden_mask_nodes, painted.hidden_rasterized), (0, 0));
+}
