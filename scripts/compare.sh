@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The method comparison of BENCHMARKS.md ("Preview methods: speed against accuracy"): builds
 # the comparison scenes from ../shared/models and runs `sct-render-preview compare` over them
-# (chart, JSON and table in OUT_DIR). Not part of CI; about 10 minutes on 2 cores.
+# (chart, JSON and table in OUT_DIR). Not part of CI; about 25 minutes on 2 loaded cores with
+# every method and REPEAT=3 ORBIT=4 (wald at radius scale 4 and wand on the grid and block
+# dominate).
 # Usage: [REPEAT=5] [ORBIT=16] scripts/compare.sh [OUT_DIR] [extra compare options]
 # (default OUT_DIR out/compare)
 set -euo pipefail

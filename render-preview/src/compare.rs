@@ -10,6 +10,9 @@
 //!   discs drawn through a depth buffer (`vs_zbuffer`); `wand` (knob: its square side `d`,
 //!   rounded) against `zbuffer` at the same knob value;
 //! - culling: `canopy` against the same frame without occlusion culling (`culling`).
+//!
+//! `wand` draws fresh random points every frame, so each of its points is also drawn with
+//! several seeds and scored each time (`seeds`: least, median and greatest error).
 
 use std::path::{Path, PathBuf};
 
@@ -41,6 +44,9 @@ pub struct CompareOptions {
     pub orbit_step_deg: f64,
     /// Knob of the orbit renders.
     pub orbit_knob: f32,
+    /// Seeds per `wand` point: the point's frame and `wand_seeds − 1` more, scored for the
+    /// spread of its error (`seeds`; below 2: none).
+    pub wand_seeds: u32,
     /// Leaves per model radius.
     pub density: f64,
     /// Where the scenes' SCT files are written.
@@ -73,6 +79,45 @@ pub struct Point {
     pub work: Work,
     /// On the scene's Pareto front of time against foreground PSNR.
     pub pareto: bool,
+    /// `wand`'s error over several seeds; null for the other methods.
+    pub seeds: Option<SeedSpread>,
+}
+
+/// Least, median and greatest value of a metric over frames.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Spread {
+    /// Least value.
+    pub min: f64,
+    /// Median (the upper one of an even count).
+    pub median: f64,
+    /// Greatest value.
+    pub max: f64,
+}
+
+impl Spread {
+    /// The spread of `v`, or `None` when it is empty.
+    pub fn of(mut v: Vec<f64>) -> Option<Spread> {
+        if v.is_empty() {
+            return None;
+        }
+        let median = median(&mut v);
+        Some(Spread { min: v[0], median, max: v[v.len() - 1] })
+    }
+}
+
+/// `wand`'s error at one knob value over several seeds. Its image is random, so one frame's
+/// score is one draw: the spread says how far a single frame can be trusted, and whether two
+/// methods' scores differ by more than the noise of the random points.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct SeedSpread {
+    /// The seeds, the point's own (`--wand-seed`) first, then the ones after it.
+    pub seeds: Vec<u64>,
+    /// Foreground PSNR against the mesh, dB, over the seeds (null when no frame has one).
+    pub fg_psnr_db: Option<Spread>,
+    /// Foreground SSIM against the mesh over the seeds (null when no frame has one).
+    pub fg_ssim: Option<Spread>,
+    /// Silhouette IoU against the mesh over the seeds.
+    pub silhouette_iou: Spread,
 }
 
 /// Mean absolute difference between consecutive frames of an orbit.
@@ -225,6 +270,48 @@ fn temporal(scene: &BuiltScene, cam: &Camera, near: f64, opts: &RenderOptions, o
     Ok((sum / n, sum_ref / n))
 }
 
+/// `wand` at `opts` with `n` seeds from `opts.wand.seed` on, each frame scored against
+/// `refr`; `first` is the score of the point's own frame (the first seed), not drawn again.
+/// The extra frames are not timed. `None` below two seeds.
+fn seed_spread(sct: &Path, opts: &RenderOptions, n: u32, first: &Metrics, refr: &Frame) -> Result<Option<SeedSpread>> {
+    if n < 2 {
+        return Ok(None);
+    }
+    let base = opts.wand.seed;
+    let seeds: Vec<u64> = (0..u64::from(n)).map(|k| base.wrapping_add(k)).collect();
+    let mut all = vec![*first];
+    for &seed in &seeds[1..] {
+        let o = RenderOptions { wand: crate::WandOptions { seed, ..opts.wand }, ..opts.clone() };
+        all.push(metrics::compare(&render_file(sct, &o)?.frame, refr));
+    }
+    Ok(Some(SeedSpread {
+        seeds,
+        fg_psnr_db: Spread::of(all.iter().filter_map(|m| m.fg_psnr_db).collect()),
+        fg_ssim: Spread::of(all.iter().filter_map(|m| m.fg_ssim).collect()),
+        silhouette_iou: Spread::of(all.iter().map(|m| m.silhouette_iou).collect()).unwrap_or(Spread { min: 0.0, median: 0.0, max: 0.0 }),
+    }))
+}
+
+/// The table line of a point's seed spread, if it has one.
+fn seed_line(scene: &str, m: &MethodResult, p: &Point) -> Option<String> {
+    let s = p.seeds.as_ref()?;
+    let f = |v: Option<Spread>, d: usize| v.map_or("-".to_string(), |v| format!("{:.d$} / {:.d$} / {:.d$}", v.min, v.median, v.max));
+    let iou = s.silhouette_iou;
+    Some(format!(
+        "{:<28} {:<8} {}={} over {} seeds, min / median / max: PSNR {}  SSIM {}  IoU {:.4} / {:.4} / {:.4}\n",
+        scene,
+        m.method.name(),
+        m.knob,
+        p.knob,
+        s.seeds.len(),
+        f(s.fg_psnr_db, 2),
+        f(s.fg_ssim, 4),
+        iou.min,
+        iou.median,
+        iou.max
+    ))
+}
+
 /// Marks the points no other point beats in both time and foreground PSNR.
 fn mark_pareto(methods: &mut [MethodResult]) {
     let all: Vec<(f64, f64)> =
@@ -267,6 +354,7 @@ pub fn run(o: &CompareOptions, mut progress: impl FnMut(&str)) -> Result<Compare
                 let opts = with_knob(&base, m, k);
                 let (r, secs, min, raster) = timed(&scene.sct, &opts, o.repeat)?;
                 let mt = metrics::compare(&r.frame, &refr);
+                let seeds = if m == Method::Wand { seed_spread(&scene.sct, &opts, o.wand_seeds, &mt, &refr)? } else { None };
                 let (vs, culling) = match m {
                     // `wald` draws no LOD cut: it has no depth-buffered twin to order against.
                     Method::Zbuffer | Method::Wald => (None, None),
@@ -298,7 +386,7 @@ pub fn run(o: &CompareOptions, mut progress: impl FnMut(&str)) -> Result<Compare
                 if m == Method::Zbuffer {
                     zframes[ki] = Some(r.frame.clone());
                 }
-                points.push(Point { knob: k, seconds: secs, seconds_min: min, raster_seconds: raster, metrics: mt, vs_zbuffer: vs, culling, work: r.stats.work, pareto: false });
+                points.push(Point { knob: k, seconds: secs, seconds_min: min, raster_seconds: raster, metrics: mt, vs_zbuffer: vs, culling, work: r.stats.work, pareto: false, seeds });
             }
             let temporal = if o.orbit_frames >= 2 {
                 let opts = with_knob(&base, m, o.orbit_knob);
@@ -350,6 +438,9 @@ pub fn table(r: &CompareResult) -> String {
                     p.work.overdraw,
                     if p.pareto { "*" } else { "" }
                 ));
+            }
+            for p in &m.points {
+                s.push_str(&seed_line(&sc.name, m, p).unwrap_or_default());
             }
             if let Some(t) = &m.temporal {
                 s.push_str(&format!(
@@ -407,7 +498,15 @@ mod tests {
             culling: None,
             work: Work::default(),
             pareto: false,
+            seeds: None,
         }
+    }
+
+    #[test]
+    fn spread_is_min_median_max() {
+        assert_eq!(Spread::of(vec![3.0, 1.0, 2.0, 5.0, 4.0]), Some(Spread { min: 1.0, median: 3.0, max: 5.0 }));
+        assert_eq!(Spread::of(vec![2.0, 1.0]), Some(Spread { min: 1.0, median: 2.0, max: 2.0 }));
+        assert_eq!(Spread::of(Vec::new()), None);
     }
 
     #[test]

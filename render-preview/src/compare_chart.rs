@@ -2,14 +2,16 @@
 //! against time per frame (log scale, decade ticks), one line per method with its knob
 //! values as point labels (a label that would overlap another or a point is left out; the
 //! JSON has them all), each panel's Pareto front (time against that panel's metric) ringed
-//! and joined by a dashed line, and the legend in a strip above the panels.
+//! and joined by a dashed line, `wand`'s spread over seeds as a bar from the least to the
+//! greatest score at each of its points, and the legend in a strip above the panels.
 
 use std::path::Path;
 
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::compare::{CompareResult, Point};
+use crate::compare::{CompareResult, Point, SceneResult};
 use crate::error::{Error, Result};
 
 /// The chart font (DejaVu Sans Mono, Bitstream Vera licence: see assets/).
@@ -61,14 +63,15 @@ fn draw<DB: DrawingBackend>(r: &CompareResult, root: DrawingArea<DB, Shift>) -> 
         x += 40 + 9 * name.len() as i32 + 24;
     }
     legend.draw(&Circle::new((x + 8, y), 8, BLACK.stroke_width(2))).map_err(e)?;
-    legend.draw(&Text::new("Pareto front; labels: knob value", (x + 22, y - 8), font.clone())).map_err(e)?;
+    legend.draw(&Text::new(legend_note(r), (x + 22, y - 8), font.clone())).map_err(e)?;
     let cols = r.scenes.len().max(1);
     let panels = body.split_evenly((2, cols));
     for (si, sc) in r.scenes.iter().enumerate() {
         for (row, metric) in ["fg PSNR, dB", "fg SSIM"].iter().enumerate() {
             let area = &panels[row * cols + si];
             let value = |p: &Point| if row == 0 { p.metrics.fg_psnr_db } else { p.metrics.fg_ssim };
-            panel(area, sc, metric, &value).map_err(e)?;
+            let spread = |p: &Point| p.seeds.as_ref().and_then(|s| if row == 0 { s.fg_psnr_db } else { s.fg_ssim }).map(|s| (s.min, s.max));
+            panel(area, sc, metric, &value, &spread).map_err(e)?;
         }
     }
     root.present().map_err(e)?;
@@ -89,11 +92,15 @@ fn panel<DB: DrawingBackend>(
     sc: &crate::compare::SceneResult,
     metric: &str,
     value: &dyn Fn(&Point) -> Option<f64>,
+    spread: &dyn Fn(&Point) -> Option<(f64, f64)>,
 ) -> std::result::Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
     let pts: Vec<(f64, f64)> = sc.methods.iter().flat_map(|m| m.points.iter().filter_map(|p| value(p).map(|v| (p.seconds * 1e3, v)))).collect();
     let (mut t0, mut t1, mut v0, mut v1) = (f64::INFINITY, 0f64, f64::INFINITY, f64::NEG_INFINITY);
     for &(t, v) in &pts {
         (t0, t1, v0, v1) = (t0.min(t), t1.max(t), v0.min(v), v1.max(v));
+    }
+    for (lo, hi) in sc.methods.iter().flat_map(|m| m.points.iter().filter_map(spread)) {
+        (v0, v1) = (v0.min(lo), v1.max(hi));
     }
     if !t0.is_finite() || !v0.is_finite() {
         (t0, t1, v0, v1) = (1.0, 10.0, 0.0, 1.0);
@@ -144,6 +151,7 @@ fn panel<DB: DrawingBackend>(
             placed.push([px - 5, py - 5, px + 5, py + 5]);
         }
     }
+    seed_bars(&mut c, sc, spread)?;
     // Knob labels: the first free spot of four around each point, or none.
     for (mi, m) in sc.methods.iter().enumerate() {
         let col = color(mi);
@@ -162,6 +170,37 @@ fn panel<DB: DrawingBackend>(
                 let style = ("sans-serif", 12).into_font().color(&col);
                 c.draw_series(std::iter::once(EmptyElement::at((p.seconds * 1e3, v)) + Text::new(text.clone(), (dx, dy), style)))?;
                 break;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The legend's note on the markers: the bars only when some point has a seed spread.
+fn legend_note(r: &CompareResult) -> &'static str {
+    let bars = r.scenes.iter().flat_map(|s| &s.methods).flat_map(|m| &m.points).any(|p| p.seeds.is_some());
+    if bars {
+        "Pareto front; labels: knob value; bars: min–max over seeds"
+    } else {
+        "Pareto front; labels: knob value"
+    }
+}
+
+/// A vertical bar with end caps from the least to the greatest score over seeds at each
+/// point that has a spread, in its method's colour.
+fn seed_bars<DB: DrawingBackend>(
+    c: &mut ChartContext<'_, DB, Cartesian2d<LogCoord<f64>, RangedCoordf64>>,
+    sc: &SceneResult,
+    spread: &dyn Fn(&Point) -> Option<(f64, f64)>,
+) -> std::result::Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    for (mi, m) in sc.methods.iter().enumerate() {
+        let col = color(mi);
+        for p in &m.points {
+            let Some((lo, hi)) = spread(p) else { continue };
+            let x = p.seconds * 1e3;
+            c.draw_series(std::iter::once(PathElement::new(vec![(x, lo), (x, hi)], col.stroke_width(2))))?;
+            for v in [lo, hi] {
+                c.draw_series(std::iter::once(EmptyElement::at((x, v)) + PathElement::new(vec![(-5, 0), (5, 0)], col.stroke_width(2))))?;
             }
         }
     }

@@ -308,6 +308,10 @@ enum Command {
         /// Leaves per model radius when sampling the scenes.
         #[arg(long, default_value_t = 200.0)]
         density: f64,
+        /// Seeds per wand point (--wand-seed and the ones after it): the spread of its error
+        /// (min / median / max; 1: the timed frame only).
+        #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
+        wand_seeds: u32,
         /// Directory for the scenes' SCT files (default: OUTPUT.scenes/).
         #[arg(long)]
         work_dir: Option<PathBuf>,
@@ -423,7 +427,7 @@ fn run(mut cli: Cli) -> anyhow::Result<()> {
             print_stdout(&serde_json::to_string_pretty(&result)?)?;
             Ok(())
         }
-        Some(Command::Compare { scenes, methods, knobs, repeat, orbit, orbit_step, density, work_dir, output, render }) => {
+        Some(Command::Compare { scenes, methods, knobs, repeat, orbit, orbit_step, density, wand_seeds, work_dir, output, render }) => {
             let base = render.options();
             let o = render_preview::compare::CompareOptions {
                 scenes,
@@ -433,6 +437,7 @@ fn run(mut cli: Cli) -> anyhow::Result<()> {
                 orbit_frames: orbit,
                 orbit_step_deg: orbit_step,
                 orbit_knob: base.pixel_error,
+                wand_seeds,
                 density,
                 work_dir: work_dir.unwrap_or_else(|| sibling(&output, "scenes")),
                 base,

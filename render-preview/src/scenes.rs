@@ -164,12 +164,12 @@ pub fn build(spec: &SceneSpec, dir: &Path, density: f64) -> Result<BuiltScene> {
             // Both at unit radius: the front one at the origin, the back one behind it.
             place(&mut a, ca, 1.0 / ra, [0.0; 3]);
             place(&mut b, cb, 1.0 / rb, [0.6, 0.0, -2.5]);
-            let (mut la, lb) = (synth::sample_mesh(&a, (1.0 / density) as f32), synth::sample_mesh(&b, (1.0 / density) as f32));
-            la.extend(lb);
-            let leaves = la.len();
+            let (la, lb) = (synth::sample_mesh(&a, (1.0 / density) as f32), synth::sample_mesh(&b, (1.0 / density) as f32));
+            let leaves = la.len() + lb.len();
             let name = format!("pair-{}-{}", stem(front), stem(back));
             let sct = dir.join(format!("{name}.sct"));
-            let tree = synth::build_tree(la)?;
+            // Each model in a subtree of its own, joined at the root.
+            let tree = synth::build_tree_of_objects(vec![la, lb])?;
             write_scene_file(&sct, &Scene::single_tree(Default::default(), tree), &opts).map_err(|e| Error::sct(&sct, e))?;
             // One mesh: b's triangles keep their own materials after a's.
             let off = a.materials.len() as u32;
@@ -268,6 +268,73 @@ mod tests {
         for bad in ["x.obj", "grid:x.obj", "grid:x.obj:0", "cube:x.obj", "pair:a.obj", "block:x.obj:8:0", "block:x.obj:8:-1"] {
             assert!(bad.parse::<SceneSpec>().is_err(), "{bad}");
         }
+    }
+
+    /// A UV sphere of radius 1 with `seg` segments as OBJ text.
+    fn sphere_obj(path: &Path, seg: usize) {
+        let mut s = String::new();
+        for i in 0..=seg {
+            let th = std::f64::consts::PI * i as f64 / seg as f64;
+            for j in 0..2 * seg {
+                let ph = std::f64::consts::PI * j as f64 / seg as f64;
+                s.push_str(&format!("v {} {} {}\n", th.sin() * ph.cos(), th.cos(), -th.sin() * ph.sin()));
+            }
+        }
+        let row = 2 * seg;
+        for i in 0..seg {
+            for j in 0..row {
+                let a = i * row + j + 1;
+                let b = i * row + (j + 1) % row + 1;
+                let (c, d) = (a + row, b + row);
+                if i != 0 {
+                    s.push_str(&format!("f {a} {c} {b}\n"));
+                }
+                if i != seg - 1 {
+                    s.push_str(&format!("f {b} {c} {d}\n"));
+                }
+            }
+        }
+        std::fs::write(path, s).unwrap();
+    }
+
+    /// Internal nodes whose subtree holds leaves of both objects (`second` tells them apart).
+    fn mixed_nodes(tree: &sct_format::SceneTree, second: impl Fn(&sct_format::Node) -> bool) -> usize {
+        let nodes = tree.nodes();
+        let mut mask = vec![0u8; nodes.len()];
+        // Breadth first: children come after their parent.
+        for i in (0..nodes.len()).rev() {
+            mask[i] = match tree.children(i) {
+                Some([a, b]) => mask[a] | mask[b],
+                None => 1 << u8::from(second(&nodes[i])),
+            };
+        }
+        (0..nodes.len()).filter(|&i| tree.is_internal(i) && mask[i] == 3).count()
+    }
+
+    #[test]
+    fn pair_keeps_each_model_in_its_own_subtree() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a.obj"), dir.path().join("b.obj"));
+        // Unequal leaf counts: median splits of the union cut through the larger model.
+        sphere_obj(&a, 6);
+        sphere_obj(&b, 14);
+        let density = 12.0;
+        let s = build(&SceneSpec::Pair { front: a.clone(), back: b.clone() }, dir.path(), density).unwrap();
+        let tree = sct_format::SctReader::open(&s.sct, &sct_format::Limits::default()).unwrap().read_tree(0).unwrap();
+        // Unit radii, the back model 2.5 behind the front one: it lies beyond z = −1.25.
+        let back = |n: &sct_format::Node| n.center[2] < -1.25;
+        assert_eq!(tree.leaf_count(), s.leaves);
+        assert_eq!(mixed_nodes(&tree, back), 1, "only the root holds both models");
+        // The same leaves under one median-split tree mix the models below the root.
+        let (mut ma, ca, ra) = load(&a).unwrap();
+        let (mut mb, cb, rb) = load(&b).unwrap();
+        place(&mut ma, ca, 1.0 / ra, [0.0; 3]);
+        place(&mut mb, cb, 1.0 / rb, [0.6, 0.0, -2.5]);
+        let mut all = synth::sample_mesh(&ma, (1.0 / density) as f32);
+        all.extend(synth::sample_mesh(&mb, (1.0 / density) as f32));
+        assert_eq!(all.len(), s.leaves);
+        let union = synth::build_tree(all).unwrap();
+        assert!(mixed_nodes(&union, back) > 1, "the test scene does not mix under plain median splits");
     }
 
     #[test]

@@ -2,8 +2,8 @@
 //! renderer can be exercised on real models without the other tools. Every triangle is
 //! split into a regular grid of sub-triangles no longer than `spacing`; each becomes a
 //! leaf whose sphere covers it (centroid, farthest corner), so the leaf discs cover the
-//! whole surface. Leaves are organised by median splits on the largest extent and
-//! merged bottom up with `sct_format::geometry::parent_of`.
+//! whole surface. Leaves are organised by median splits on the largest extent (separate
+//! objects in separate subtrees) and merged bottom up with `sct_format::geometry::parent_of`.
 
 use std::path::Path;
 
@@ -64,36 +64,26 @@ pub fn sample_mesh(mesh: &WorldMesh, spacing: f32) -> Vec<Node> {
 
 /// Builds a full binary scene tree over `leaves` (median splits on the largest extent),
 /// stored breadth first.
-pub fn build_tree(mut leaves: Vec<Node>) -> Result<SceneTree> {
-    if leaves.is_empty() {
+pub fn build_tree(leaves: Vec<Node>) -> Result<SceneTree> {
+    build_tree_of_objects(vec![leaves])
+}
+
+/// Builds one tree over several objects' leaves: each object gets a subtree of its own
+/// (median splits on the largest extent), and only the top levels join the objects' roots
+/// (median splits of the objects by their roots' centres). Median splits over all leaves
+/// at once would cut through objects of unequal leaf counts and leave nodes holding pieces
+/// of two distant objects down to two-leaf nodes: loose spheres, and leaves that decode
+/// wide, since the codec quantizes a child relative to its decoded parent. Empty objects
+/// are skipped. Stored breadth first.
+pub fn build_tree_of_objects(objects: Vec<Vec<Node>>) -> Result<SceneTree> {
+    let mut objects: Vec<Vec<Node>> = objects.into_iter().filter(|o| !o.is_empty()).collect();
+    if objects.is_empty() {
         return SceneTree::from_bfs(Vec::new(), Vec::new()).map_err(|e| Error::Invalid(e.to_string()));
     }
     // Arena: (node, children).
-    let mut arena: Vec<(Node, Option<[u32; 2]>)> = Vec::with_capacity(2 * leaves.len());
-    fn rec(leaves: &mut [Node], arena: &mut Vec<(Node, Option<[u32; 2]>)>) -> u32 {
-        if leaves.len() == 1 {
-            arena.push((leaves[0], None));
-            return (arena.len() - 1) as u32;
-        }
-        let mut lo = [f32::INFINITY; 3];
-        let mut hi = [f32::NEG_INFINITY; 3];
-        for l in leaves.iter() {
-            for k in 0..3 {
-                lo[k] = lo[k].min(l.center[k]);
-                hi[k] = hi[k].max(l.center[k]);
-            }
-        }
-        let axis = (0..3).max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b]))).unwrap_or(0);
-        let mid = leaves.len() / 2;
-        leaves.select_nth_unstable_by(mid, |a, b| a.center[axis].total_cmp(&b.center[axis]));
-        let (l, r) = leaves.split_at_mut(mid);
-        let a = rec(l, arena);
-        let b = rec(r, arena);
-        let node = sct_format::geometry::parent_of(&arena[a as usize].0, &arena[b as usize].0);
-        arena.push((node, Some([a, b])));
-        (arena.len() - 1) as u32
-    }
-    let root = rec(&mut leaves, &mut arena);
+    let mut arena: Vec<(Node, Option<[u32; 2]>)> = Vec::with_capacity(2 * objects.iter().map(Vec::len).sum::<usize>());
+    let mut roots: Vec<u32> = objects.iter_mut().map(|o| median_split(o, &mut arena)).collect();
+    let root = join_roots(&mut roots, &mut arena);
     let mut nodes = Vec::with_capacity(arena.len());
     let mut internal = Vec::with_capacity(arena.len());
     let mut level = vec![root];
@@ -111,6 +101,53 @@ pub fn build_tree(mut leaves: Vec<Node>) -> Result<SceneTree> {
         level = next;
     }
     SceneTree::from_bfs(nodes, internal).map_err(|e| Error::Invalid(e.to_string()))
+}
+
+/// The axis of largest extent of some centres.
+fn widest_axis<'a>(centres: impl Iterator<Item = &'a [f32; 3]>) -> usize {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for c in centres {
+        for k in 0..3 {
+            lo[k] = lo[k].min(c[k]);
+            hi[k] = hi[k].max(c[k]);
+        }
+    }
+    (0..3).max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b]))).unwrap_or(0)
+}
+
+/// The subtree of one object's leaves (non-empty) in `arena`; returns its root.
+fn median_split(leaves: &mut [Node], arena: &mut Vec<(Node, Option<[u32; 2]>)>) -> u32 {
+    if leaves.len() == 1 {
+        arena.push((leaves[0], None));
+        return (arena.len() - 1) as u32;
+    }
+    let axis = widest_axis(leaves.iter().map(|l| &l.center));
+    let mid = leaves.len() / 2;
+    leaves.select_nth_unstable_by(mid, |a, b| a.center[axis].total_cmp(&b.center[axis]));
+    let (l, r) = leaves.split_at_mut(mid);
+    let a = median_split(l, arena);
+    let b = median_split(r, arena);
+    let node = sct_format::geometry::parent_of(&arena[a as usize].0, &arena[b as usize].0);
+    arena.push((node, Some([a, b])));
+    (arena.len() - 1) as u32
+}
+
+/// Joins subtree roots of `arena` (non-empty) by median splits of their centres; returns
+/// the root over them all.
+fn join_roots(roots: &mut [u32], arena: &mut Vec<(Node, Option<[u32; 2]>)>) -> u32 {
+    if roots.len() == 1 {
+        return roots[0];
+    }
+    let axis = widest_axis(roots.iter().map(|&r| &arena[r as usize].0.center));
+    let mid = roots.len() / 2;
+    roots.select_nth_unstable_by(mid, |&a, &b| arena[a as usize].0.center[axis].total_cmp(&arena[b as usize].0.center[axis]).then(a.cmp(&b)));
+    let (l, r) = roots.split_at_mut(mid);
+    let a = join_roots(l, arena);
+    let b = join_roots(r, arena);
+    let node = sct_format::geometry::parent_of(&arena[a as usize].0, &arena[b as usize].0);
+    arena.push((node, Some([a, b])));
+    (arena.len() - 1) as u32
 }
 
 fn generator(what: &str) -> Generator {

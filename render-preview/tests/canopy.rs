@@ -112,10 +112,12 @@ fn canopy_is_deterministic_across_threads() {
 
 /// §3.7: "the most likely errors are predicted to be blank halos around silhouettes of nearer
 /// surfaces". The bunny in front of the dragon (Table 14 set-up), 384², against the same
-/// render without culling, at t_OccCull 1.0 and 1.9. Measured when set: 76 and 46 nodes
-/// occluded, discs 55,980 and 59,322 against 59,960 (−6.6 % and −1.1 %), 0.04 % of the
-/// unculled pixels missing at both, 37.4 dB against the unculled frame. Bounds: missing
-/// ≤ 0.2 %, ≥ 35 dB, fewer discs at 1.0 than at 1.9.
+/// render without culling, at t_OccCull 1.0 and 1.9. Measured with each model in a subtree
+/// of its own (the pair scene since `synth::build_tree_of_objects`): 199 and 86 nodes
+/// occluded, discs 117,051 and 129,246 against 130,392 (−10.2 % and −0.9 %), 0.115 % of the
+/// unculled pixels missing at both, 32.7 dB against the unculled frame (with the models'
+/// leaves mixed in shared subtrees: 76 and 46 occluded, −6.6 % and −1.1 %, 0.04 %, 37.4 dB).
+/// Bounds: missing ≤ 0.2 %, ≥ 31.5 dB, fewer discs at 1.0 than at 1.9.
 #[test]
 fn occlusion_culling_error_on_a_model_in_front_of_another() {
     let (Some(a), Some(b)) = (shared("scans/stanford-bunny-original-ply/bun_zipper_res2.ply"), shared("scans/stanford-dragon-100k/dragon.ply")) else { return };
@@ -133,7 +135,7 @@ fn occlusion_culling_error_on_a_model_in_front_of_another() {
         eprintln!("t_OccCull {cull}: missing {:.5}, PSNR vs unculled {:?}, occluded {}, rasterized {} vs {}", m.missing_fraction, m.fg_psnr_db, cs.occluded, cs.nodes_rasterized, off.stats.splats);
         assert!(cs.occluded > 0, "t_OccCull {cull}: nothing culled");
         assert!(cs.nodes_rasterized < off.stats.splats);
-        assert!(m.missing_fraction <= 0.002 && m.fg_psnr_db.unwrap() >= 35.0, "t_OccCull {cull}: {m:?}");
+        assert!(m.missing_fraction <= 0.002 && m.fg_psnr_db.unwrap() >= 31.5, "t_OccCull {cull}: {m:?}");
         rasterized.push(cs.nodes_rasterized);
     }
     assert!(rasterized[0] < rasterized[1], "{rasterized:?}");

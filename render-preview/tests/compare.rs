@@ -51,6 +51,7 @@ fn compare_writes_json_chart_and_table() {
     assert_eq!(scenes.len(), 2);
     assert_eq!(scenes[1]["instances"], 9);
     assert_eq!(scenes[1]["spec"]["kind"], "grid");
+    let mut wand_spread = 0;
     for sc in scenes {
         let methods = sc["methods"].as_array().unwrap();
         assert_eq!(methods.iter().map(|m| m["method"].as_str().unwrap()).collect::<Vec<_>>(), ["zbuffer", "gauss", "canopy", "parilov", "wald", "wand"]);
@@ -73,6 +74,18 @@ fn compare_writes_json_chart_and_table() {
                 assert_eq!(p["culling"].is_null(), m["method"] != "canopy", "{p}");
                 assert_eq!(p["vs_zbuffer"].is_null(), m["method"] == "zbuffer" || m["method"] == "wald", "{p}");
                 pareto += p["pareto"].as_bool().unwrap() as usize;
+                // wand's error over the default 5 seeds, its own frame's score among them.
+                let seeds = &p["seeds"];
+                assert_eq!(seeds.is_null(), m["method"] != "wand", "{p}");
+                if m["method"] == "wand" {
+                    assert_eq!(seeds["seeds"], serde_json::json!([0, 1, 2, 3, 4]), "{p}");
+                    for (metric, own) in [("fg_psnr_db", &p["metrics"]["fg_psnr_db"]), ("fg_ssim", &p["metrics"]["fg_ssim"]), ("silhouette_iou", &p["metrics"]["silhouette_iou"])] {
+                        let (lo, mid, hi) = (seeds[metric]["min"].as_f64().unwrap(), seeds[metric]["median"].as_f64().unwrap(), seeds[metric]["max"].as_f64().unwrap());
+                        let own = own.as_f64().unwrap();
+                        assert!(lo <= mid && mid <= hi && lo <= own && own <= hi, "{metric}: {seeds}");
+                    }
+                    wand_spread += (seeds["fg_psnr_db"]["max"].as_f64().unwrap() > seeds["fg_psnr_db"]["min"].as_f64().unwrap()) as usize;
+                }
             }
             let t = &m["temporal"];
             assert_eq!(t["frames"], 3);
@@ -82,11 +95,14 @@ fn compare_writes_json_chart_and_table() {
         }
         assert!(pareto >= 1, "{sc}");
     }
+    // Sampled points differ from seed to seed somewhere (the seeds reach the renders).
+    assert!(wand_spread >= 1, "no wand point varies over seeds");
+    assert!(table.contains("wand     d=1 over 5 seeds, min / median / max: PSNR"), "{table}");
     // The chart: PNG and SVG with every method in the legend.
     let png = image::open(dir.path().join("cmp.png")).unwrap();
     assert_eq!((png.width(), png.height()), (880, 704));
     let svg = std::fs::read_to_string(dir.path().join("cmp.svg")).unwrap();
-    assert!(svg.contains("zbuffer") && svg.contains("gauss") && svg.contains("canopy") && svg.contains("wald") && svg.contains("wand") && svg.contains("Pareto"), "legend");
+    assert!(svg.contains("zbuffer") && svg.contains("gauss") && svg.contains("canopy") && svg.contains("wald") && svg.contains("wand") && svg.contains("Pareto") && svg.contains("over seeds"), "legend");
     assert!(dir.path().join("cmp.scenes/one-ball.sct").exists());
 }
 
@@ -104,4 +120,23 @@ fn compare_rejects_bad_scenes_and_knobs() {
     assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
     let o = run(&["--scene", &format!("one:{}", dir.path().join("none.obj").display())]);
     assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+#[test]
+fn compare_wand_seeds_one_has_no_spread() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("ball.obj");
+    sphere_obj(&obj, 8);
+    let out = dir.path().join("w");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_sct-render-preview"))
+        .args(["compare", "--scene", &format!("one:{}", obj.display()), "--methods", "wand", "--wand-seeds", "1"])
+        .args(["--knobs", "1", "--repeat", "1", "--density", "40", "--width", "48", "--height", "48", "-o", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.path().join("w.json")).unwrap()).unwrap();
+    let p = &v["scenes"][0]["methods"][0]["points"][0];
+    assert!(p["seeds"].is_null(), "{p}");
+    assert!(!String::from_utf8_lossy(&o.stdout).contains("seeds"));
+    assert!(!std::fs::read_to_string(dir.path().join("w.svg")).unwrap().contains("over seeds"));
 }
