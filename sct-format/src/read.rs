@@ -37,16 +37,20 @@ use crate::tree::SceneTree;
 use crate::write::kind;
 
 /// Bytes one scene-graph node counts against [`Limits::max_graph_bytes`]: its in-memory size,
-/// and at least 77, the largest fixed part of a record (an inline's), so that no record
-/// counts less than its stored bytes and the limit also bounds the decompressed section.
+/// and at least [`AFFINE_RECORD_BYTES`], the largest fixed-size record (an affine
+/// instance's), so that no record counts less than its stored bytes and the limit also
+/// bounds the decompressed section.
 pub const GRAPH_NODE_BYTES: u64 = {
     let m = std::mem::size_of::<GraphNode>() as u64;
-    if m > 77 {
+    if m > AFFINE_RECORD_BYTES {
         m
     } else {
-        77
+        AFFINE_RECORD_BYTES
     }
 };
+
+/// Stored bytes of an affine instance record (spec §7): kind, child, 12 × f64, flags, tint.
+pub const AFFINE_RECORD_BYTES: u64 = 1 + 4 + 96 + 1 + 4;
 
 /// The quantity [`Limits::max_graph_bytes`] caps, as errors name it.
 const GRAPH_MEMORY: &str = "scene graph memory (bytes)";
@@ -726,6 +730,29 @@ pub(crate) fn parse_graph(
                 let prop = |bit: u8| if flags & bit != 0 { Propagation::PushDown } else { Propagation::PullUp };
                 let attrs = InstanceAttrs { size: prop(1), color: prop(2), tint: (flags & 4 != 0).then_some(tint) };
                 GraphNode::Instance { child, transform, attrs }
+            }
+            kind::AFFINE => {
+                let r = c.u32("affine instance child")?;
+                let child = earlier(r, "affine instance child")?;
+                let mut matrix = [[0f64; 4]; 3];
+                for v in matrix.iter_mut().flatten() {
+                    *v = c.f64("affine matrix")?;
+                }
+                let transform = crate::affine::Affine { matrix };
+                let flags = c.u8("instance flags")?;
+                let tint = c.array::<4>("tint")?;
+                if flags & !7 != 0 {
+                    problem(format!("reserved instance flag bits set ({flags:#04x})"))?;
+                }
+                if matches!(on_problem, OnProblem::Fail) {
+                    if let Some(why) = transform.problem() {
+                        // At the record's own offset, so the bad bytes can be found.
+                        return Err(Error::malformed(at, format!("affine instance {i}: {why}")));
+                    }
+                }
+                let prop = |bit: u8| if flags & bit != 0 { Propagation::PushDown } else { Propagation::PullUp };
+                let attrs = InstanceAttrs { size: prop(1), color: prop(2), tint: (flags & 4 != 0).then_some(tint) };
+                GraphNode::Affine { child, transform, attrs }
             }
             kind::INLINE => {
                 let path = c.string(limits.max_string_bytes, "inline path")?;

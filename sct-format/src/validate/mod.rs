@@ -145,6 +145,9 @@ checks! {
     Quaternion = "quaternion",
     /// An instance scale is not positive.
     Scale = "scale",
+    /// An affine instance's matrix is singular, has an entry beyond the f32 range, or a
+    /// condition number above [`crate::affine::MAX_CONDITION`] (spec §7).
+    Affine = "affine",
     /// An inline target does not exist or cannot be opened.
     InlineMissing = "inline-missing",
     /// An inline target's BLAKE3 hash differs from the recorded one.
@@ -315,6 +318,14 @@ fn transform_problems(t: &Similarity) -> Vec<Problem> {
     out
 }
 
+fn affine_problems(a: &crate::affine::Affine) -> Vec<Problem> {
+    match a.problem() {
+        None => Vec::new(),
+        Some(m) if !a.matrix.iter().flatten().all(|v| v.is_finite()) => vec![(CheckId::NonFinite, m)],
+        Some(m) => vec![(CheckId::Affine, m)],
+    }
+}
+
 /// Parses the graph with the reader's parser, keeping per-node problems (bad references,
 /// flags, inline paths, transforms, inline bounds) to report at each node's path. At most
 /// `room` problems are kept (each is reported once, reachable or not, so no more can be
@@ -340,6 +351,7 @@ fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, room: usize, issues: 
     for (i, n) in graph.nodes.iter().enumerate() {
         let probs = match n {
             GraphNode::Instance { transform, .. } => transform_problems(transform),
+            GraphNode::Affine { transform, .. } => affine_problems(transform),
             GraphNode::Inline { bound, .. } if !bound.is_finite() => {
                 vec![(CheckId::NonFinite, format!("inline bound has non-finite attributes: {bound}"))]
             }
@@ -370,9 +382,9 @@ fn graph_bounds(g: &SceneGraph, trees: &[Option<TreeIndex>]) -> Vec<Option<Node>
                 trees.get(*tree as usize).and_then(|t| t.as_ref()).filter(|t| t.header.node_count > 0).map(|t| t.header.root)
             }
             GraphNode::Inline { bound, .. } => Some(*bound),
-            GraphNode::Instance { child, transform, attrs } => {
-                out.get(*child as usize).copied().flatten().map(|c| TraversalState::IDENTITY.push_instance(transform, attrs).apply(&c))
-            }
+            n @ (GraphNode::Instance { .. } | GraphNode::Affine { .. }) => n.instance().and_then(|(child, transform, attrs)| {
+                out.get(child as usize).copied().flatten().map(|c| TraversalState::IDENTITY.push(&transform, &attrs).apply(&c))
+            }),
         };
         out.push(b);
     }
@@ -719,7 +731,7 @@ impl<'o> Validator<'o> {
                     }
                     stack.push(Item::Children { node: n, base: p, leaves, next: 0 });
                 }
-                GraphNode::Instance { child, .. } => {
+                GraphNode::Instance { child, .. } | GraphNode::Affine { child, .. } => {
                     if *child != u32::MAX {
                         stack.push(Item::Node(*child, p));
                     }
