@@ -869,6 +869,58 @@ mod tests {
         }
     }
 
+    /// A graph of a tree and one affine instance of it with `matrix`; node 1 starts at
+    /// `AT + 17`.
+    fn affine_graph(matrix: [[f64; 4]; 3]) -> Vec<u8> {
+        let mut b = tree_then_one_node();
+        b.put_u8(kind::AFFINE);
+        b.put_u32(0);
+        matrix.iter().flatten().for_each(|v| b.put_f64(*v));
+        b.put_u8(2 | 4);
+        b.extend_from_slice(&[200, 100, 50, 255]);
+        b
+    }
+
+    /// Affine instance records parse to their matrix and attributes; hostile matrices (NaN,
+    /// singular, huge, ill-conditioned) are refused at the record's offset, and the
+    /// validator's mode keeps them for its own checks.
+    #[test]
+    fn affine_records_and_hostile_matrices() {
+        let good = [[2.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.5, 0.0], [0.0, 0.0, -1.0, 3.0]];
+        let b = affine_graph(good);
+        assert_eq!(b.len() as u64, 17 + AFFINE_RECORD_BYTES);
+        let (g, _) = parse_graph(&b, AT, &Limits::default(), OnProblem::Fail, None).expect("valid");
+        match &g.nodes[1] {
+            GraphNode::Affine { child: 0, transform, attrs } => {
+                assert_eq!(transform.matrix, good);
+                assert_eq!((attrs.size, attrs.color, attrs.tint), (Propagation::PullUp, Propagation::PushDown, Some([200, 100, 50, 255])));
+            }
+            other => panic!("{other:?}"),
+        }
+        let id = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]];
+        let mut nan = id;
+        nan[2][1] = f64::NAN;
+        let mut singular = id;
+        singular[2] = [0.0, 0.0, 0.0, 5.0];
+        let mut huge = id;
+        huge[0][3] = 1e300;
+        let mut flat = id;
+        flat[1][1] = 1e-9;
+        for (m, why) in [(nan, "non-finite"), (singular, "singular"), (huge, "f32 range"), (flat, "condition number")] {
+            match parse_graph(&affine_graph(m), AT, &Limits::default(), OnProblem::Fail, None) {
+                Err(Error::Malformed { offset, what }) => {
+                    assert_eq!(offset, AT + 12 + 5, "{what}");
+                    assert!(what.contains("affine instance 1") && what.contains(why), "{what}");
+                }
+                other => panic!("{why}: {other:?}"),
+            }
+            assert!(parse_graph(&affine_graph(m), AT, &Limits::default(), OnProblem::Keep(10), None).is_ok());
+        }
+        // Truncated inside the matrix: malformed, no panic.
+        let b = affine_graph(good);
+        assert!(matches!(parse_graph(&b[..60], AT, &Limits::default(), OnProblem::Fail, None), Err(Error::Malformed { .. })));
+    }
+
     /// Regression: bad tree references used to be reported at the GRPH section's offset.
     #[test]
     fn bad_tree_references_are_reported_at_their_node() {
