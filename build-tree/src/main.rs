@@ -69,6 +69,11 @@ struct Cli {
     /// Allowed tree depth above ceil(log2 leaves).
     #[arg(long, default_value_t = 4)]
     depth_slack: u32,
+    /// Bake non-similarity (non-uniformly scaled, sheared, mirrored) placements into their
+    /// own trees instead of writing them as affine instances (format 1.3), so that readers
+    /// of format 1.2 can open the file.
+    #[arg(long)]
+    bake_affine: bool,
     /// Scene description (spec/scene-json.md); inline paths are relative to the output.
     #[arg(long)]
     scene: Option<PathBuf>,
@@ -231,7 +236,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     }
-    let build = BuildOptions { weld, depth_slack: cli.depth_slack, max_grid_cells: cli.max_grid_cells };
+    let build = BuildOptions { weld, depth_slack: cli.depth_slack, max_grid_cells: cli.max_grid_cells, bake_affine: cli.bake_affine };
     if let Mode::Batch(dir) = &mode {
         if cli.scene.is_some() {
             eprintln!("error: --scene does not apply to a directory of meshes");
