@@ -8,6 +8,24 @@
 //! rules: instance state is [`TraversalState`] (same transform and tint composition), and
 //! inlines get the same checks in the same order (target present, no cycle on the branch,
 //! depth limit, BLAKE3 hash) with the same [`TraverseErrorKind`] errors.
+//!
+//! # Affine instances (SCT 1.3)
+//!
+//! Below an affine instance the world transform is a general affine map, and a leaf splat
+//! (centre, normal, radius) would map to an ellipse. Every method takes the same simple,
+//! conservative route through its [`Placement`]: the centre is mapped exactly, the normal by
+//! the inverse transpose and renormalised, the radius scaled by σ_max (a disc slightly fat
+//! along the squashed directions), cones widened by the condition number (so normal-cone
+//! back-face culling stays safe) and areas scaled by Nanson's factor of the node's axis. Per
+//! method: `zbuffer` and `gauss` decide the LOD cut and draw their discs, ellipses or
+//! Gaussian kernels from those mapped attributes (the equal-area shrink uses the mapped area
+//! over the mapped radius); `canopy` builds its image graph from the mapped spheres and its
+//! occlusion strength from the mapped area and widened cone; `parilov` sorts a cell's samples
+//! along the mapped normal of a tree axis (planes of constant tree coordinate stay planes)
+//! and sizes cells by the mapped area; `wald` collects mapped surfels (support capped by the
+//! mapped patch radius); `wand` places its random points on each leaf's disc in the tree's
+//! frame and maps them exactly (the disc becomes the true ellipse), drawing them with
+//! probability ∝ mapped area.
 
 pub(crate) mod items;
 
