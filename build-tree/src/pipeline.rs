@@ -544,7 +544,30 @@ mod tests {
         assert!(matches!(bake_affine_instances(&mut huge.clone(), &small, DEFAULT_MAX_BAKED_BYTES, true), Err(BuildError::Input(_))));
         // Finite but huge entries overflow f32: refused, not baked into infinities.
         huge.affine_instances = vec![AffineInstance { mesh: 0, matrix: [[1e300, 0.0, 0.0, 0.0], [0.0, 1e-300, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]] }];
-        assert!(matches!(bake_affine_instances(&mut huge, &Limits::default(), DEFAULT_MAX_BAKED_BYTES), Err(BuildError::Input(_))));
+        assert!(matches!(bake_affine_instances(&mut huge, &Limits::default(), DEFAULT_MAX_BAKED_BYTES, true), Err(BuildError::Input(_))));
+    }
+
+    /// Without `--bake-affine`, a placement an affine instance can hold stays a placement
+    /// (and becomes an affine instance node of the mesh's one tree); one beyond the
+    /// condition limit (spec §7) is baked as before.
+    #[test]
+    fn affine_placements_are_kept_unless_ill_conditioned() {
+        let stretch = AffineInstance { mesh: 0, matrix: [[1.0, 0.4, 0.0, 3.0], [0.0, 2.5, 0.0, 0.0], [0.0, 0.0, 0.5, -1.0]] };
+        let flat = AffineInstance { mesh: 0, matrix: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1e-7, 5.0]] };
+        let mut f = SamplesFile::single_mesh(Generator::default(), "m", ring(400));
+        f.affine_instances = vec![stretch, flat];
+        let g = f.clone();
+        bake_affine_instances(&mut f, &Limits::default(), DEFAULT_MAX_BAKED_BYTES, false).expect("bake");
+        assert_eq!(f.affine_instances, vec![stretch]);
+        assert_eq!((f.meshes.len(), f.instances.len(), f.samples.len()), (2, 2, 800));
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = dir.path().join("kept.sct");
+        let rep = build(g, &out).expect("build");
+        // The mesh's tree, the flat placement's baked tree, the group.
+        assert_eq!((rep.trees, rep.instances, rep.affine_instances), (3, 1, 1));
+        let r = sct_format::SctReader::open(&out, &Limits::default()).expect("open");
+        assert_eq!(r.header().minor, 3);
+        assert!(r.graph().nodes.iter().any(|n| matches!(n, sct_format::GraphNode::Affine { transform, .. } if transform.matrix == stretch.matrix)));
     }
 
     fn ring(n: usize) -> Vec<Node> {
@@ -595,7 +618,8 @@ mod tests {
     }
 
     /// Item 15: 5,000 non-uniformly scaled placements of one mesh (a realistic glTF) build
-    /// one baked tree, and the file opens with the reader's default limits. A samples file
+    /// one tree (the mesh's, under 5,000 affine instances; baked: one tree of all copies),
+    /// and the file opens with the reader's default limits. A samples file
     /// whose instances need more trees than a reader accepts sections is refused before any
     /// tree is built, with a clear error.
     #[test]
@@ -606,10 +630,10 @@ mod tests {
         f.affine_instances = (0..5000)
             .map(|i| AffineInstance { mesh: 0, matrix: [[1.0, 0.0, 0.0, i as f64 * 3.0], [0.0, 2.0, 0.0, 0.0], [0.0, 0.0, 0.5, 0.0]] })
             .collect();
-        // The similarity placement of the source goes too: only baked copies remain.
+        // The similarity placement of the source goes too: only the affine ones remain.
         f.instances.clear();
         let rep = build(f, &out).expect("builds");
-        assert_eq!(rep.trees, 1, "one baked tree for all placements");
+        assert_eq!((rep.trees, rep.affine_instances), (2, 5000), "the mesh's tree and the group's");
         let reader = sct_format::read::SctReader::open(&out, &Limits::default()).expect("a reader accepts it");
         assert!(reader.sections().len() as u64 <= u64::from(Limits::default().max_sections));
 
