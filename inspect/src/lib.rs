@@ -452,8 +452,15 @@ pub fn write_text(s: &Summary, w: &mut dyn Write) -> std::io::Result<()> {
     let g = &s.graph;
     writeln!(
         w,
-        "scene graph: {} nodes (root {}): {} trees, {} groups, {} instances ({} affine), {} inlines",
-        g.nodes, g.root, g.trees, g.groups, g.instances, g.affine_instances, g.inlines
+        "scene graph: {} nodes (root {}): {} trees, {} groups, {} instances{}, {} inlines",
+        g.nodes,
+        g.root,
+        g.trees,
+        g.groups,
+        g.instances,
+        // Only files that have them (format 1.3) say so: older files print as before.
+        if g.affine_instances > 0 { format!(" ({} affine)", g.affine_instances) } else { String::new() },
+        g.inlines
     )?;
     for t in &s.trees {
         writeln!(w, "tree {} ({} profile{}):", t.index, t.profile, if t.alpha { ", alpha" } else { "" })?;
