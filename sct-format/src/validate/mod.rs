@@ -5,7 +5,8 @@
 //! - **quick** (structure): magic and version, header and section table, every section's
 //!   CRC and every block's CRC, offsets and lengths inside the file, counts (level table,
 //!   block table, full-binary-tree node/leaf counts), generator JSON, scene-graph references,
-//!   group child counts, instance transforms (finite, unit quaternion, positive scale) and
+//!   group child counts, instance transforms (finite, unit quaternion, positive scale;
+//!   affine matrices finite, within the f32 range, non-singular, condition number ≤ 10⁶) and
 //!   inline targets (present, matching their recorded BLAKE3 hash, no cycles, nesting within
 //!   [`Limits::max_inline_depth`]). Inlined files are validated too, once each.
 //! - **deep** adds hierarchical consistency (§5.11.1): every block is decoded once, as a
@@ -16,7 +17,9 @@
 //!
 //! Each tree is checked once, in its own frame, even when it is instanced many times: the
 //! checks are invariant under similarity transforms (up to rounding), so checking every
-//! instance would only multiply the work. The transforms matter where frames meet (a group
+//! instance would only multiply the work. (An affine map would not keep them: the mapped
+//! nodes only bound the mapped geometry, spec §7, so consistency is a property of each tree
+//! in its own frame.) The transforms matter where frames meet (a group
 //! leaf over an instanced child), and there they are applied.
 //!
 //! # Tolerances
