@@ -179,7 +179,7 @@ impl Affine {
             return Some(format!("affine transform is singular (determinant {det}): {self}"));
         }
         let k = self.condition();
-        if !(k <= MAX_CONDITION) {
+        if k.is_nan() || k > MAX_CONDITION {
             return Some(format!("affine transform has condition number {k:.3e}, above the limit {MAX_CONDITION:e}: {self}"));
         }
         None

@@ -461,7 +461,9 @@ struct GroupFrame {
 /// path took an export 26 s.
 const GROUP_CACHE_NODES: usize = 1 << 21;
 
-/// An entry of the traversal's stack.
+/// An entry of the traversal's stack. A pending node carries its world transform (an
+/// affine one is a few hundred bytes); the stack holds one path, so its size does not matter.
+#[allow(clippy::large_enum_variant)]
 enum Frame {
     One(Pending),
     Children(Box<GroupFrame>),

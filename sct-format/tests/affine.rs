@@ -18,7 +18,7 @@ fn balanced(leaves: Vec<Node>) -> SceneTree {
     let mut nodes = Vec::new();
     let mut internal = Vec::new();
     for (d, l) in levels.into_iter().enumerate() {
-        internal.extend(std::iter::repeat(d + 1 < depth).take(l.len()));
+        internal.extend(std::iter::repeat_n(d + 1 < depth, l.len()));
         nodes.extend(l);
     }
     SceneTree::from_bfs(nodes, internal).expect("tree")
