@@ -69,6 +69,11 @@ struct Cli {
     /// Allowed tree depth above ceil(log2 leaves).
     #[arg(long, default_value_t = 4)]
     depth_slack: u32,
+    /// Bake non-similarity (non-uniformly scaled, sheared, mirrored) placements into their
+    /// own trees instead of writing them as affine instances (format 1.3), so that readers
+    /// of format 1.2 can open the file.
+    #[arg(long)]
+    bake_affine: bool,
     /// Scene description (spec/scene-json.md); inline paths are relative to the output.
     #[arg(long)]
     scene: Option<PathBuf>,
@@ -88,6 +93,11 @@ struct Cli {
     /// Print a JSON summary on stdout (batch: schema sct-build-tree-batch/1).
     #[arg(long)]
     json: bool,
+    /// Progress display on stderr: auto (only when stderr is a terminal), always (redrawn
+    /// with ANSI escapes even into a pipe or a log: terminals that hide their tty, tests),
+    /// never.
+    #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
+    progress: ProgressMode,
     /// Fail on warnings (a missing texture or MTL, a mesh left out, skipped primitives):
     /// nothing is written and the exit status is 1; in batch mode the asset fails.
     #[arg(long, visible_alias = "deny-warnings")]
@@ -231,7 +241,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     }
-    let build = BuildOptions { weld, depth_slack: cli.depth_slack, max_grid_cells: cli.max_grid_cells };
+    let build = BuildOptions { weld, depth_slack: cli.depth_slack, max_grid_cells: cli.max_grid_cells, bake_affine: cli.bake_affine };
     if let Mode::Batch(dir) = &mode {
         if cli.scene.is_some() {
             eprintln!("error: --scene does not apply to a directory of meshes");
@@ -264,7 +274,7 @@ fn main() -> ExitCode {
             jobs: cli.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
             deny_warnings: cli.strict,
         };
-        return run_batch_cli(&opts, cli.json);
+        return run_batch_cli(&opts, cli.json, cli.progress);
     }
     let cfg = Config {
         samples: match &mode {
@@ -278,9 +288,10 @@ fn main() -> ExitCode {
         centre_offsets: !cli.no_centre_offsets,
         build,
     };
-    // A spinner only for a person watching: never in pipes or logs.
-    let bar = std::io::stderr().is_terminal().then(|| {
-        let b = indicatif::ProgressBar::new_spinner();
+    // A spinner only for a person watching: never in pipes or logs (unless asked).
+    let bar = progress_target(cli.progress).map(|t| {
+        let b = indicatif::ProgressBar::with_draw_target(None, t);
+        b.set_style(indicatif::ProgressStyle::default_spinner());
         b.enable_steady_tick(std::time::Duration::from_millis(120));
         b
     });
@@ -331,6 +342,70 @@ fn main() -> ExitCode {
     }
 }
 
+/// When the progress display is drawn (`--progress`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+enum ProgressMode {
+    /// Only when stderr is a terminal: never in pipes or logs.
+    #[default]
+    Auto,
+    /// Always, as on a terminal.
+    Always,
+    /// Never.
+    Never,
+}
+
+/// Stderr as a terminal whatever it is: indicatif hides its bars on a stderr that is not a
+/// terminal, so `--progress always` draws through this with plain ANSI escapes.
+#[derive(Debug)]
+struct AnsiStderr;
+
+impl AnsiStderr {
+    fn put(&self, s: &str) -> std::io::Result<()> {
+        use std::io::Write;
+        std::io::stderr().write_all(s.as_bytes())
+    }
+}
+
+impl indicatif::TermLike for AnsiStderr {
+    fn width(&self) -> u16 {
+        100
+    }
+    fn move_cursor_up(&self, n: usize) -> std::io::Result<()> {
+        if n > 0 { self.put(&format!("\x1b[{n}A")) } else { Ok(()) }
+    }
+    fn move_cursor_down(&self, n: usize) -> std::io::Result<()> {
+        if n > 0 { self.put(&format!("\x1b[{n}B")) } else { Ok(()) }
+    }
+    fn move_cursor_right(&self, n: usize) -> std::io::Result<()> {
+        if n > 0 { self.put(&format!("\x1b[{n}C")) } else { Ok(()) }
+    }
+    fn move_cursor_left(&self, n: usize) -> std::io::Result<()> {
+        if n > 0 { self.put(&format!("\x1b[{n}D")) } else { Ok(()) }
+    }
+    fn write_line(&self, s: &str) -> std::io::Result<()> {
+        self.put(&format!("{s}\n"))
+    }
+    fn write_str(&self, s: &str) -> std::io::Result<()> {
+        self.put(s)
+    }
+    fn clear_line(&self) -> std::io::Result<()> {
+        self.put("\r\x1b[2K")
+    }
+    fn flush(&self) -> std::io::Result<()> {
+        use std::io::Write;
+        std::io::stderr().flush()
+    }
+}
+
+/// Where a progress display draws under `mode`; `None`: no display.
+fn progress_target(mode: ProgressMode) -> Option<indicatif::ProgressDrawTarget> {
+    match mode {
+        ProgressMode::Auto => std::io::stderr().is_terminal().then(indicatif::ProgressDrawTarget::stderr),
+        ProgressMode::Always => Some(indicatif::ProgressDrawTarget::term_like(Box::new(AnsiStderr))),
+        ProgressMode::Never => None,
+    }
+}
+
 /// A single build's report: from samples, or sampling + build (one step).
 enum Outcome {
     Built(Box<Report>),
@@ -349,9 +424,9 @@ fn progress_message(p: &BatchProgress<'_>) -> String {
     format!("{eta} · converting {}{more}", names.join(", "))
 }
 
-fn run_batch_cli(opts: &BatchOptions, json: bool) -> ExitCode {
-    let bar = std::io::stderr().is_terminal().then(|| {
-        let b = indicatif::ProgressBar::new(0);
+fn run_batch_cli(opts: &BatchOptions, json: bool, progress: ProgressMode) -> ExitCode {
+    let bar = progress_target(progress).map(|t| {
+        let b = indicatif::ProgressBar::with_draw_target(Some(0), t);
         b.set_style(
             indicatif::ProgressStyle::with_template("{spinner} {pos}/{len} files [{bar:30}] {msg}")
                 .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),

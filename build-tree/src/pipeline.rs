@@ -52,8 +52,10 @@ pub struct Report {
     pub trees: u64,
     /// Group trees among them.
     pub groups: u64,
-    /// Instance graph nodes.
+    /// Instance graph nodes (similarity and affine).
     pub instances: u64,
+    /// Affine instance graph nodes among them (spec §7).
+    pub affine_instances: u64,
     /// Graph nodes.
     pub graph_nodes: u64,
     /// File size.
@@ -151,7 +153,7 @@ pub fn run_samples(
     let limits = Limits::default();
     rep.samples = samples.samples.len() as u64;
     normalize_normals(&mut samples)?;
-    bake_affine_instances(&mut samples, &limits, DEFAULT_MAX_BAKED_BYTES)?;
+    bake_affine_instances(&mut samples, &limits, DEFAULT_MAX_BAKED_BYTES, cfg.build.bake_affine)?;
     if cfg.scene.is_none() {
         // Refused before any tree is built: the file would hold more trees than a reader
         // accepts (see `check_reader_limits`).
@@ -185,6 +187,7 @@ pub fn run_samples(
     rep.trees = composed.trees.len() as u64;
     rep.groups = composed.groups;
     rep.instances = composed.instances;
+    rep.affine_instances = composed.affine_instances;
     rep.graph_nodes = composed.graph.nodes.len() as u64;
     rep.nodes = composed.trees.iter().map(|t| t.len() as u64).sum();
     // Geometry leaves only: group-tree leaves are children's bounds, not samples.
@@ -240,8 +243,11 @@ pub const DEFAULT_MAX_BAKED_BYTES: u64 = 2 << 30;
 /// bytes measured (1,000 placements of a 56 k-sample mesh: 6.8 GB), rounded up.
 pub const BAKED_BYTES_PER_SAMPLE: u64 = 128;
 
-/// Turns the affine instances (spec §8) into baked meshes — the samples mapped through each
-/// matrix — placed at the identity, since a scene-tree instance must be a similarity. All
+/// Turns affine placements (spec §8) into baked meshes — the samples mapped through each
+/// matrix — placed at the identity: all of them with `all` (`--bake-affine`), else only
+/// those an affine instance node cannot hold (spec §7: a condition number above
+/// [`sct_format::affine::MAX_CONDITION`], an entry beyond the f32 range); the others stay in
+/// `samples.affine_instances` and become affine instances of their mesh's one tree. All
 /// placements of one mesh are baked into one mesh `NAME#affine` (one tree, not one per
 /// placement: 5,000 placements made 5,000 trees, more sections than a reader accepts).
 /// Original meshes keep their indices and names (scene files refer to them); a mesh left
@@ -252,7 +258,11 @@ pub const BAKED_BYTES_PER_SAMPLE: u64 = 128;
 /// checked against `limits.max_samples` and its memory, at [`BAKED_BYTES_PER_SAMPLE`],
 /// against `max_bytes`. A matrix that maps a sample to a non-finite node (finite but huge
 /// entries) is refused.
-pub fn bake_affine_instances(samples: &mut SamplesFile, limits: &Limits, max_bytes: u64) -> Result<(), BuildError> {
+pub fn bake_affine_instances(samples: &mut SamplesFile, limits: &Limits, max_bytes: u64, all: bool) -> Result<(), BuildError> {
+    // Kept as instances: nothing to bake for them.
+    let (bake, keep): (Vec<_>, Vec<_>) = std::mem::take(&mut samples.affine_instances).into_iter().partition(|a| all || !a.affine().is_valid());
+    samples.affine_instances = bake;
+    let kept = keep;
     let placements = samples.affine_instances.len();
     let mut baked = 0u64;
     for a in &samples.affine_instances {
@@ -273,7 +283,7 @@ pub fn bake_affine_instances(samples: &mut SamplesFile, limits: &Limits, max_byt
     // Checked above: the new samples fit in memory's budget, so reserve them exactly (a
     // growing vector could briefly need twice as much).
     samples.samples.reserve_exact(usize::try_from(baked).map_err(|_| BuildError::Input("baked samples exceed the address space".into()))?);
-    let affine = std::mem::take(&mut samples.affine_instances);
+    let affine = std::mem::replace(&mut samples.affine_instances, kept);
     // The placements of each mesh, meshes in the order of their first placement (grouped
     // through a map: a hostile file may list a million placements of distinct meshes).
     let mut groups: Vec<(u32, Vec<usize>)> = Vec::new();
@@ -351,10 +361,10 @@ const FIXED_SECTIONS: u64 = 2;
 /// Trees a build without a scene file makes: one per mesh with an instance, plus the group
 /// over them when there is more than one instance.
 fn source_tree_count(samples: &SamplesFile) -> u64 {
-    let mut meshes: Vec<u32> = samples.instances.iter().map(|i| i.mesh).collect();
+    let mut meshes: Vec<u32> = samples.instances.iter().map(|i| i.mesh).chain(samples.affine_instances.iter().map(|a| a.mesh)).collect();
     meshes.sort_unstable();
     meshes.dedup();
-    meshes.len() as u64 + u64::from(samples.instances.len() > 1)
+    meshes.len() as u64 + u64::from(samples.instances.len() + samples.affine_instances.len() > 1)
 }
 
 fn check_sections(trees: u64, limits: &Limits) -> Result<(), BuildError> {
@@ -453,6 +463,9 @@ fn generator(cfg: &Config, upstream: &Upstream, inlines: &[(String, String)]) ->
         "depth_slack": cfg.build.depth_slack,
         "splitter": "centre of largest extent",
     });
+    if let (true, Some(map)) = (cfg.build.bake_affine, parameters.as_object_mut()) {
+        map.insert("bake_affine".into(), serde_json::json!(true));
+    }
     // The sampling step: the voxelizer's record (a two-step build also keeps the samples
     // file's sources here, so the meshes stay known behind the samples file).
     if let (false, Some(map)) = (sampling.is_null(), parameters.as_object_mut()) {
@@ -501,7 +514,7 @@ mod tests {
         let a = AffineInstance { mesh: 0, matrix: [[1.0, 0.4, 0.0, 3.0], [0.0, 2.5, 0.0, 0.0], [0.0, 0.0, 0.5, -1.0]] };
         f.affine_instances.push(a);
         let mut huge = f.clone();
-        bake_affine_instances(&mut f, &Limits::default(), DEFAULT_MAX_BAKED_BYTES).expect("bake");
+        bake_affine_instances(&mut f, &Limits::default(), DEFAULT_MAX_BAKED_BYTES, true).expect("bake");
         assert!(f.affine_instances.is_empty());
         assert_eq!(f.meshes.len(), 2);
         assert_eq!(f.instances.len(), 2);
@@ -528,10 +541,33 @@ mod tests {
         // Hostile AFFI: many entries need more samples than allowed — refused before baking.
         huge.affine_instances = vec![a; 1000];
         let small = Limits { max_samples: 100 * samples.len() as u64, ..Limits::default() };
-        assert!(matches!(bake_affine_instances(&mut huge.clone(), &small, DEFAULT_MAX_BAKED_BYTES), Err(BuildError::Input(_))));
+        assert!(matches!(bake_affine_instances(&mut huge.clone(), &small, DEFAULT_MAX_BAKED_BYTES, true), Err(BuildError::Input(_))));
         // Finite but huge entries overflow f32: refused, not baked into infinities.
         huge.affine_instances = vec![AffineInstance { mesh: 0, matrix: [[1e300, 0.0, 0.0, 0.0], [0.0, 1e-300, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]] }];
-        assert!(matches!(bake_affine_instances(&mut huge, &Limits::default(), DEFAULT_MAX_BAKED_BYTES), Err(BuildError::Input(_))));
+        assert!(matches!(bake_affine_instances(&mut huge, &Limits::default(), DEFAULT_MAX_BAKED_BYTES, true), Err(BuildError::Input(_))));
+    }
+
+    /// Without `--bake-affine`, a placement an affine instance can hold stays a placement
+    /// (and becomes an affine instance node of the mesh's one tree); one beyond the
+    /// condition limit (spec §7) is baked as before.
+    #[test]
+    fn affine_placements_are_kept_unless_ill_conditioned() {
+        let stretch = AffineInstance { mesh: 0, matrix: [[1.0, 0.4, 0.0, 3.0], [0.0, 2.5, 0.0, 0.0], [0.0, 0.0, 0.5, -1.0]] };
+        let flat = AffineInstance { mesh: 0, matrix: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1e-7, 5.0]] };
+        let mut f = SamplesFile::single_mesh(Generator::default(), "m", ring(400));
+        f.affine_instances = vec![stretch, flat];
+        let g = f.clone();
+        bake_affine_instances(&mut f, &Limits::default(), DEFAULT_MAX_BAKED_BYTES, false).expect("bake");
+        assert_eq!(f.affine_instances, vec![stretch]);
+        assert_eq!((f.meshes.len(), f.instances.len(), f.samples.len()), (2, 2, 800));
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = dir.path().join("kept.sct");
+        let rep = build(g, &out).expect("build");
+        // The mesh's tree, the flat placement's baked tree, the group.
+        assert_eq!((rep.trees, rep.instances, rep.affine_instances), (3, 1, 1));
+        let r = sct_format::SctReader::open(&out, &Limits::default()).expect("open");
+        assert_eq!(r.header().minor, 3);
+        assert!(r.graph().nodes.iter().any(|n| matches!(n, sct_format::GraphNode::Affine { transform, .. } if transform.matrix == stretch.matrix)));
     }
 
     fn ring(n: usize) -> Vec<Node> {
@@ -568,7 +604,7 @@ mod tests {
         for (samples, placements) in [(64usize, 1_000_000usize), (56_000, 1_000)] {
             let mut f = SamplesFile::single_mesh(Generator::default(), "m", ring(samples));
             f.affine_instances = vec![stretch; placements];
-            let e = bake_affine_instances(&mut f, &Limits::default(), DEFAULT_MAX_BAKED_BYTES).expect_err("refused");
+            let e = bake_affine_instances(&mut f, &Limits::default(), DEFAULT_MAX_BAKED_BYTES, true).expect_err("refused");
             assert!(matches!(&e, BuildError::Input(m) if m.contains("bytes")), "{e}");
             // Nothing was baked or reserved for it.
             assert_eq!((f.meshes.len(), f.samples.len()), (1, samples));
@@ -577,12 +613,13 @@ mod tests {
         // Under the limit: baked.
         let mut f = SamplesFile::single_mesh(Generator::default(), "m", ring(400));
         f.affine_instances = vec![stretch; 100];
-        bake_affine_instances(&mut f, &Limits::default(), DEFAULT_MAX_BAKED_BYTES).expect("baked");
+        bake_affine_instances(&mut f, &Limits::default(), DEFAULT_MAX_BAKED_BYTES, true).expect("baked");
         assert_eq!(f.samples.len(), 400 * 101);
     }
 
     /// Item 15: 5,000 non-uniformly scaled placements of one mesh (a realistic glTF) build
-    /// one baked tree, and the file opens with the reader's default limits. A samples file
+    /// one tree (the mesh's, under 5,000 affine instances; baked: one tree of all copies),
+    /// and the file opens with the reader's default limits. A samples file
     /// whose instances need more trees than a reader accepts sections is refused before any
     /// tree is built, with a clear error.
     #[test]
@@ -593,10 +630,10 @@ mod tests {
         f.affine_instances = (0..5000)
             .map(|i| AffineInstance { mesh: 0, matrix: [[1.0, 0.0, 0.0, i as f64 * 3.0], [0.0, 2.0, 0.0, 0.0], [0.0, 0.0, 0.5, 0.0]] })
             .collect();
-        // The similarity placement of the source goes too: only baked copies remain.
+        // The similarity placement of the source goes too: only the affine ones remain.
         f.instances.clear();
         let rep = build(f, &out).expect("builds");
-        assert_eq!(rep.trees, 1, "one baked tree for all placements");
+        assert_eq!((rep.trees, rep.affine_instances), (2, 5000), "the mesh's tree and the group's");
         let reader = sct_format::read::SctReader::open(&out, &Limits::default()).expect("a reader accepts it");
         assert!(reader.sections().len() as u64 <= u64::from(Limits::default().max_sections));
 

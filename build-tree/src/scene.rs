@@ -10,7 +10,7 @@ use sct_format::graph::{GraphNode, InstanceAttrs, Propagation, SceneGraph, Simil
 use sct_format::read::SctReader;
 use sct_format::samples::SamplesFile;
 use sct_format::traverse::{graph_bound, TraversalState};
-use sct_format::{Limits, Node, SceneTree};
+use sct_format::{Affine, Limits, Node, SceneTree};
 
 use crate::error::BuildError;
 use crate::tree::{build_tree_owned, build_tree_with_map_owned, BuildOptions, BuildStats, Weld};
@@ -154,8 +154,10 @@ pub struct Composed {
     pub mesh_stats: Vec<BuildStats>,
     /// Group trees built.
     pub groups: u64,
-    /// Instance nodes.
+    /// Instance nodes (similarity and affine).
     pub instances: u64,
+    /// Affine instance nodes among them (spec §7).
+    pub affine_instances: u64,
     /// Inlined files (path as resolved, BLAKE3 hex).
     pub inlines: Vec<(String, String)>,
 }
@@ -234,7 +236,7 @@ impl<'a> Composer<'a> {
     fn push(&mut self, n: GraphNode, bound: Node) -> u32 {
         let two_sided = match &n {
             GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => self.trees.get(*tree as usize).is_some_and(SceneTree::is_two_sided),
-            GraphNode::Instance { child, .. } => self.two_sided.get(*child as usize).copied().unwrap_or(false),
+            GraphNode::Instance { child, .. } | GraphNode::Affine { child, .. } => self.two_sided.get(*child as usize).copied().unwrap_or(false),
             // Set by `inline`, which has the file open.
             GraphNode::Inline { .. } => false,
         };
@@ -290,7 +292,7 @@ impl<'a> Composer<'a> {
 
     fn source(&mut self) -> Result<u32, BuildError> {
         let insts = &self.samples.instances;
-        if insts.is_empty() {
+        if insts.is_empty() && self.samples.affine_instances.is_empty() {
             return Err(BuildError::Input("the samples file lists no instances".into()));
         }
         let mut ids = Vec::with_capacity(insts.len());
@@ -301,6 +303,12 @@ impl<'a> Composer<'a> {
             } else {
                 self.instance(tree, inst.transform, InstanceAttrs::default())?
             });
+        }
+        // Non-similarity placements (non-uniform scale, shear, mirror) left unbaked
+        // (`bake_affine_instances`): affine instances of the mesh's one tree.
+        for a in self.samples.affine_instances.clone() {
+            let tree = self.mesh(a.mesh)?;
+            ids.push(self.affine(tree, a.affine(), InstanceAttrs::default())?);
         }
         if ids.len() == 1 {
             return Ok(ids[0]);
@@ -366,6 +374,20 @@ impl<'a> Composer<'a> {
         }
         self.out.instances += 1;
         Ok(self.push(GraphNode::Instance { child, transform, attrs }, bound))
+    }
+
+    /// An affine instance of `child` (spec §7); its bound is what a traversal computes.
+    fn affine(&mut self, child: u32, transform: Affine, attrs: InstanceAttrs) -> Result<u32, BuildError> {
+        if let Some(why) = transform.problem() {
+            return Err(BuildError::Input(why));
+        }
+        let bound = TraversalState::IDENTITY.push(&transform.into(), &attrs).apply(&self.bounds[child as usize]);
+        if !bound.is_finite() {
+            return Err(BuildError::Input(format!("affine instance makes the bound non-finite: {transform}")));
+        }
+        self.out.instances += 1;
+        self.out.affine_instances += 1;
+        Ok(self.push(GraphNode::Affine { child, transform, attrs }, bound))
     }
 
     fn instance_transform(&self, spec: &InstanceSpec, child: u32) -> Result<Similarity, BuildError> {

@@ -70,11 +70,16 @@ pub struct BuildOptions {
     /// Most grid cells (instances) over all grids of one `scene.json`
     /// ([`crate::scene::MAX_GRID_CELLS`] by default).
     pub max_grid_cells: u64,
+    /// Bake every affine placement of the samples file into its own copy of the samples
+    /// (as before format 1.3) instead of keeping it as an affine instance node (spec §7).
+    /// Placements an affine instance cannot hold (a condition number above
+    /// [`sct_format::affine::MAX_CONDITION`]) are baked either way.
+    pub bake_affine: bool,
 }
 
 impl Default for BuildOptions {
     fn default() -> Self {
-        BuildOptions { weld: Weld::RelativeToMeanRadius(0.01), depth_slack: 4, max_grid_cells: crate::scene::MAX_GRID_CELLS }
+        BuildOptions { weld: Weld::RelativeToMeanRadius(0.01), depth_slack: 4, max_grid_cells: crate::scene::MAX_GRID_CELLS, bake_affine: false }
     }
 }
 

@@ -294,3 +294,25 @@ fn budget_that_coarsens_an_asset_warns_by_name() {
     assert!(table.lines().any(|l| l.starts_with("  box/Box.glb: the sample budget of 150000 coarsened")), "{table}");
     assert!(!table.contains("triangle/TriangleWithoutIndices.gltf: the sample budget"), "{table}");
 }
+
+/// The terminal progress bar, forced on a piped stderr with `--progress always`: the batch
+/// draws its bar (count, bar, time left, inputs running) and clears it at the end; by
+/// default a piped stderr gets no bar at all.
+#[test]
+fn forced_terminal_progress_draws_the_bar() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let lib = dir.path().join("lib");
+    copy_dir(&models().join("nasty/obj-negative-indices-cube"), &lib.join("cube"));
+    copy_dir(&models().join("gltf/Box"), &lib.join("box"));
+    let out = dir.path().join("out");
+    let forced = bin(&[lib.as_os_str(), "-o".as_ref(), out.as_os_str(), "--progress".as_ref(), "always".as_ref(), "--jobs".as_ref(), "1".as_ref()]);
+    assert!(forced.status.success(), "{}", String::from_utf8_lossy(&forced.stderr));
+    let err = String::from_utf8_lossy(&forced.stderr);
+    // Three inputs (Box comes as .gltf and .glb), counted up to the last.
+    assert!(err.contains("0/3 files [") && err.contains("3/3 files ["), "no bar drawn: {err:?}");
+    assert!(err.contains("ETA … · converting ") && err.contains("converting cube/negative_indices.obj"), "no time left or running inputs: {err:?}");
+    assert!(err.ends_with("\r\x1b[2K"), "the bar is not cleared at the end: {err:?}");
+    let plain = bin(&[lib.as_os_str(), "-o".as_ref(), dir.path().join("out2").as_os_str(), "--jobs".as_ref(), "1".as_ref()]);
+    assert!(plain.status.success());
+    assert!(!String::from_utf8_lossy(&plain.stderr).contains("files ["), "a bar in a pipe");
+}

@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use sct_format::traverse::{ReachedKind, Traversal, TraverseOptions};
-use sct_format::{Limits, Node, SctReader, Similarity};
+use sct_format::{Limits, Node, SctReader, Similarity, Transform};
 
 use crate::InspectError;
 
@@ -449,6 +449,7 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
     // `None`: the tree failed to decode; it is reported once, not decoded again per use.
     let mut by_key: HashMap<(PathBuf, usize), Option<usize>> = HashMap::new();
     let mut uses: Vec<Use> = Vec::new();
+    let mut affine_trees: HashMap<(PathBuf, usize, [[u64; 4]; 3]), usize> = HashMap::new();
     // Uses of one tree under one transform (bit for bit) place the same leaves: queried once.
     let mut distinct: std::collections::HashSet<(usize, [u64; 8])> = std::collections::HashSet::new();
     let (mut use_count, mut leaves_expanded) = (0u64, 0u64);
@@ -488,10 +489,35 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
                 }
             },
         };
+        // An affine map (format 1.3) does not preserve distances: the leaves of such a use
+        // are mapped into the world (centre M·c, radius r·σ_max, spec §7) and queried there,
+        // once per tree and matrix.
+        let (ti, t) = match reached.state.transform {
+            Transform::Similarity(t) => (ti, t),
+            Transform::Affine(a) => {
+                let key = (reached.file_path.clone(), reached.tree, a.affine.matrix.map(|r| r.map(f64::to_bits)));
+                let wi = match affine_trees.get(&key) {
+                    Some(&i) => i,
+                    None => {
+                        let Ok(leaves) = decode_leaves(&reached.file, reached.tree) else { continue };
+                        let mapped = leaves
+                            .into_iter()
+                            .map(|(b, id)| {
+                                let n = a.apply_node(&Node { center: [b[0], b[1], b[2]], radius: b[3], ..Node::default() });
+                                ([n.center[0], n.center[1], n.center[2], n.radius], id)
+                            })
+                            .collect();
+                        trees.push(SphereTree::build(mapped));
+                        affine_trees.insert(key, trees.len() - 1);
+                        trees.len() - 1
+                    }
+                };
+                (wi, Similarity::IDENTITY)
+            }
+        };
         if !trees[ti].is_empty() {
             use_count += 1;
             leaves_expanded = leaves_expanded.saturating_add(trees[ti].len() as u64);
-            let t = reached.state.transform;
             let [a, b, c] = t.translation;
             let [x, y, z, w] = t.rotation;
             if distinct.insert((ti, [a, b, c, x, y, z, w, t.scale].map(f64::to_bits))) {
@@ -563,8 +589,12 @@ pub fn coverage_against(file: &Path, mesh: &Path, opts: &AgainstOptions) -> Resu
         fraction,
         min_coverage: opts.min_coverage,
         passed: fraction >= opts.min_coverage,
-        trees: trees.len() as u64,
-        leaves: trees.iter().map(|t| t.len() as u64).sum(),
+        // Stored trees only: the world copies of affine uses are not in the file.
+        trees: (trees.len() - affine_trees.len()) as u64,
+        leaves: {
+            let copies: std::collections::HashSet<usize> = affine_trees.values().copied().collect();
+            trees.iter().enumerate().filter(|(i, _)| !copies.contains(i)).map(|(_, t)| t.len() as u64).sum()
+        },
         tree_uses: use_count,
         leaves_expanded,
         worst_uncovered: worst.map(|(i, d, r)| Uncovered {

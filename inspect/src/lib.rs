@@ -183,8 +183,10 @@ pub struct GraphReport {
     pub trees: u64,
     /// Group nodes.
     pub groups: u64,
-    /// Instance nodes.
+    /// Instance nodes (similarity and affine).
     pub instances: u64,
+    /// Affine instance nodes among them (format 1.3).
+    pub affine_instances: u64,
     /// Inline nodes.
     pub inlines: u64,
 }
@@ -325,7 +327,7 @@ impl LeafCounter {
                 GraphNode::Group { children, .. } => {
                     children.iter().fold(0u64, |s, &c| s.saturating_add(memo.get(c as usize).copied().unwrap_or(0)))
                 }
-                GraphNode::Instance { child, .. } => memo.get(*child as usize).copied().unwrap_or(0),
+                GraphNode::Instance { child, .. } | GraphNode::Affine { child, .. } => memo.get(*child as usize).copied().unwrap_or(0),
                 GraphNode::Inline { path, .. } => self.inline(canon, path).unwrap_or_else(|| {
                     self.complete = false;
                     0
@@ -370,6 +372,10 @@ pub fn summarize_with(path: &Path, limits: &Limits, allow_outside_inlines: bool)
             GraphNode::Tree { .. } => graph.trees += 1,
             GraphNode::Group { .. } => graph.groups += 1,
             GraphNode::Instance { .. } => graph.instances += 1,
+            GraphNode::Affine { .. } => {
+                graph.instances += 1;
+                graph.affine_instances += 1;
+            }
             GraphNode::Inline { .. } => graph.inlines += 1,
         }
     }
@@ -446,8 +452,15 @@ pub fn write_text(s: &Summary, w: &mut dyn Write) -> std::io::Result<()> {
     let g = &s.graph;
     writeln!(
         w,
-        "scene graph: {} nodes (root {}): {} trees, {} groups, {} instances, {} inlines",
-        g.nodes, g.root, g.trees, g.groups, g.instances, g.inlines
+        "scene graph: {} nodes (root {}): {} trees, {} groups, {} instances{}, {} inlines",
+        g.nodes,
+        g.root,
+        g.trees,
+        g.groups,
+        g.instances,
+        // Only files that have them (format 1.3) say so: older files print as before.
+        if g.affine_instances > 0 { format!(" ({} affine)", g.affine_instances) } else { String::new() },
+        g.inlines
     )?;
     for t in &s.trees {
         writeln!(w, "tree {} ({} profile{}):", t.index, t.profile, if t.alpha { ", alpha" } else { "" })?;
@@ -574,6 +587,14 @@ pub fn dump(file: &Path, path: &str, levels: usize, limits: &Limits, allow_outsi
             GraphNode::Instance { child, transform, attrs } => format!(
                 "instance of {child}: translation {:?} rotation {:?} scale {} size {:?} colour {:?} tint {:?}",
                 transform.translation, transform.rotation, transform.scale, attrs.size, attrs.color, attrs.tint
+            ),
+            GraphNode::Affine { child, transform, attrs } => format!(
+                "affine instance of {child}: {transform} (determinant {}, condition number {:.4}) size {:?} colour {:?} tint {:?}",
+                transform.determinant(),
+                transform.condition(),
+                attrs.size,
+                attrs.color,
+                attrs.tint
             ),
             GraphNode::Inline { path, hash, .. } => format!("inline {path:?} blake3 {}", sct_format::traverse::hex(hash)),
         };

@@ -232,8 +232,9 @@ impl Graph<'_> {
             self.stats.frustum_culled += 1;
             return Ok(None);
         }
-        let nrm = m(n.node.normal, &pl.rot);
-        if self.backface && !n.two_sided && self.view.backfacing(c, r, nrm, n.node.cone) {
+        let nrm = pl.normal(n.node.normal);
+        let cone = pl.cone(n.node.cone);
+        if self.backface && !n.two_sided && self.view.backfacing(c, r, nrm, cone) {
             self.stats.backface_culled += 1;
             return Ok(None);
         }
@@ -247,8 +248,8 @@ impl Graph<'_> {
         if n.two_sided {
             cw = cw.abs();
         }
-        let area = n.node.area * pl.s * pl.s;
-        let strength = if r > 0.0 && area.is_finite() { (area * pva(n.node.cone, cw.clamp(-1.0, 1.0).acos()) / (std::f32::consts::PI * r * r)).min(1.0) } else { 0.0 };
+        let area = n.node.area * pl.area_factor(n.node.normal);
+        let strength = if r > 0.0 && area.is_finite() { (area * pva(cone, cw.clamp(-1.0, 1.0).acos()) / (std::f32::consts::PI * r * r)).min(1.0) } else { 0.0 };
         Ok(Some(INode { item: it, r, v, d, alpha, size, inside, refinable: n.refinable, strength, st: St::Pending, counter: 0, occ: 0.0, rel: Vec::new() }))
     }
 

@@ -233,6 +233,14 @@ pub(crate) struct NodeAt {
 }
 
 /// Placement of a tree in camera space: `c_cam = m·c + t`, `n_cam = rot·n`, `r' = s·r`.
+///
+/// Under an affine instance (spec §7) `m` is the camera rotation times the linear part A,
+/// `rot` the camera rotation times det(A)·A⁻ᵀ with the sign of det(A) (the normal matrix
+/// scaled by |det A|: `|rot·n|` is Nanson's area factor of a patch with unit normal n), `s`
+/// = σ_max(A) (a sphere's image lies in the sphere of radius `s·r`: conservative, slightly
+/// fat for a stretched sphere, which is an ellipsoid) and cones widen by the condition
+/// number `kappa`. Use [`Placement::normal`], [`Placement::cone`] and
+/// [`Placement::area_factor`]: they reduce to `rot·n`, the cone and `s²` for a similarity.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Placement {
     pub m: [[f32; 3]; 3],
@@ -241,6 +249,51 @@ pub(crate) struct Placement {
     pub s: f32,
     /// Push-down tint multipliers (as `sct_format::traverse::TraversalState`).
     pub tint: Option<[f32; 4]>,
+    /// An affine (non-similarity) placement: normals need renormalising.
+    pub affine: bool,
+    /// Condition number of the linear part (1 for a similarity).
+    pub kappa: f32,
+}
+
+impl Placement {
+    /// Camera-space unit normal of a tree-frame unit normal (the inverse transpose,
+    /// renormalised, under an affine placement).
+    #[inline]
+    pub(crate) fn normal(&self, n: [f32; 3]) -> [f32; 3] {
+        let v = mul(&self.rot, n);
+        if !self.affine {
+            return v;
+        }
+        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        if l > 0.0 && l.is_finite() {
+            v.map(|x| x / l)
+        } else {
+            v
+        }
+    }
+
+    /// The camera-space cone semi-angle: κ·cone, at most π (spec §7; unchanged under a
+    /// similarity).
+    #[inline]
+    pub(crate) fn cone(&self, cone: f32) -> f32 {
+        if self.affine && cone > 0.0 {
+            (cone * self.kappa).min(std::f32::consts::PI)
+        } else {
+            cone
+        }
+    }
+
+    /// What the placement multiplies the area of a patch with unit normal `n` by: `s²`, or
+    /// Nanson's |det A|·|A⁻ᵀ n| under an affine placement.
+    #[inline]
+    pub(crate) fn area_factor(&self, n: [f32; 3]) -> f32 {
+        if self.affine {
+            let v = mul(&self.rot, n);
+            (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+        } else {
+            self.s * self.s
+        }
+    }
 }
 
 #[inline]
@@ -337,8 +390,9 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
         st.frustum_culled += 1;
         return Decision::Cull;
     }
-    let nrm = mul(&pl.rot, n.normal);
-    if p.backface && view.backfacing(c, r, nrm, n.cone) {
+    let nrm = pl.normal(n.normal);
+    let cone = pl.cone(n.cone);
+    if p.backface && view.backfacing(c, r, nrm, cone) {
         st.backface_culled += 1;
         return Decision::Cull;
     }
@@ -350,8 +404,10 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
     // PSNR, all of it outline). The splat shrinks towards the disc of equal area, kept large
     // enough (×AREA_COVER) that neighbouring discs still overlap: a whole voxel's square
     // keeps its covering circle (√(1/π)·1.3 > √½).
+    // (In the world's frame under an affine placement: area and radius scale differently.)
+    let area = if pl.affine { n.area * pl.area_factor(n.normal) / (pl.s * pl.s) } else { n.area };
     let shrink = if n.radius > 0.0 {
-        ((n.area / std::f32::consts::PI).sqrt() * p.area_cover / n.radius).min(1.0)
+        ((area / std::f32::consts::PI).sqrt() * p.area_cover / n.radius).min(1.0)
     } else {
         1.0
     };
@@ -365,7 +421,7 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
     // error for each pixel. Nodes that may hold part of one refine to half the threshold:
     // +1.5 dB on SimpleInstancing's many small boxes, for 1 % more splats
     // ([`crate::OUTLINE_REFINE`]).
-    if size > p.pixel_error || (!leaf && !group && size > p.pixel_error * p.outline_refine && on_silhouette(c, r, nrm, n.cone)) {
+    if size > p.pixel_error || (!leaf && !group && size > p.pixel_error * p.outline_refine && on_silhouette(c, r, nrm, cone)) {
         if !leaf {
             return Decision::Refine;
         }
@@ -397,10 +453,10 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
     if let Some(k) = &p.kernel {
         // The opaque splat's disc (the leaf's covering radius, an internal node's
         // AREA_COVER × equal-area radius) is the kernel's half-opacity contour.
-        return Decision::Draw(k.splat(c, nrm, r * shrink, n.cone, view.focal, x, y, color));
+        return Decision::Draw(k.splat(c, nrm, r * shrink, cone, view.focal, x, y, color));
     }
     if p.ellipses {
-        return Decision::Draw(surface_splat(c, nrm, n.cone, s, [x, y], color));
+        return Decision::Draw(surface_splat(c, nrm, cone, s, [x, y], color));
     }
     Decision::Draw(Splat::disc(x, y, c[2], s, color))
 }
@@ -420,10 +476,10 @@ fn decide_leaf(n: &Node, leaf: bool, group: bool, c: [f32; 3], r: f32, scale: f3
         st.frustum_culled += 1;
         return Decision::Cull;
     }
-    let nrm = mul(&pl.rot, n.normal);
+    let nrm = pl.normal(n.normal);
     // Back-facing supports add nothing a ray can reach before the front surface: the
     // normal-cone test holds for every point of the (scaled) sphere.
-    if p.backface && view.backfacing(c, reach, nrm, n.cone) {
+    if p.backface && view.backfacing(c, reach, nrm, pl.cone(n.cone)) {
         st.backface_culled += 1;
         return Decision::Cull;
     }
@@ -453,7 +509,8 @@ fn decide_leaf(n: &Node, leaf: bool, group: bool, c: [f32; 3], r: f32, scale: f3
     // subtree holding parts of two objects) decodes to at least a thirteenth of the parent's
     // radius plus the grid error (`sct_format::codec::posrad`). Its hat would spread the
     // surface over that whole sphere; the support is kept within a few patch radii instead.
-    let r = if leaf && n.area > 0.0 { r.min(crate::wald::MAX_SUPPORT_PATCH_RATIO * (n.area / std::f32::consts::PI).sqrt() * pl.s) } else { r };
+    let patch = if pl.affine { (n.area * pl.area_factor(n.normal) / std::f32::consts::PI).sqrt() } else { (n.area / std::f32::consts::PI).sqrt() * pl.s };
+    let r = if leaf && n.area > 0.0 { r.min(crate::wald::MAX_SUPPORT_PATCH_RATIO * patch) } else { r };
     Decision::Leaf(crate::wald::Surfel { c, n: nrm, r: r * scale, color })
 }
 

@@ -99,9 +99,13 @@ struct Order {
     perm: Vec<u32>,
 }
 
-/// Camera-space direction of tree axis `k` under `pl`.
+/// Camera-space direction along which tree coordinate `k` grows under `pl` (column `k` of
+/// the normal matrix: under an affine placement, the normal of the mapped planes
+/// `x_k = const`, renormalised).
 fn axis(pl: &Placement, k: usize) -> [f32; 3] {
-    [pl.rot[0][k], pl.rot[1][k], pl.rot[2][k]]
+    let mut e = [0.0; 3];
+    e[k] = 1.0;
+    pl.normal(e)
 }
 
 fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
@@ -163,7 +167,7 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Par
             lod.frustum_culled += 1;
             continue;
         }
-        if !n.two_sided && p.backface && view.backfacing(c, r, axis_rotate(&pl, n.node.normal), n.node.cone) {
+        if !n.two_sided && p.backface && view.backfacing(c, r, axis_rotate(&pl, n.node.normal), pl.cone(n.node.cone)) {
             lod.backface_culled += 1;
             continue;
         }
@@ -171,7 +175,7 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Par
         // 2^-CELL_LEVELS of its area) are at most the footprint; group trees and inlines
         // refine until they reach plain trees.
         let depth = c[2].max(view.near);
-        let sample_radius = view.focal * (n.node.area * pl.s * pl.s / std::f32::consts::PI / (1u64 << CELL_LEVELS) as f32).sqrt() / depth;
+        let sample_radius = view.focal * (n.node.area * pl.area_factor(n.node.normal) / std::f32::consts::PI / (1u64 << CELL_LEVELS) as f32).sqrt() / depth;
         if n.refinable && !(it.is_plain_tree() && sample_radius <= footprint && c[2] > r) {
             let mut kids = files.item_children(&it)?;
             order_children(files, view, &mut kids);
@@ -291,7 +295,7 @@ fn limit(files: &SceneFiles, what: &'static str, value: u64, limit: u64) -> crat
 
 /// Camera-space direction of a tree-frame normal under `pl`.
 fn axis_rotate(pl: &Placement, n: [f32; 3]) -> [f32; 3] {
-    [0, 1, 2].map(|i| pl.rot[i][0] * n[0] + pl.rot[i][1] * n[1] + pl.rot[i][2] * n[2])
+    pl.normal(n)
 }
 
 /// Draws sample `q` over what is there (no depth test): the pixel holding it, or each pixel

@@ -8,6 +8,24 @@
 //! rules: instance state is [`TraversalState`] (same transform and tint composition), and
 //! inlines get the same checks in the same order (target present, no cycle on the branch,
 //! depth limit, BLAKE3 hash) with the same [`TraverseErrorKind`] errors.
+//!
+//! # Affine instances (SCT 1.3)
+//!
+//! Below an affine instance the world transform is a general affine map, and a leaf splat
+//! (centre, normal, radius) would map to an ellipse. Every method takes the same simple,
+//! conservative route through its [`Placement`]: the centre is mapped exactly, the normal by
+//! the inverse transpose and renormalised, the radius scaled by σ_max (a disc slightly fat
+//! along the squashed directions), cones widened by the condition number (so normal-cone
+//! back-face culling stays safe) and areas scaled by Nanson's factor of the node's axis. Per
+//! method: `zbuffer` and `gauss` decide the LOD cut and draw their discs, ellipses or
+//! Gaussian kernels from those mapped attributes (the equal-area shrink uses the mapped area
+//! over the mapped radius); `canopy` builds its image graph from the mapped spheres and its
+//! occlusion strength from the mapped area and widened cone; `parilov` sorts a cell's samples
+//! along the mapped normal of a tree axis (planes of constant tree coordinate stay planes)
+//! and sizes cells by the mapped area; `wald` collects mapped surfels (support capped by the
+//! mapped patch radius); `wand` places its random points on each leaf's disc in the tree's
+//! frame and maps them exactly (the disc becomes the true ellipse), drawing them with
+//! probability ∝ mapped area.
 
 pub(crate) mod items;
 
@@ -18,7 +36,7 @@ use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
 use sct_format::traverse::{hex, resolve_inline, scene_root, TraversalState, TraverseErrorKind, VisitBudget};
-use sct_format::{GraphNode, Limits, Node, SctReader};
+use sct_format::{AffineMap, GraphNode, Limits, Node, SctReader, Transform};
 
 use crate::camera::View;
 use crate::error::{Error, Result};
@@ -232,8 +250,9 @@ impl SceneFiles {
                     ..root
                 }))
             }
-            GraphNode::Instance { child, transform, .. } => {
-                (depth < 1024).then(|| self.bound(file, *child, depth + 1))?.map(|n| transform.apply_node(&n))
+            n @ (GraphNode::Instance { .. } | GraphNode::Affine { .. }) => {
+                let (child, transform, _) = n.instance()?;
+                (depth < 1024).then(|| self.bound(file, child, depth + 1))?.map(|n| transform.apply_node(&n))
             }
             GraphNode::Inline { bound, .. } => Some(*bound),
         }
@@ -303,8 +322,9 @@ impl SceneFiles {
                         }
                     }
                 }
-                GraphNode::Instance { child, transform, attrs } => {
-                    let state = v.state.push_instance(&transform, &attrs);
+                GraphNode::Instance { .. } | GraphNode::Affine { .. } => {
+                    let Some((child, transform, attrs)) = gnode.instance() else { continue };
+                    let state = v.state.push(&transform, &attrs);
                     queue.push_back(Visit { chain: v.chain, node: child, state });
                 }
                 GraphNode::Inline { path, bound, hash } => {
@@ -418,9 +438,11 @@ fn collect_uses(reader: &SctReader, node: u32, state: TraversalState, depth: u32
                 }
             }
         }
-        Some(GraphNode::Instance { child, transform, attrs }) => {
+        Some(n @ (GraphNode::Instance { .. } | GraphNode::Affine { .. })) => {
             // Instances do not multiply the walk (groups do, and stop at the budget).
-            collect_uses(reader, *child, state.push_instance(transform, attrs), depth + 1, visits, out);
+            if let Some((child, transform, attrs)) = n.instance() {
+                collect_uses(reader, child, state.push(&transform, &attrs), depth + 1, visits, out);
+            }
         }
         Some(GraphNode::Inline { bound, .. }) => out.push(FramingUse { what: Use::Bound(*bound), state }),
         None => {}
@@ -456,7 +478,11 @@ fn tighter_bound(reader: &SctReader, tree: usize) -> Option<Node> {
 
 /// Camera-space placement of a world-space transform and tint.
 fn placement(view: &View, state: &TraversalState) -> Placement {
-    let sim = &state.transform;
+    let tint = state.is_tinted().then_some(state.tint);
+    let sim = match &state.transform {
+        Transform::Similarity(sim) => sim,
+        Transform::Affine(a) => return affine_placement(view, a, tint),
+    };
     let cols = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]].map(|e| view.dir_to_camera(sim.rotate(e)));
     let mut rot = [[0f32; 3]; 3];
     let mut m = [[0f32; 3]; 3];
@@ -466,5 +492,27 @@ fn placement(view: &View, state: &TraversalState) -> Placement {
             m[i][j] = (col[i] * sim.scale) as f32;
         }
     }
-    Placement { m, rot, t: view.to_camera(sim.translation), s: sim.scale as f32, tint: state.is_tinted().then_some(state.tint) }
+    Placement { m, rot, t: view.to_camera(sim.translation), s: sim.scale as f32, tint, affine: false, kappa: 1.0 }
+}
+
+/// Camera-space placement of an affine world transform (see [`Placement`]): the linear
+/// part and the signed cofactor matrix (normals) in camera axes, σ_max rounded up and the
+/// condition number.
+fn affine_placement(view: &View, a: &AffineMap, tint: Option<[f32; 4]>) -> Placement {
+    let lin = a.affine.linear();
+    let sign = a.affine.determinant().signum();
+    let mut m = [[0f32; 3]; 3];
+    let mut rot = [[0f32; 3]; 3];
+    for j in 0..3 {
+        let col = view.dir_to_camera([lin[0][j], lin[1][j], lin[2][j]]);
+        let ncol = view.dir_to_camera([sign * a.cofactor[0][j], sign * a.cofactor[1][j], sign * a.cofactor[2][j]]);
+        for i in 0..3 {
+            m[i][j] = col[i] as f32;
+            rot[i][j] = ncol[i] as f32;
+        }
+    }
+    let t = view.to_camera([a.affine.matrix[0][3], a.affine.matrix[1][3], a.affine.matrix[2][3]]);
+    let s = a.stretch as f32;
+    let s = if f64::from(s) < a.stretch { s.next_up() } else { s };
+    Placement { m, rot, t, s, tint, affine: true, kappa: a.condition as f32 }
 }

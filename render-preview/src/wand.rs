@@ -383,7 +383,7 @@ fn select_tree(
     // Our leaves are nearly uniform in area (one voxel's piece of surface), so the mean
     // leaf says whether a node's leaves are large on screen without reading them.
     let leaves = cache.leaf_count(reader).max(1);
-    let mean_leaf = root.area / leaves as f32 * s2;
+    let mean_leaf = root.area / leaves as f32 * if pl.affine { pl.area_factor(root.normal) } else { s2 };
     // The splat path draws leaves only: every internal node refines.
     let leaf_params = LodParams { pixel_error: f32::MIN_POSITIVE, kernel: None, backface: ctx.p.backface && !both_sides, ..*ctx.p };
     let mut stack = vec![start];
@@ -399,8 +399,10 @@ fn select_tree(
             lod.frustum_culled += 1;
             continue;
         }
-        let nrm = mul(&pl.rot, n.normal);
-        if !both_sides && view.backfacing(c, r, nrm, n.cone) {
+        let nrm = pl.normal(n.normal);
+        let cone = pl.cone(n.cone);
+        let s2 = if pl.affine { pl.area_factor(n.normal) } else { s2 };
+        if !both_sides && view.backfacing(c, r, nrm, cone) {
             lod.backface_culled += 1;
             continue;
         }
@@ -408,7 +410,7 @@ fn select_tree(
         let z_max = c[2] + r;
         let large = |area: f32, z: f32| area * ctx.focal2 / (z * z) > ctx.large_px2;
         let samples = |n: &Node| -> f64 {
-            let a = n.area * s2 * ctx.k_area * cos_beta_max(c, r, nrm, n.cone, both_sides) / (z_min * z_min);
+            let a = n.area * s2 * ctx.k_area * cos_beta_max(c, r, nrm, cone, both_sides) / (z_min * z_min);
             f64::from(a) * ctx.per_px2
         };
         if !at.internal {

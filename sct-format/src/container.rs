@@ -12,8 +12,9 @@ use crate::raw::{Cursor, FileHeader, SectionEntry, FILE_HEADER_LEN, SECTION_ENTR
 pub const MAJOR: u16 = 1;
 /// The newest minor version this crate writes. A writer labels a file with the smallest
 /// minor version whose features it uses (1.1: two-sided trees; 1.2: centre offsets; spec
-/// §6.2), so files without them stay byte-for-byte files of the older version.
-pub const MINOR: u16 = 2;
+/// §6.2; 1.3: affine instances, §7), so files without them stay byte-for-byte files of the
+/// older version.
+pub const MINOR: u16 = 3;
 
 /// A section to be written (low-level API: [`crate::write`] and [`crate::samples`] build these).
 pub struct SectionOut {

@@ -77,7 +77,7 @@ pub fn samples_to_ply(file: &SamplesFile, out: &Path, max_points: u64) -> Result
         let io = |e| Error::io(out, e);
         header(w, total, &format!("SCT samples exported by sct-format {}", env!("CARGO_PKG_VERSION"))).map_err(io)?;
         for inst in &file.instances {
-            let state = TraversalState { transform: inst.transform, ..TraversalState::IDENTITY };
+            let state = TraversalState { transform: inst.transform.into(), ..TraversalState::IDENTITY };
             for n in file.mesh_samples(inst.mesh as usize) {
                 point(w, &state.apply(n)).map_err(io)?;
             }

@@ -177,6 +177,17 @@ pub enum GraphNode {
         /// Pull-up / push-down handling and tint.
         attrs: InstanceAttrs,
     },
+    /// A use of `child` placed by a general affine map (non-uniform scale, shear, mirror;
+    /// spec §7, format 1.3), optionally tinted. Placements that are similarities are
+    /// [`GraphNode::Instance`]s.
+    Affine {
+        /// The instanced graph node.
+        child: u32,
+        /// Placement: an invertible map within [`crate::affine::MAX_CONDITION`].
+        transform: crate::affine::Affine,
+        /// Pull-up / push-down handling and tint (as for [`GraphNode::Instance`]).
+        attrs: InstanceAttrs,
+    },
     /// Another SCT file, referenced by a path relative to this file.
     Inline {
         /// Relative path with `/` separators.
@@ -186,6 +197,17 @@ pub enum GraphNode {
         /// The referenced file's root node, so traversal can cull without opening it.
         bound: Node,
     },
+}
+
+impl GraphNode {
+    /// For an instance of either kind: its child, its transform and its attributes.
+    pub fn instance(&self) -> Option<(u32, crate::affine::Transform, InstanceAttrs)> {
+        match self {
+            GraphNode::Instance { child, transform, attrs } => Some((*child, (*transform).into(), *attrs)),
+            GraphNode::Affine { child, transform, attrs } => Some((*child, (*transform).into(), *attrs)),
+            _ => None,
+        }
+    }
 }
 
 /// The scene graph of a file.

@@ -40,6 +40,7 @@
 #![deny(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod affine;
 pub mod atomic;
 pub mod codec;
 pub mod container;
@@ -60,6 +61,7 @@ pub mod validate;
 pub mod view;
 pub mod write;
 
+pub use affine::{Affine, AffineMap, Transform};
 pub use codec::Profile;
 pub use error::{Error, Result};
 pub use graph::{Generator, GraphNode, InstanceAttrs, Propagation, SceneGraph, Similarity, SourceRef};

@@ -37,16 +37,20 @@ use crate::tree::SceneTree;
 use crate::write::kind;
 
 /// Bytes one scene-graph node counts against [`Limits::max_graph_bytes`]: its in-memory size,
-/// and at least 77, the largest fixed part of a record (an inline's), so that no record
-/// counts less than its stored bytes and the limit also bounds the decompressed section.
+/// and at least [`AFFINE_RECORD_BYTES`], the largest fixed-size record (an affine
+/// instance's), so that no record counts less than its stored bytes and the limit also
+/// bounds the decompressed section.
 pub const GRAPH_NODE_BYTES: u64 = {
     let m = std::mem::size_of::<GraphNode>() as u64;
-    if m > 77 {
+    if m > AFFINE_RECORD_BYTES {
         m
     } else {
-        77
+        AFFINE_RECORD_BYTES
     }
 };
+
+/// Stored bytes of an affine instance record (spec §7): kind, child, 12 × f64, flags, tint.
+pub const AFFINE_RECORD_BYTES: u64 = 1 + 4 + 96 + 1 + 4;
 
 /// The quantity [`Limits::max_graph_bytes`] caps, as errors name it.
 const GRAPH_MEMORY: &str = "scene graph memory (bytes)";
@@ -727,6 +731,29 @@ pub(crate) fn parse_graph(
                 let attrs = InstanceAttrs { size: prop(1), color: prop(2), tint: (flags & 4 != 0).then_some(tint) };
                 GraphNode::Instance { child, transform, attrs }
             }
+            kind::AFFINE => {
+                let r = c.u32("affine instance child")?;
+                let child = earlier(r, "affine instance child")?;
+                let mut matrix = [[0f64; 4]; 3];
+                for v in matrix.iter_mut().flatten() {
+                    *v = c.f64("affine matrix")?;
+                }
+                let transform = crate::affine::Affine { matrix };
+                let flags = c.u8("instance flags")?;
+                let tint = c.array::<4>("tint")?;
+                if flags & !7 != 0 {
+                    problem(format!("reserved instance flag bits set ({flags:#04x})"))?;
+                }
+                if matches!(on_problem, OnProblem::Fail) {
+                    if let Some(why) = transform.problem() {
+                        // At the record's own offset, so the bad bytes can be found.
+                        return Err(Error::malformed(at, format!("affine instance {i}: {why}")));
+                    }
+                }
+                let prop = |bit: u8| if flags & bit != 0 { Propagation::PushDown } else { Propagation::PullUp };
+                let attrs = InstanceAttrs { size: prop(1), color: prop(2), tint: (flags & 4 != 0).then_some(tint) };
+                GraphNode::Affine { child, transform, attrs }
+            }
             kind::INLINE => {
                 let path = c.string(limits.max_string_bytes, "inline path")?;
                 memory = memory.saturating_add(path.len() as u64);
@@ -840,6 +867,58 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    /// A graph of a tree and one affine instance of it with `matrix`; node 1 starts at
+    /// `AT + 17`.
+    fn affine_graph(matrix: [[f64; 4]; 3]) -> Vec<u8> {
+        let mut b = tree_then_one_node();
+        b.put_u8(kind::AFFINE);
+        b.put_u32(0);
+        matrix.iter().flatten().for_each(|v| b.put_f64(*v));
+        b.put_u8(2 | 4);
+        b.extend_from_slice(&[200, 100, 50, 255]);
+        b
+    }
+
+    /// Affine instance records parse to their matrix and attributes; hostile matrices (NaN,
+    /// singular, huge, ill-conditioned) are refused at the record's offset, and the
+    /// validator's mode keeps them for its own checks.
+    #[test]
+    fn affine_records_and_hostile_matrices() {
+        let good = [[2.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.5, 0.0], [0.0, 0.0, -1.0, 3.0]];
+        let b = affine_graph(good);
+        assert_eq!(b.len() as u64, 17 + AFFINE_RECORD_BYTES);
+        let (g, _) = parse_graph(&b, AT, &Limits::default(), OnProblem::Fail, None).expect("valid");
+        match &g.nodes[1] {
+            GraphNode::Affine { child: 0, transform, attrs } => {
+                assert_eq!(transform.matrix, good);
+                assert_eq!((attrs.size, attrs.color, attrs.tint), (Propagation::PullUp, Propagation::PushDown, Some([200, 100, 50, 255])));
+            }
+            other => panic!("{other:?}"),
+        }
+        let id = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]];
+        let mut nan = id;
+        nan[2][1] = f64::NAN;
+        let mut singular = id;
+        singular[2] = [0.0, 0.0, 0.0, 5.0];
+        let mut huge = id;
+        huge[0][3] = 1e300;
+        let mut flat = id;
+        flat[1][1] = 1e-9;
+        for (m, why) in [(nan, "non-finite"), (singular, "singular"), (huge, "f32 range"), (flat, "condition number")] {
+            match parse_graph(&affine_graph(m), AT, &Limits::default(), OnProblem::Fail, None) {
+                Err(Error::Malformed { offset, what }) => {
+                    assert_eq!(offset, AT + 12 + 5, "{what}");
+                    assert!(what.contains("affine instance 1") && what.contains(why), "{what}");
+                }
+                other => panic!("{why}: {other:?}"),
+            }
+            assert!(parse_graph(&affine_graph(m), AT, &Limits::default(), OnProblem::Keep(10), None).is_ok());
+        }
+        // Truncated inside the matrix: malformed, no panic.
+        let b = affine_graph(good);
+        assert!(matches!(parse_graph(&b[..60], AT, &Limits::default(), OnProblem::Fail, None), Err(Error::Malformed { .. })));
     }
 
     /// Regression: bad tree references used to be reported at the GRPH section's offset.

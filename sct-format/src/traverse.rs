@@ -30,11 +30,17 @@
 //! (colours are used unchanged); an instance with push-down colour and a tint multiplies the
 //! tint (`t / 255` per channel, RGBA) into every colour below it, composing multiplicatively
 //! with outer tints, clipped to [0, 255]. A tint on a pull-up instance is ignored.
+//!
+//! An affine instance (format 1.3) composes like a similarity; below it the world transform
+//! is a general affine map ([`Transform::Affine`]) and nodes map as [`crate::affine`]
+//! describes: radius × σ_max, axis by the inverse transpose, cone × condition number (≤ π),
+//! area by Nanson's factor of the axis.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use crate::affine::Transform;
 use crate::error::Error;
 use crate::graph::{GraphNode, InstanceAttrs, Propagation, SceneGraph, Similarity};
 use crate::limits::Limits;
@@ -44,8 +50,8 @@ use crate::read::SctReader;
 /// The push-down state accumulated from the root to a graph node.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TraversalState {
-    /// Local-to-world transform.
-    pub transform: Similarity,
+    /// Local-to-world transform: a similarity until an affine instance is on the path.
+    pub transform: Transform,
     /// Per-channel RGBA colour multiplier from push-down tints (1.0 = unchanged).
     pub tint: [f32; 4],
 }
@@ -58,10 +64,15 @@ impl Default for TraversalState {
 
 impl TraversalState {
     /// No transform, no tint.
-    pub const IDENTITY: TraversalState = TraversalState { transform: Similarity::IDENTITY, tint: [1.0; 4] };
+    pub const IDENTITY: TraversalState = TraversalState { transform: Transform::IDENTITY, tint: [1.0; 4] };
 
-    /// The state below an instance with `transform` and `attrs`.
+    /// The state below a similarity instance with `transform` and `attrs`.
     pub fn push_instance(&self, transform: &Similarity, attrs: &InstanceAttrs) -> TraversalState {
+        self.push(&Transform::Similarity(*transform), attrs)
+    }
+
+    /// The state below an instance of either kind (a similarity or an affine map).
+    pub fn push(&self, transform: &Transform, attrs: &InstanceAttrs) -> TraversalState {
         let mut tint = self.tint;
         if let (Propagation::PushDown, Some(t)) = (attrs.color, attrs.tint) {
             for (m, &c) in tint.iter_mut().zip(&t) {
@@ -78,7 +89,7 @@ impl TraversalState {
 
     /// Maps a node from the tree's frame to the world: transform, then tint.
     pub fn apply(&self, n: &Node) -> Node {
-        let mut out = if self.transform == Similarity::IDENTITY { *n } else { self.transform.apply_node(n) };
+        let mut out = if self.transform == Transform::IDENTITY { *n } else { self.transform.apply_node(n) };
         out.color = tint_color(out.color, self.tint);
         out
     }
@@ -198,9 +209,10 @@ pub(crate) fn bound_in_graph(g: &SceneGraph, node: u32, tree_root: impl Fn(u32) 
         match g.nodes.get(at as usize)? {
             GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => return tree_root(*tree).map(|r| state.apply(&r)),
             GraphNode::Inline { bound, .. } => return Some(state.apply(bound)),
-            GraphNode::Instance { child, transform, attrs } => {
-                state = state.push_instance(transform, attrs);
-                at = *child;
+            n @ (GraphNode::Instance { .. } | GraphNode::Affine { .. }) => {
+                let (child, transform, attrs) = n.instance()?;
+                state = state.push(&transform, &attrs);
+                at = child;
             }
         }
     }
@@ -449,7 +461,9 @@ struct GroupFrame {
 /// path took an export 26 s.
 const GROUP_CACHE_NODES: usize = 1 << 21;
 
-/// An entry of the traversal's stack.
+/// An entry of the traversal's stack. A pending node carries its world transform (an
+/// affine one is a few hundred bytes); the stack holds one path, so its size does not matter.
+#[allow(clippy::large_enum_variant)]
 enum Frame {
     One(Pending),
     Children(Box<GroupFrame>),
@@ -707,9 +721,9 @@ impl Iterator for Traversal {
                     self.deferred = Some(p);
                     return Some(Ok(r));
                 }
-                GraphNode::Instance { child, transform, attrs } => {
-                    let state = p.state.push_instance(transform, attrs);
-                    let child = *child;
+                GraphNode::Instance { .. } | GraphNode::Affine { .. } => {
+                    let Some((child, transform, attrs)) = node.instance() else { continue };
+                    let state = p.state.push(&transform, &attrs);
                     self.stack.push(Frame::One(Pending { node: child, state, bound: None, ..p }));
                 }
                 GraphNode::Inline { path, hash, bound } => {

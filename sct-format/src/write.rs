@@ -130,15 +130,22 @@ pub struct WriteStats {
     pub trees: Vec<TreeStats>,
 }
 
-/// The minor version a scene file is labelled with: the newest whose features it uses (1.2:
-/// centre offsets; 1.1: two-sided trees), so that files without them stay byte-for-byte
-/// files of the older version.
-fn scene_minor(two_sided: bool, opts: &WriteOptions) -> u16 {
-    if opts.codec_params(false).centre_offsets {
+/// The minor version a scene file is labelled with: the newest whose features it uses (1.3:
+/// affine instances; 1.2: centre offsets; 1.1: two-sided trees), so that files without them
+/// stay byte-for-byte files of the older version.
+fn scene_minor(two_sided: bool, affine: bool, opts: &WriteOptions) -> u16 {
+    if affine {
+        3
+    } else if opts.codec_params(false).centre_offsets {
         2
     } else {
         two_sided as u16
     }
+}
+
+/// Whether the graph holds an affine instance (a 1.3 feature).
+fn has_affine(g: &SceneGraph) -> bool {
+    g.nodes.iter().any(|n| matches!(n, GraphNode::Affine { .. }))
 }
 
 /// Encodes and writes `scene` to `w`.
@@ -152,7 +159,7 @@ pub fn write_scene<W: Write>(scene: &Scene, opts: &WriteOptions, w: W) -> Result
         tree_stats.push(stats);
         sections.push(SectionOut::plain(tags::TREE, bytes));
     }
-    let (bytes, _) = write_container_minor(SCT_MAGIC, scene_minor(scene.trees.iter().any(SceneTree::is_two_sided), opts), &sections, w)?;
+    let (bytes, _) = write_container_minor(SCT_MAGIC, scene_minor(scene.trees.iter().any(SceneTree::is_two_sided), has_affine(&scene.graph), opts), &sections, w)?;
     Ok(WriteStats {
         bytes,
         sections: sections.iter().map(|s| (s.tag.escape_ascii().to_string(), s.stored.len() as u64)).collect(),
@@ -267,7 +274,7 @@ fn stream_scene<'a, W: Write + Seek + Send>(
         tree_stats.push(st.stats);
     }
     w.seek(SeekFrom::Start(start))?;
-    w.write_all(&header_and_table(SCT_MAGIC, scene_minor(two_sided, opts), &entries, offset))?;
+    w.write_all(&header_and_table(SCT_MAGIC, scene_minor(two_sided, has_affine(graph), opts), &entries, offset))?;
     w.seek(SeekFrom::Start(start + offset))?;
     Ok(WriteStats {
         bytes: offset,
@@ -315,6 +322,12 @@ fn check_graph(scene: &Scene) -> Result<()> {
                     return Err(Error::Misuse(format!("instance {i} has an invalid transform ({transform})")));
                 }
             }
+            GraphNode::Affine { child, transform, .. } => {
+                earlier(*child)?;
+                if let Some(why) = transform.problem() {
+                    return Err(Error::Misuse(format!("affine instance {i}: {why}")));
+                }
+            }
             GraphNode::Inline { path, .. } => {
                 if path.is_empty() || path.contains('\\') || path.starts_with('/') {
                     return Err(Error::Misuse(format!("inline {i} path {path:?} must be relative with '/' separators")));
@@ -336,6 +349,23 @@ pub(crate) mod kind {
     pub const GROUP: u8 = 1;
     pub const INSTANCE: u8 = 2;
     pub const INLINE: u8 = 3;
+    pub const AFFINE: u8 = 4;
+}
+
+/// An instance's flags byte (spec §7): bit 0 size push-down, bit 1 colour push-down, bit 2
+/// tint present.
+fn instance_flags(attrs: &crate::graph::InstanceAttrs) -> u8 {
+    let mut flags = 0u8;
+    if attrs.size == Propagation::PushDown {
+        flags |= 1;
+    }
+    if attrs.color == Propagation::PushDown {
+        flags |= 2;
+    }
+    if attrs.tint.is_some() {
+        flags |= 4;
+    }
+    flags
 }
 
 fn encode_graph(g: &SceneGraph) -> Vec<u8> {
@@ -358,17 +388,14 @@ fn encode_graph(g: &SceneGraph) -> Vec<u8> {
                 out.put_u8(kind::INSTANCE);
                 out.put_u32(*child);
                 put_similarity(&mut out, transform);
-                let mut flags = 0u8;
-                if attrs.size == Propagation::PushDown {
-                    flags |= 1;
-                }
-                if attrs.color == Propagation::PushDown {
-                    flags |= 2;
-                }
-                if attrs.tint.is_some() {
-                    flags |= 4;
-                }
-                out.put_u8(flags);
+                out.put_u8(instance_flags(attrs));
+                out.extend_from_slice(&attrs.tint.unwrap_or([255; 4]));
+            }
+            GraphNode::Affine { child, transform, attrs } => {
+                out.put_u8(kind::AFFINE);
+                out.put_u32(*child);
+                transform.matrix.iter().flatten().for_each(|v| out.put_f64(*v));
+                out.put_u8(instance_flags(attrs));
                 out.extend_from_slice(&attrs.tint.unwrap_or([255; 4]));
             }
             GraphNode::Inline { path, hash, bound } => {

@@ -8,7 +8,7 @@ use std::collections::VecDeque;
 use std::rc::Rc;
 
 use sct_format::traverse::{TraversalState, VisitBudget};
-use sct_format::{GraphNode, Node};
+use sct_format::{GraphNode, Node, Transform};
 
 use super::{placement, Chain, SceneFiles};
 use crate::camera::View;
@@ -35,13 +35,14 @@ enum Kind {
 
 impl Item {
     /// Identifies the item across frames: file, tree, level, node, and the bits of its
-    /// instance state's translation, scale and rotation (one tree drawn under two instances
-    /// is two items).
+    /// instance state's translation, scale and rotation, or matrix (one tree drawn under two
+    /// instances is two items).
     pub(crate) fn key(&self) -> [u64; 5] {
-        let t = &self.state.transform;
         let mut h = 0xcbf2_9ce4_8422_2325u64;
-        for v in t.translation.iter().chain(t.rotation.iter()).chain(std::iter::once(&t.scale)) {
-            h = (h ^ v.to_bits()).wrapping_mul(0x100_0000_01b3);
+        let mut mix = |v: f64| h = (h ^ v.to_bits()).wrapping_mul(0x100_0000_01b3);
+        match &self.state.transform {
+            Transform::Similarity(t) => t.translation.iter().chain(t.rotation.iter()).chain(std::iter::once(&t.scale)).for_each(|v| mix(*v)),
+            Transform::Affine(a) => a.affine.matrix.iter().flatten().for_each(|v| mix(*v)),
         }
         match self.kind {
             Kind::Tree { tree, d, i, .. } => [self.chain.file as u64, u64::from(tree), u64::from(d), i, h],
@@ -103,8 +104,9 @@ impl SceneFiles {
             let f = &self.files[fi];
             let g = f.reader.graph().nodes.get(node as usize).cloned().ok_or_else(|| Error::Invalid(format!("{}: graph node {node} does not exist", f.path.display())))?;
             match g {
-                GraphNode::Instance { child, transform, attrs } => {
-                    state = state.push_instance(&transform, &attrs);
+                GraphNode::Instance { .. } | GraphNode::Affine { .. } => {
+                    let Some((child, transform, attrs)) = g.instance() else { break };
+                    state = state.push(&transform, &attrs);
                     node = child;
                 }
                 GraphNode::Tree { tree } | GraphNode::Group { tree, .. } => {

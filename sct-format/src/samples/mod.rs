@@ -98,17 +98,19 @@ pub struct AffineInstance {
 }
 
 impl AffineInstance {
+    /// The map as a scene-file affine transform ([`crate::affine::Affine`]).
+    pub fn affine(&self) -> crate::affine::Affine {
+        crate::affine::Affine { matrix: self.matrix }
+    }
+
     /// Applies the map to a point.
     pub fn apply_point(&self, p: [f64; 3]) -> [f64; 3] {
-        let m = &self.matrix;
-        std::array::from_fn(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3])
+        self.affine().apply_point(p)
     }
 
     /// Determinant of the linear part.
     pub fn determinant(&self) -> f64 {
-        let m = &self.matrix;
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+        self.affine().determinant()
     }
 
     /// Finite entries and an invertible linear part (what the reader requires).
@@ -119,25 +121,7 @@ impl AffineInstance {
     /// The largest singular value of the linear part: the most it stretches any length, so a
     /// sphere of radius r maps into a sphere of radius r × this around the mapped centre.
     pub fn max_stretch(&self) -> f64 {
-        let m = &self.matrix;
-        // Largest eigenvalue of the symmetric AᵀA (closed form for 3 × 3, Smith 1961).
-        let a: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| m[k][i] * m[k][j]).sum()));
-        let p1 = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
-        let q = (a[0][0] + a[1][1] + a[2][2]) / 3.0;
-        let p2 = (a[0][0] - q).powi(2) + (a[1][1] - q).powi(2) + (a[2][2] - q).powi(2) + 2.0 * p1;
-        let p = (p2 / 6.0).sqrt();
-        let lambda = if p == 0.0 {
-            q
-        } else {
-            let b: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| (a[i][j] - if i == j { q } else { 0.0 }) / p));
-            let det_b = b[0][0] * (b[1][1] * b[2][2] - b[1][2] * b[2][1]) - b[0][1] * (b[1][0] * b[2][2] - b[1][2] * b[2][0])
-                + b[0][2] * (b[1][0] * b[2][1] - b[1][1] * b[2][0]);
-            let phi = (det_b / 2.0).clamp(-1.0, 1.0).acos() / 3.0;
-            q + 2.0 * p * phi.cos()
-        };
-        // The closed form can land a few ulps low; the Frobenius norm is a hard upper bound.
-        let frob = a[0][0] + a[1][1] + a[2][2];
-        (lambda * (1.0 + 1e-12)).min(frob).max(0.0).sqrt()
+        self.affine().max_stretch()
     }
 
     /// Bakes one sample through the map: centre mapped; radius × [`Self::max_stretch`]

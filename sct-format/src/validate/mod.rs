@@ -5,7 +5,8 @@
 //! - **quick** (structure): magic and version, header and section table, every section's
 //!   CRC and every block's CRC, offsets and lengths inside the file, counts (level table,
 //!   block table, full-binary-tree node/leaf counts), generator JSON, scene-graph references,
-//!   group child counts, instance transforms (finite, unit quaternion, positive scale) and
+//!   group child counts, instance transforms (finite, unit quaternion, positive scale;
+//!   affine matrices finite, within the f32 range, non-singular, condition number ≤ 10⁶) and
 //!   inline targets (present, matching their recorded BLAKE3 hash, no cycles, nesting within
 //!   [`Limits::max_inline_depth`]). Inlined files are validated too, once each.
 //! - **deep** adds hierarchical consistency (§5.11.1): every block is decoded once, as a
@@ -16,7 +17,9 @@
 //!
 //! Each tree is checked once, in its own frame, even when it is instanced many times: the
 //! checks are invariant under similarity transforms (up to rounding), so checking every
-//! instance would only multiply the work. The transforms matter where frames meet (a group
+//! instance would only multiply the work. (An affine map would not keep them: the mapped
+//! nodes only bound the mapped geometry, spec §7, so consistency is a property of each tree
+//! in its own frame.) The transforms matter where frames meet (a group
 //! leaf over an instanced child), and there they are applied.
 //!
 //! # Tolerances
@@ -145,6 +148,9 @@ checks! {
     Quaternion = "quaternion",
     /// An instance scale is not positive.
     Scale = "scale",
+    /// An affine instance's matrix is singular, has an entry beyond the f32 range, or a
+    /// condition number above [`crate::affine::MAX_CONDITION`] (spec §7).
+    Affine = "affine",
     /// An inline target does not exist or cannot be opened.
     InlineMissing = "inline-missing",
     /// An inline target's BLAKE3 hash differs from the recorded one.
@@ -315,6 +321,14 @@ fn transform_problems(t: &Similarity) -> Vec<Problem> {
     out
 }
 
+fn affine_problems(a: &crate::affine::Affine) -> Vec<Problem> {
+    match a.problem() {
+        None => Vec::new(),
+        Some(m) if !a.matrix.iter().flatten().all(|v| v.is_finite()) => vec![(CheckId::NonFinite, m)],
+        Some(m) => vec![(CheckId::Affine, m)],
+    }
+}
+
 /// Parses the graph with the reader's parser, keeping per-node problems (bad references,
 /// flags, inline paths, transforms, inline bounds) to report at each node's path. At most
 /// `room` problems are kept (each is reported once, reachable or not, so no more can be
@@ -340,6 +354,7 @@ fn parse_graph(bytes: &[u8], offset: u64, limits: &Limits, room: usize, issues: 
     for (i, n) in graph.nodes.iter().enumerate() {
         let probs = match n {
             GraphNode::Instance { transform, .. } => transform_problems(transform),
+            GraphNode::Affine { transform, .. } => affine_problems(transform),
             GraphNode::Inline { bound, .. } if !bound.is_finite() => {
                 vec![(CheckId::NonFinite, format!("inline bound has non-finite attributes: {bound}"))]
             }
@@ -370,9 +385,9 @@ fn graph_bounds(g: &SceneGraph, trees: &[Option<TreeIndex>]) -> Vec<Option<Node>
                 trees.get(*tree as usize).and_then(|t| t.as_ref()).filter(|t| t.header.node_count > 0).map(|t| t.header.root)
             }
             GraphNode::Inline { bound, .. } => Some(*bound),
-            GraphNode::Instance { child, transform, attrs } => {
-                out.get(*child as usize).copied().flatten().map(|c| TraversalState::IDENTITY.push_instance(transform, attrs).apply(&c))
-            }
+            n @ (GraphNode::Instance { .. } | GraphNode::Affine { .. }) => n.instance().and_then(|(child, transform, attrs)| {
+                out.get(child as usize).copied().flatten().map(|c| TraversalState::IDENTITY.push(&transform, &attrs).apply(&c))
+            }),
         };
         out.push(b);
     }
@@ -719,7 +734,7 @@ impl<'o> Validator<'o> {
                     }
                     stack.push(Item::Children { node: n, base: p, leaves, next: 0 });
                 }
-                GraphNode::Instance { child, .. } => {
+                GraphNode::Instance { child, .. } | GraphNode::Affine { child, .. } => {
                     if *child != u32::MAX {
                         stack.push(Item::Node(*child, p));
                     }

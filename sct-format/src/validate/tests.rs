@@ -254,3 +254,37 @@ fn transform_checks() {
     t.translation[0] = f64::NAN;
     assert_eq!(transform_problems(&t)[0].0, CheckId::NonFinite);
 }
+
+/// Affine instances are checked like similarity instances: a NaN entry is `non-finite`, a
+/// singular or ill-conditioned matrix `affine`, each at its graph node.
+#[test]
+fn affine_matrices_are_checked() {
+    use crate::raw::cursor::Put;
+    let id = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]];
+    let mut nan = id;
+    nan[0][0] = f64::NAN;
+    let mut singular = id;
+    singular[1] = [0.0; 4];
+    let mut flat = id;
+    flat[2][2] = 1e-8;
+    let mats = [id, nan, singular, flat];
+    let mut b = Vec::new();
+    b.put_u64(mats.len() as u64 + 1);
+    b.put_u32(0);
+    b.put_u8(crate::write::kind::TREE);
+    b.put_u32(0);
+    for m in &mats {
+        b.put_u8(crate::write::kind::AFFINE);
+        b.put_u32(0);
+        m.iter().flatten().for_each(|v| b.put_f64(*v));
+        b.put_u8(0);
+        b.extend_from_slice(&[255; 4]);
+    }
+    let (mut issues, mut omitted) = (Vec::new(), 0);
+    let g = parse_graph(&b, 0, &Limits::default(), 100, &mut issues, &mut omitted).expect("parses");
+    let ids = |i: u32| g.node_problems.get(&i).map(|p| p.iter().map(|(k, _)| *k).collect::<Vec<_>>()).unwrap_or_default();
+    assert_eq!(ids(1), vec![]);
+    assert_eq!(ids(2), vec![CheckId::NonFinite]);
+    assert_eq!(ids(3), vec![CheckId::Affine]);
+    assert_eq!(ids(4), vec![CheckId::Affine]);
+}
