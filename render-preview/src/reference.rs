@@ -331,8 +331,12 @@ fn draw(mesh: &WorldMesh, view: &View, shading: Shading, background: [u8; 3], ma
             return Err((frame, pixels));
         }
         crate::raster::rasterize(&mut frame, &splats);
-        // Cracks between the discs are closed as the splat renderer closes them.
+        // Cracks between the discs are closed as the default (`zbuffer`) splat renderer
+        // closes them, its depth pits included: a lossless tree of the pond scan scored
+        // 34.3 dB against a reference without the pit fill and 30.0 dB once the renderer
+        // filled its pits (single far points seen between near ones).
         crate::raster::fill_holes(&mut frame);
+        crate::raster::fill_depth_pits(&mut frame);
     }
     Ok(frame)
 }
