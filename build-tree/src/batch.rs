@@ -27,7 +27,7 @@ use voxelize::args::SamplingArgs;
 
 use crate::convert::{convert_meshes_checked, is_mesh_path, BatchTag, ConvertError};
 use crate::error::BuildError;
-use crate::pipeline::Config;
+use crate::pipeline::{Config, Refinement};
 use crate::progress::{BatchProgress, Tracker};
 use crate::tree::{BuildOptions, Weld};
 
@@ -36,7 +36,7 @@ pub const REPORT_SCHEMA: &str = "sct-build-tree-batch/1";
 
 /// Bump when the sampler, tree builder or encoders change their output for the same
 /// inputs and flags without a crate version change, so batch runs redo old outputs.
-pub const ENCODER_REVISION: u32 = 4;
+pub const ENCODER_REVISION: u32 = 5;
 
 /// Temporary files of other processes younger than this are left alone: they may belong
 /// to a run still in progress (a retried shard, another host on shared storage).
@@ -98,6 +98,8 @@ pub struct BatchOptions {
     pub compression_level: Option<i32>,
     /// Default profile: store centre offsets (spec 1.2).
     pub centre_offsets: bool,
+    /// Default profile: which trees store leaf refinement (spec 1.4).
+    pub leaf_refinement: Refinement,
     /// Tree options.
     pub build: BuildOptions,
     /// Convert even when the output is up to date.
@@ -195,6 +197,7 @@ pub fn job_key(opts: &BatchOptions) -> String {
         // The effective level, so a changed default invalidates old outputs.
         "compression_level": opts.compression_level.unwrap_or(sct_format::write::DEFAULT_ZSTD_LEVEL),
         "centre_offsets": opts.centre_offsets,
+        "leaf_refinement": opts.leaf_refinement,
         "weld": weld,
         "depth_slack": opts.build.depth_slack,
     });
@@ -517,6 +520,7 @@ fn run_one(opts: &BatchOptions, key: &str, rel: &Path, out_rel: &Path) -> (JobRe
         profile: opts.profile,
         compression_level: opts.compression_level,
         centre_offsets: opts.centre_offsets,
+        leaf_refinement: opts.leaf_refinement,
         build: opts.build,
     };
     let tag = BatchTag { key, root: &opts.input_dir, sidecar: &sidecar };

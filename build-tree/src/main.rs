@@ -10,7 +10,7 @@ use std::time::Instant;
 use build_tree::batch::{self, run_batch, BatchOptions, Shard};
 use build_tree::progress::{format_duration, BatchProgress};
 use build_tree::convert::{convert_meshes_checked, is_mesh_path, ConvertReport};
-use build_tree::pipeline::{run, run_samples, Config, Report, Upstream};
+use build_tree::pipeline::{run, run_samples, Config, Refinement, Report, Upstream};
 use build_tree::{BuildOptions, Weld};
 use clap::{Args, CommandFactory, FromArgMatches, Parser};
 use sct_format::samples::SamplesFile;
@@ -59,6 +59,11 @@ struct Cli {
     /// surface (SCT 1.2), so that SCT 1.0/1.1 readers can read the file.
     #[arg(long)]
     no_centre_offsets: bool,
+    /// Which trees store every leaf's centre and radius to 1/256 of its own radius (SCT 1.4,
+    /// about 2–3 bytes a leaf more): `auto` refines point clouds, whose points each carry
+    /// their own colour; `on` every tree (meshes gain 0.3–0.8 dB); `off` none.
+    #[arg(long, value_enum, default_value_t = Refinement::Auto)]
+    leaf_refinement: Refinement,
     /// Weld samples whose centres' bounding box is at most this wide (absolute units;
     /// 0 = exact duplicates only). Default: 1% of the mean sample radius.
     #[arg(long, conflicts_with = "no_weld")]
@@ -268,6 +273,7 @@ fn main() -> ExitCode {
             profile: cli.profile,
             compression_level: cli.compression_level,
             centre_offsets: !cli.no_centre_offsets,
+            leaf_refinement: cli.leaf_refinement,
             build,
             force: cli.force,
             shard: cli.shard,
@@ -286,6 +292,7 @@ fn main() -> ExitCode {
         profile: cli.profile,
         compression_level: cli.compression_level,
         centre_offsets: !cli.no_centre_offsets,
+        leaf_refinement: cli.leaf_refinement,
         build,
     };
     // A spinner only for a person watching: never in pipes or logs (unless asked).

@@ -27,8 +27,25 @@ pub struct Config {
     pub compression_level: Option<i32>,
     /// Default profile: store centre offsets (spec 1.2) that put leaves back on their surface.
     pub centre_offsets: bool,
+    /// Default profile: which trees store leaf refinement (spec 1.4).
+    pub leaf_refinement: Refinement,
     /// Tree options.
     pub build: BuildOptions,
+}
+
+/// Which trees store leaf refinement (spec 1.4: every leaf's centre and radius to within 1/256
+/// of its own radius, about 2–3 bytes a leaf more).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Refinement {
+    /// Trees of point clouds: each point is a measurement with its own colour, so a leaf
+    /// drawn a fifth of its parent's radius away from its point moves that colour.
+    #[default]
+    Auto,
+    /// Every tree.
+    On,
+    /// No tree (1.3 readers can read the file unless it uses other 1.3+ features).
+    Off,
 }
 
 /// Summary of a run (the `--json` output).
@@ -215,9 +232,15 @@ pub fn run_samples(
     phase("writing");
     let t2 = Instant::now();
     let generator = generator(cfg, &upstream, &composed.inlines)?;
+    let point_cloud_trees = composed.point_cloud_trees;
     let scene = Scene { generator, graph: composed.graph, trees: composed.trees };
     drop(samples);
-    let wopts = WriteOptions { profile: cfg.profile, compression_level: cfg.compression_level, centre_offsets: cfg.centre_offsets, ..Default::default() };
+    let leaf_refinement = match cfg.leaf_refinement {
+        Refinement::On => sct_format::LeafRefinement::All,
+        Refinement::Off => sct_format::LeafRefinement::None,
+        Refinement::Auto => sct_format::LeafRefinement::Trees(point_cloud_trees),
+    };
+    let wopts = WriteOptions { profile: cfg.profile, compression_level: cfg.compression_level, centre_offsets: cfg.centre_offsets, leaf_refinement, ..Default::default() };
     // Consumed: the trees' nodes are freed as their blocks are written.
     let ws = write_scene_file_owned(&cfg.output, scene, &wopts).map_err(|e| match e {
         sct_format::Error::Io { .. } => BuildError::Io(e.to_string()),
@@ -459,6 +482,7 @@ fn generator(cfg: &Config, upstream: &Upstream, inlines: &[(String, String)]) ->
         "profile": cfg.profile.name(),
         "compression_level": cfg.compression_level,
         "centre_offsets": cfg.centre_offsets,
+        "leaf_refinement": cfg.leaf_refinement,
         "weld": weld,
         "depth_slack": cfg.build.depth_slack,
         "splitter": "centre of largest extent",
@@ -587,6 +611,7 @@ mod tests {
             profile: sct_format::Profile::Raw,
             compression_level: None,
             centre_offsets: true,
+            leaf_refinement: Default::default(),
             build: BuildOptions::default(),
         }
     }

@@ -160,6 +160,8 @@ pub struct Composed {
     pub affine_instances: u64,
     /// Inlined files (path as resolved, BLAKE3 hex).
     pub inlines: Vec<(String, String)>,
+    /// Trees built from a point cloud's samples ([`sct_format::samples::MeshEntry::is_point_cloud`]), ascending.
+    pub point_cloud_trees: Vec<u32>,
 }
 
 /// Builds graph nodes bottom-up, sharing mesh trees and `defs`.
@@ -338,6 +340,9 @@ impl<'a> Composer<'a> {
             return Err(BuildError::Input(format!("instance refers to mesh {m}, the file has {}", self.samples.meshes.len())));
         }
         let two_sided = self.samples.meshes[m as usize].two_sided;
+        if self.samples.meshes[m as usize].is_point_cloud() {
+            self.out.point_cloud_trees.push(self.trees.len() as u32);
+        }
         let (mut tree, stats) = build_tree_owned(self.take_mesh_samples(m as usize), &self.opts)
             .map_err(|e| prefix(e, &format!("mesh {m} ({:?})", self.samples.meshes[m as usize].name)))?;
         tree.set_two_sided(two_sided);

@@ -55,6 +55,7 @@ fn cfg(samples: &Path, out: &Path, scene: Option<&Path>) -> Config {
         profile: Profile::Raw,
         compression_level: None,
         centre_offsets: true,
+        leaf_refinement: Default::default(),
         build: BuildOptions::default(),
     }
 }

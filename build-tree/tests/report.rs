@@ -38,6 +38,7 @@ fn report_figures_are_consistent() {
             profile,
             compression_level: None,
             centre_offsets: true,
+            leaf_refinement: Default::default(),
             build: BuildOptions::default(),
         };
         let rep = run(&cfg, &mut |_| {}).unwrap();

@@ -11,8 +11,9 @@ use sct_format::{Node, Profile};
 fuzz_target!(|data: &[u8]| {
     let Some((&head, rest)) = data.split_first() else { return };
     let Some(profile) = Profile::from_id(head & 0x3) else { return };
-    let params = CodecParams { alpha: head & 0x4 != 0, centre_offsets: head & 0x8 != 0 && profile == Profile::Default };
-    let n_parents = 1 + (head >> 4) as usize; // 1..=16
+    let default = profile == Profile::Default;
+    let params = CodecParams { alpha: head & 0x4 != 0, centre_offsets: head & 0x8 != 0 && default, leaf_refinement: head & 0x10 != 0 && default };
+    let n_parents = 1 + (head >> 5) as usize; // 1..=8
     let parents: Vec<Node> = (0..n_parents)
         .map(|i| {
             let s = 10f32.powi(i as i32 % 7 - 3);

@@ -24,6 +24,7 @@ use sct_format::samples::{AffineInstance, MeshEntry, SampleInstance, SamplesFile
 use sct_format::traverse::{Traversal, TraverseOptions};
 use sct_format::validate::{validate_bytes, validate_file, ValidateOptions};
 use sct_format::{
+    LeafRefinement,
     write_scene, Generator, GraphNode, InstanceAttrs, Limits, Node, Profile, Propagation, Scene, SceneGraph, SceneTree, SctReader, Similarity,
     WriteOptions,
 };
@@ -234,7 +235,13 @@ fn build_scene(r: &mut Recipe) -> Option<SceneM> {
     }
     let root = (nodes.len() - 1 - r.below(2).min(nodes.len() - 1)) as u32;
     let profile = [Profile::Raw, Profile::Canopy, Profile::Default][r.below(3)];
-    let opts = WriteOptions { profile, compression_level: [None, Some(0), Some(1)][r.below(3)], block_nodes: 2 + 2 * r.below(12) as u32 };
+    let opts = WriteOptions {
+        profile,
+        compression_level: [None, Some(0), Some(1)][r.below(3)],
+        block_nodes: 2 + 2 * r.below(12) as u32,
+        centre_offsets: r.below(2) == 1,
+        leaf_refinement: [LeafRefinement::None, LeafRefinement::All, LeafRefinement::Trees(vec![0])][r.below(3)].clone(),
+    };
     let mut bytes = Vec::new();
     write_scene(&Scene { generator: Generator::default(), graph: SceneGraph { nodes, root }, trees }, &opts, &mut bytes).ok()?;
     // The file as a model: sections, and each tree's tables and decompressed payloads.

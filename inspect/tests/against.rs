@@ -35,6 +35,7 @@ fn build_mesh(dir: &Path, mesh: &Path, name: &str, profile: Profile) -> PathBuf 
         profile,
         compression_level: None,
         centre_offsets: true,
+        leaf_refinement: Default::default(),
         build: Default::default(),
     };
     build_tree::pipeline::run(&cfg, &mut |_| {}).expect("build");

@@ -69,4 +69,4 @@ pub use limits::Limits;
 pub use node::Node;
 pub use read::SctReader;
 pub use tree::SceneTree;
-pub use write::{write_scene, write_scene_file, Scene, WriteOptions};
+pub use write::{write_scene, write_scene_file, LeafRefinement, Scene, WriteOptions};

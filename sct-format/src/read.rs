@@ -476,11 +476,14 @@ pub(crate) fn parse_tree_index(src: &Source<'_>, e: &SectionEntry, limits: &Limi
     let header = TreeHeader::parse(&mut c)?;
     let at = e.offset;
     let profile = Profile::from_id(header.profile).ok_or_else(|| Error::malformed(at, format!("unknown profile id {}", header.profile)))?;
-    if header.flags & !7 != 0 || header.root_internal > 1 {
+    if header.flags & !15 != 0 || header.root_internal > 1 {
         return Err(Error::malformed(at + 1, "reserved tree flag bits set"));
     }
     if header.flags & 4 != 0 && profile != Profile::Default {
         return Err(Error::malformed(at + 1, format!("centre offsets (tree flag bit 2) need the default profile, not {}", profile.name())));
+    }
+    if header.flags & 8 != 0 && profile != Profile::Default {
+        return Err(Error::malformed(at + 1, format!("leaf refinement (tree flag bit 3) needs the default profile, not {}", profile.name())));
     }
     Limits::check("tree levels", header.level_count as u64, limits.max_tree_levels as u64)?;
     Limits::check("tree nodes", header.node_count, limits.max_tree_nodes)?;

@@ -66,18 +66,47 @@ pub struct WriteOptions {
     /// surface along its normal (spec 1.2, tree flag bit 2; about 0.5 bytes a leaf). Files
     /// written without them stay readable by 1.0/1.1 readers.
     pub centre_offsets: bool,
+    /// Default profile only: which trees store a centre step and radius cut for every leaf
+    /// (spec 1.4, tree flag bit 3; about 2–3 bytes a leaf). A refined tree needs no centre
+    /// offsets and stores none.
+    pub leaf_refinement: LeafRefinement,
+}
+
+/// Which trees of a scene get leaf refinement ([`WriteOptions::leaf_refinement`]).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum LeafRefinement {
+    /// No tree (files stay readable by 1.3 readers).
+    #[default]
+    None,
+    /// Every tree.
+    All,
+    /// The trees whose indices (into the scene's trees) are listed.
+    Trees(Vec<u32>),
+}
+
+impl LeafRefinement {
+    /// Whether tree `i` is refined.
+    pub fn refines(&self, i: usize) -> bool {
+        match self {
+            LeafRefinement::None => false,
+            LeafRefinement::All => true,
+            LeafRefinement::Trees(t) => t.iter().any(|&k| k as usize == i),
+        }
+    }
 }
 
 impl Default for WriteOptions {
     fn default() -> Self {
-        WriteOptions { profile: Profile::Default, compression_level: None, block_nodes: 16384, centre_offsets: true }
+        WriteOptions { profile: Profile::Default, compression_level: None, block_nodes: 16384, centre_offsets: true, leaf_refinement: LeafRefinement::None }
     }
 }
 
 impl WriteOptions {
-    /// The codec parameters of a tree with (`alpha`) or without translucent nodes.
-    fn codec_params(&self, alpha: bool) -> CodecParams {
-        CodecParams { alpha, centre_offsets: self.centre_offsets && self.profile == Profile::Default }
+    /// The codec parameters of tree `i`, with (`alpha`) or without translucent nodes.
+    fn codec_params(&self, i: usize, alpha: bool) -> CodecParams {
+        let default = self.profile == Profile::Default;
+        let refine = default && self.leaf_refinement.refines(i);
+        CodecParams { alpha, centre_offsets: self.centre_offsets && default && !refine, leaf_refinement: refine }
     }
 
     fn zstd_level(&self) -> Option<i32> {
@@ -130,13 +159,15 @@ pub struct WriteStats {
     pub trees: Vec<TreeStats>,
 }
 
-/// The minor version a scene file is labelled with: the newest whose features it uses (1.3:
-/// affine instances; 1.2: centre offsets; 1.1: two-sided trees), so that files without them
-/// stay byte-for-byte files of the older version.
-fn scene_minor(two_sided: bool, affine: bool, opts: &WriteOptions) -> u16 {
-    if affine {
+/// The minor version a scene file of `trees` trees is labelled with: the newest whose
+/// features it uses (1.4: leaf refinement; 1.3: affine instances; 1.2: centre offsets; 1.1:
+/// two-sided trees), so that files without them stay byte-for-byte files of the older version.
+fn scene_minor(trees: usize, two_sided: bool, affine: bool, opts: &WriteOptions) -> u16 {
+    if (0..trees).any(|i| opts.codec_params(i, false).leaf_refinement) {
+        4
+    } else if affine {
         3
-    } else if opts.codec_params(false).centre_offsets {
+    } else if (0..trees).any(|i| opts.codec_params(i, false).centre_offsets) {
         2
     } else {
         two_sided as u16
@@ -154,12 +185,12 @@ pub fn write_scene<W: Write>(scene: &Scene, opts: &WriteOptions, w: W) -> Result
     let genr = serde_json::to_vec(&scene.generator).map_err(|e| Error::Misuse(format!("generator: {e}")))?;
     let mut sections = vec![SectionOut::plain(tags::GENR, genr), SectionOut::zstd(tags::GRPH, &encode_graph(&scene.graph), 3)?];
     let mut tree_stats = Vec::with_capacity(scene.trees.len());
-    for tree in &scene.trees {
-        let (bytes, stats) = encode_tree(tree, opts)?;
+    for (i, tree) in scene.trees.iter().enumerate() {
+        let (bytes, stats) = encode_tree_at(i, tree, opts)?;
         tree_stats.push(stats);
         sections.push(SectionOut::plain(tags::TREE, bytes));
     }
-    let (bytes, _) = write_container_minor(SCT_MAGIC, scene_minor(scene.trees.iter().any(SceneTree::is_two_sided), has_affine(&scene.graph), opts), &sections, w)?;
+    let (bytes, _) = write_container_minor(SCT_MAGIC, scene_minor(scene.trees.len(), scene.trees.iter().any(SceneTree::is_two_sided), has_affine(&scene.graph), opts), &sections, w)?;
     Ok(WriteStats {
         bytes,
         sections: sections.iter().map(|s| (s.tag.escape_ascii().to_string(), s.stored.len() as u64)).collect(),
@@ -248,11 +279,13 @@ fn stream_scene<'a, W: Write + Seek + Send>(
     }
     let mut tree_stats = Vec::with_capacity(section_count);
     let mut two_sided = false;
-    for tree in trees {
+    let tree_count = trees.len();
+    for (i, tree) in trees.enumerate() {
         two_sided |= tree.two_sided;
         let index_len = tree.index_len(block_nodes(opts));
         w.write_all(&vec![0u8; index_len])?;
-        let st = stream_tree(tree, opts, &mut |b| write_block(w, b))?;
+        let params = opts.codec_params(i, tree.alpha);
+        let st = stream_tree(tree, params, opts, &mut |b| write_block(w, b))?;
         let end = start + offset + st.stats.section_bytes;
         // The index lies in front of the blocks; its CRC is combined with the blocks' so the
         // section CRC equals that of the bytes in file order without reading them back.
@@ -274,7 +307,7 @@ fn stream_scene<'a, W: Write + Seek + Send>(
         tree_stats.push(st.stats);
     }
     w.seek(SeekFrom::Start(start))?;
-    w.write_all(&header_and_table(SCT_MAGIC, scene_minor(two_sided, has_affine(graph), opts), &entries, offset))?;
+    w.write_all(&header_and_table(SCT_MAGIC, scene_minor(tree_count, two_sided, has_affine(graph), opts), &entries, offset))?;
     w.seek(SeekFrom::Start(start + offset))?;
     Ok(WriteStats {
         bytes: offset,
@@ -721,9 +754,13 @@ struct StreamedTree {
 /// batch at a time and levels in order, so memory holds at most one batch of stored blocks
 /// besides the tree, and of decoded nodes with children, the part of one level not yet used
 /// as parents and the part of the next already written (see [`ParentQueue`]).
-fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnMut(&[u8]) -> Result<()> + Send)) -> Result<StreamedTree> {
+fn stream_tree(
+    mut tree: TreeInput<'_>,
+    params: CodecParams,
+    opts: &WriteOptions,
+    sink: &mut (dyn FnMut(&[u8]) -> Result<()> + Send),
+) -> Result<StreamedTree> {
     let profile = opts.profile;
-    let params = opts.codec_params(tree.alpha);
     let block_nodes = block_nodes(opts);
     let levels = tree.levels.len();
     let node_count = tree.len();
@@ -824,7 +861,9 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
     let mut index = Vec::with_capacity(index_len);
     TreeHeader {
         profile: profile.id(),
-        flags: params.alpha as u8 | (tree.two_sided as u8) << 1 | (params.centre_offsets as u8) << 2,
+        flags: params.alpha as u8 | (tree.two_sided as u8) << 1
+            | (params.centre_offsets as u8) << 2
+            | (params.leaf_refinement as u8) << 3,
         root_internal: flags.first().copied().unwrap_or(false) as u8,
         level_count: levels as u32,
         node_count: node_count as u64,
@@ -851,12 +890,19 @@ fn stream_tree(mut tree: TreeInput<'_>, opts: &WriteOptions, sink: &mut (dyn FnM
 }
 
 /// Encodes one tree as a `TREE` section body, in memory (see [`stream_tree`] for the order
-/// of work; [`write_scene_file`] streams the same bytes to the file instead).
+/// of work; [`write_scene_file`] streams the same bytes to the file instead). The tree is
+/// encoded as a scene's first tree (for [`WriteOptions::leaf_refinement`]).
 pub fn encode_tree(tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, TreeStats)> {
+    encode_tree_at(0, tree, opts)
+}
+
+/// [`encode_tree`] for tree `i` of a scene.
+fn encode_tree_at(i: usize, tree: &SceneTree, opts: &WriteOptions) -> Result<(Vec<u8>, TreeStats)> {
     let tree = TreeInput::borrowed(tree);
     let index_len = tree.index_len(block_nodes(opts));
     let mut out = vec![0u8; index_len];
-    let st = stream_tree(tree, opts, &mut |b| {
+    let params = opts.codec_params(i, tree.alpha);
+    let st = stream_tree(tree, params, opts, &mut |b| {
         out.extend_from_slice(b);
         Ok(())
     })?;

@@ -65,7 +65,7 @@ fn pairs(alpha: bool) -> impl Strategy<Value = (Vec<Node>, Vec<(Node, bool)>)> {
 }
 
 fn check(profile: Profile, alpha: bool, ps: &[Node], kids: &[(Node, bool)]) -> Result<(), TestCaseError> {
-    check_with(profile, CodecParams { alpha, centre_offsets: false }, ps, kids)
+    check_with(profile, CodecParams { alpha, ..Default::default() }, ps, kids)
 }
 
 fn check_with(profile: Profile, params: CodecParams, ps: &[Node], kids: &[(Node, bool)]) -> Result<(), TestCaseError> {
@@ -143,25 +143,63 @@ proptest! {
     /// along the decoded normal.
     #[test]
     fn default_centre_offset_props((ps, kids) in pairs(false), alpha in any::<bool>()) {
-        let with = CodecParams { alpha, centre_offsets: true };
+        let with = CodecParams { alpha, centre_offsets: true, ..Default::default() };
         check_with(Profile::Default, with, &ps, &kids)?;
         let children: Vec<Node> = kids.iter().map(|k| k.0).collect();
         let (mut a, mut b) = (Vec::new(), Vec::new());
         if let (Ok(plain), Ok(moved)) = (
-            encode_children(Profile::Default, CodecParams { alpha, centre_offsets: false }, &ps, &children, &mut a),
+            encode_children(Profile::Default, CodecParams { alpha, ..Default::default() }, &ps, &children, &mut a),
             encode_children(Profile::Default, with, &ps, &children, &mut b),
         ) {
             for (i, ((c, d0), d1)) in children.iter().zip(&plain).zip(&moved).enumerate() {
                 let along = |d: &Node| (0..3).map(|k| (c.center[k] as f64 - d.center[k] as f64) * d0.normal[k] as f64).sum::<f64>().abs();
-                prop_assert!(along(d1) <= along(d0) + ps[i / 2].radius as f64 * 1e-6, "child {i}: offset moved the centre away along the normal");
+                // Plus the f32 rounding of a centre far from the origin against a small parent.
+                let ulps = 4.0 * f32::EPSILON as f64 * c.center.iter().fold(0f32, |m, v| m.max(v.abs())) as f64;
+                prop_assert!(along(d1) <= along(d0) + ps[i / 2].radius as f64 * 1e-6 + ulps, "child {i}: offset moved the centre away along the normal");
             }
+        }
+    }
+
+    /// Leaf refinement (1.4) keeps every bound, with or without centre offsets, and puts a
+    /// refined child within 1/256 of its decoded radius of the original's centre on every
+    /// axis and within 2 % (plus that step) of its radius, unless the child had to stay as
+    /// decoded; a refined sphere never grows.
+    #[test]
+    fn default_leaf_refinement_props((ps, kids) in pairs(false), alpha in any::<bool>(), offsets in any::<bool>()) {
+        let with = CodecParams { alpha, centre_offsets: offsets, leaf_refinement: true };
+        check_with(Profile::Default, with, &ps, &kids)?;
+        let children: Vec<Node> = kids.iter().map(|k| k.0).collect();
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        if let (Ok(plain), Ok(refined)) = (
+            encode_children(Profile::Default, CodecParams { alpha, centre_offsets: offsets, ..Default::default() }, &ps, &children, &mut a),
+            encode_children(Profile::Default, with, &ps, &children, &mut b),
+        ) {
+            let mut tight = 0;
+            for (i, ((c, d0), d1)) in children.iter().zip(&plain).zip(&refined).enumerate() {
+                prop_assert!(d1.radius <= d0.radius, "child {i}: refinement grew the radius");
+                if d1 != d0 {
+                    let step = d0.radius as f64 / 256.0 * 1.0001;
+                    for k in 0..3 {
+                        // Half a step, plus the f32 rounding of a centre far from the origin.
+                        let ulps = 4.0 * f32::EPSILON as f64 * (c.center[k] as f64).abs();
+                        prop_assert!((d1.center[k] as f64 - c.center[k] as f64).abs() <= step + ulps || d1.center == d0.center, "child {i}: axis {k} off by more than a step");
+                    }
+                    if d1.center != d0.center {
+                        prop_assert!(d1.radius as f64 <= c.radius as f64 * 1.02 + 3.0 * step + 1e-6, "child {i}: radius {} for {}", d1.radius, c.radius);
+                        tight += 1;
+                    }
+                }
+            }
+            // Most children of random pairs are refined fully (the property would hold
+            // vacuously if the encoder never moved anything).
+            prop_assert!(tight * 2 >= children.len() || children.len() < 4, "only {tight} of {} children refined", children.len());
         }
     }
 
     /// Arbitrary bytes, of arbitrary and of exactly the expected length, never panic.
     #[test]
     fn arbitrary_bytes_never_panic(ps in prop::collection::vec(parent(), 0..6), junk in prop::collection::vec(any::<u8>(), 0..300), alpha in any::<bool>()) {
-        let params = CodecParams { alpha, centre_offsets: false };
+        let params = CodecParams { alpha, ..Default::default() };
         for profile in [Profile::Canopy, Profile::Default] {
             let mut out = Vec::new();
             let _ = decode_children(profile, params, &ps, &junk, 5, &mut out);

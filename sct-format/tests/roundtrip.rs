@@ -4,7 +4,7 @@
 mod common;
 
 use sct_format::read::SctReader;
-use sct_format::{write_scene, Generator, Limits, Node, Profile, Scene, SceneTree, WriteOptions};
+use sct_format::{write_scene, Generator, LeafRefinement, Limits, Node, Profile, Scene, SceneTree, WriteOptions};
 
 fn write(tree: &SceneTree, profile: Profile) -> Vec<u8> {
     write_with(tree, WriteOptions { profile, block_nodes: 4096, ..Default::default() })
@@ -196,4 +196,42 @@ fn centre_offsets_put_leaves_on_their_plane_and_label_the_file_1_2() {
     let scene = Scene::single_tree(Generator { tool: "test".into(), version: "0".into(), ..Default::default() }, tree);
     sct_format::write::write_scene_file(&path, &scene, &WriteOptions::default()).expect("write file");
     assert_eq!(SctReader::open(&path, &Limits::default()).expect("open").header().minor, 2);
+}
+
+#[test]
+fn leaf_refinement_puts_leaves_at_their_place_and_size_and_labels_the_file_1_4() {
+    let tree = common::planar_tree(7, 20_001);
+    let orig = tree.nodes().to_vec();
+    // Per leaf: centre error and radius, both relative to the original leaf's radius.
+    let errors = |bytes: &[u8]| {
+        let r = SctReader::from_bytes(bytes.to_vec(), &Limits::default()).expect("read");
+        let t = r.read_tree(0).expect("decode");
+        let mut v = Vec::new();
+        for i in 0..t.len() {
+            if !t.is_internal(i) {
+                let (d, o) = (t.nodes()[i], orig[i]);
+                let e = (0..3).map(|k| (d.center[k] - o.center[k]).powi(2)).sum::<f32>().sqrt();
+                v.push((e / o.radius, d.radius / o.radius));
+            }
+        }
+        v
+    };
+    let refined = write_with(&tree, WriteOptions { block_nodes: 4096, leaf_refinement: LeafRefinement::All, ..Default::default() });
+    assert_eq!(u16::from_le_bytes([refined[10], refined[11]]), 4, "minor version");
+    let plain = write_with(&tree, WriteOptions { block_nodes: 4096, ..Default::default() });
+    assert_eq!(u16::from_le_bytes([plain[10], plain[11]]), 2, "minor version");
+    let (r, p) = (errors(&refined), errors(&plain));
+    let worst = |v: &[(f32, f32)], f: fn(&(f32, f32)) -> f32| v.iter().map(f).fold(0f32, f32::max);
+    let mean = |v: &[(f32, f32)], f: fn(&(f32, f32)) -> f32| v.iter().map(f).sum::<f32>() / v.len() as f32;
+    // Every leaf: within √3/256 of its decoded radius per axis, radius cut to within a step.
+    assert!(worst(&r, |e| e.0) <= 0.02, "refined centre error up to {} radii", worst(&r, |e| e.0));
+    assert!(worst(&r, |e| e.1) <= 1.03, "refined radius up to {}× the original", worst(&r, |e| e.1));
+    assert!(mean(&p, |e| e.1) >= 1.1 && worst(&p, |e| e.0) >= 0.1, "without refinement the state alone was expected to err");
+    // Only the listed trees are refined; raw and canopy never are.
+    let other = write_with(&tree, WriteOptions { block_nodes: 4096, leaf_refinement: LeafRefinement::Trees(vec![1]), ..Default::default() });
+    assert_eq!(other, plain, "tree 0 is not listed");
+    for profile in [Profile::Raw, Profile::Canopy] {
+        let bytes = write_with(&tree, WriteOptions { profile, leaf_refinement: LeafRefinement::All, ..Default::default() });
+        assert_eq!(u16::from_le_bytes([bytes[10], bytes[11]]), 0, "minor version ({profile:?})");
+    }
 }

@@ -24,6 +24,7 @@ fn build(samples: &Path, out: &Path, bake_affine: bool) -> build_tree::pipeline:
         profile: Profile::Default,
         compression_level: None,
         centre_offsets: true,
+        leaf_refinement: Default::default(),
         build: build_tree::tree::BuildOptions { bake_affine, ..Default::default() },
     };
     build_tree::pipeline::run(&cfg, &mut |_| {}).expect("build")

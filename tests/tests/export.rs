@@ -70,6 +70,7 @@ fn samples_and_level_cuts_round_trip_through_a_ply_parser() {
         profile: Profile::Default,
         compression_level: None,
         centre_offsets: true,
+        leaf_refinement: Default::default(),
         build: Default::default(),
     };
     build_tree::pipeline::run(&cfg, &mut |_| {}).expect("build");

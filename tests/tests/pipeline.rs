@@ -20,6 +20,10 @@ fn voxelize(model: &Path, out: &Path) -> voxelize::Summary {
 }
 
 fn build(samples: &Path, out: &Path, profile: Profile) -> build_tree::pipeline::Report {
+    build_refined(samples, out, profile, Default::default())
+}
+
+fn build_refined(samples: &Path, out: &Path, profile: Profile, leaf_refinement: build_tree::pipeline::Refinement) -> build_tree::pipeline::Report {
     let cfg = build_tree::pipeline::Config {
         samples: samples.to_path_buf(),
         output: out.to_path_buf(),
@@ -27,6 +31,7 @@ fn build(samples: &Path, out: &Path, profile: Profile) -> build_tree::pipeline::
         profile,
         compression_level: None,
         centre_offsets: true,
+        leaf_refinement,
         build: Default::default(),
     };
     build_tree::pipeline::run(&cfg, &mut |_| {}).expect("build")
@@ -191,4 +196,44 @@ fn a_lossless_point_cloud_tree_matches_its_reference() {
     let refr = render_preview::reference::render_reference(&mesh, &view, opts.shading, opts.background);
     let m = render_preview::metrics::compare(&out.frame, &refr);
     assert!(m.silhouette_iou >= 0.99 && m.fg_psnr_db.expect("scored") >= 30.0, "{m:?}");
+}
+
+/// A point cloud's points are measurements, each with its own colour: by default its tree
+/// stores leaf refinement (format 1.4) so the codec's parent-relative grid neither moves nor
+/// widens them (pond: 19.9 dB and IoU 0.957 without it). Meshes are not refined by default.
+#[test]
+fn a_point_cloud_keeps_its_points_by_default() {
+    use build_tree::pipeline::Refinement;
+    let pond = repo().join("../shared/models/ply/pond-pointcloud-colours/pond.0.ply");
+    if !pond.exists() {
+        eprintln!("skipping: {} not found", pond.display());
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let samples = dir.path().join("pond.samples");
+    voxelize(&pond, &samples);
+    let mesh = render_preview::reference::WorldMesh::load(&pond).expect("load");
+    let score = |refinement: Refinement| {
+        let sct = dir.path().join(format!("pond-{refinement:?}.sct"));
+        build_refined(&samples, &sct, Profile::Default, refinement);
+        let minor = SctReader::open(&sct, &Limits::default()).expect("open").header().minor;
+        let opts = render_preview::RenderOptions::default();
+        let out = render_preview::render_file(&sct, &opts).expect("render");
+        let view = render_preview::View::new(&out.camera, out.near).expect("view");
+        let refr = render_preview::reference::render_reference(&mesh, &view, opts.shading, opts.background);
+        let m = render_preview::metrics::compare(&out.frame, &refr);
+        (minor, m.fg_psnr_db.expect("scored"), m.silhouette_iou)
+    };
+    let (minor, db, iou) = score(Refinement::Auto);
+    assert_eq!(minor, 4, "a refined tree labels the file 1.4");
+    assert!(db >= 25.0 && iou >= 0.98, "refined: {db:.2} dB, IoU {iou:.4}");
+    let (minor, db_off, iou_off) = score(Refinement::Off);
+    assert!(minor < 4);
+    assert!(db_off + 3.0 < db && iou_off < iou, "without refinement: {db_off:.2} dB, IoU {iou_off:.4}");
+
+    let samples = dir.path().join("fuze.samples");
+    voxelize(&repo().join("assets/fuze/fuze.obj"), &samples);
+    let sct = dir.path().join("fuze.sct");
+    build(&samples, &sct, Profile::Default);
+    assert!(SctReader::open(&sct, &Limits::default()).expect("open").header().minor < 4, "a mesh is not refined by default");
 }

@@ -201,7 +201,7 @@ fn tables<'a>(meshes: impl Iterator<Item = MeshRow<'a>>, points: (u64, bool), ge
     let (points, points_two_sided) = points;
     if points > 0 {
         let idx = t.meshes.len() as u32;
-        t.meshes.push(MeshEntry { name: "points".into(), first, count: points, two_sided: points_two_sided });
+        t.meshes.push(MeshEntry { name: sct_format::samples::POINT_CLOUD_MESH.into(), first, count: points, two_sided: points_two_sided });
         t.instances.push(SampleInstance { mesh: idx, transform: Similarity::IDENTITY });
     }
     t

@@ -94,12 +94,15 @@ pub struct CodecParams {
     /// Default profile only: every child carries a centre offset along its normal (1.2, tree
     /// flag bit 2; [`default`]'s "Centre offsets").
     pub centre_offsets: bool,
+    /// Default profile only: every child carries a centre step and a radius cut relative to
+    /// its own decoded radius (1.4, tree flag bit 3; [`default`]'s "Leaf refinement").
+    pub leaf_refinement: bool,
 }
 
 impl CodecParams {
     /// The parameters a tree header's flags byte selects.
     pub fn from_tree_flags(flags: u8) -> CodecParams {
-        CodecParams { alpha: flags & 1 != 0, centre_offsets: flags & 4 != 0 }
+        CodecParams { alpha: flags & 1 != 0, centre_offsets: flags & 4 != 0, leaf_refinement: flags & 8 != 0 }
     }
 }
 
@@ -127,6 +130,9 @@ pub fn encode_children_with_leaves(
 ) -> Result<Vec<Node>> {
     if params.centre_offsets && profile != Profile::Default {
         return Err(Error::Misuse(format!("centre offsets need the default profile, not {}", profile.name())));
+    }
+    if params.leaf_refinement && profile != Profile::Default {
+        return Err(Error::Misuse(format!("leaf refinement needs the default profile, not {}", profile.name())));
     }
     if children.len() != 2 * parents.len() {
         return Err(Error::Misuse(format!(

@@ -77,6 +77,18 @@ pub struct MeshEntry {
     pub two_sided: bool,
 }
 
+/// The name a writer gives the mesh holding a point cloud's samples (points of a
+/// measurement, not samples of a surface; spec §8). A consumer may store such samples more
+/// precisely (SCT 1.4 leaf refinement).
+pub const POINT_CLOUD_MESH: &str = "points";
+
+impl MeshEntry {
+    /// Whether this mesh holds a point cloud's samples ([`POINT_CLOUD_MESH`]).
+    pub fn is_point_cloud(&self) -> bool {
+        self.name == POINT_CLOUD_MESH
+    }
+}
+
 /// One placement of a mesh.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SampleInstance {
