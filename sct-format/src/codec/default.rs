@@ -328,9 +328,9 @@ const REFINE_STEPS: f32 = 128.0;
 #[inline]
 fn apply_refinement(node: &mut Node, d: [i8; 3], k: u8) {
     let unit = node.radius / REFINE_STEPS;
-    for a in 0..3 {
-        if d[a] != 0 {
-            node.center[a] = node.center[a] + d[a] as f32 * unit;
+    for (c, &s) in node.center.iter_mut().zip(&d) {
+        if s != 0 {
+            *c += s as f32 * unit;
         }
     }
     if k != 0 {
@@ -357,7 +357,7 @@ fn acceptable(p: &Node, orig: &Node, moved: &Node) -> bool {
 /// qualifies.
 fn pick_refinement(p: &Node, orig: &Node, dec: &Node) -> ([i8; 3], u8, Node) {
     let unit = dec.radius as f64 / REFINE_STEPS as f64;
-    if !(unit > 0.0) || !unit.is_finite() {
+    if unit.is_nan() || unit <= 0.0 || !unit.is_finite() {
         return ([0; 3], 0, *dec);
     }
     let mut d = [0i8; 3];
