@@ -360,11 +360,14 @@ fn pick_refinement(p: &Node, orig: &Node, dec: &Node) -> ([i8; 3], u8, Node) {
     if unit.is_nan() || unit <= 0.0 || !unit.is_finite() {
         return ([0; 3], 0, *dec);
     }
-    let mut d = [0i8; 3];
-    for a in 0..3 {
+    let d = [0, 1, 2].map(|a| {
         let want = ((orig.center[a] as f64 - dec.center[a] as f64) / unit).round();
-        d[a] = if want.is_finite() { want.clamp(-127.0, 127.0) as i8 } else { 0 };
-    }
+        if want.is_finite() {
+            want.clamp(-127.0, 127.0) as i8
+        } else {
+            0
+        }
+    });
     for steps in [d, [0; 3]] {
         let mut moved = *dec;
         apply_refinement(&mut moved, steps, 0);
