@@ -115,6 +115,13 @@ impl View {
         })
     }
 
+    /// The same camera on an image `s` times as wide and high (each pixel split into `s × s`
+    /// subpixels): what a supersampled render draws before it is resolved.
+    pub fn supersampled(&self, s: u32) -> View {
+        let k = s as f32;
+        View { focal: self.focal * k, cx: self.cx * k, cy: self.cy * k, width: self.width * s, height: self.height * s, ..*self }
+    }
+
     /// World point to camera space (f64 in, f32 out).
     pub fn to_camera(&self, p: [f64; 3]) -> [f32; 3] {
         let d = sub(p, self.eye);
