@@ -540,6 +540,36 @@ mod tests {
         assert!(!culled(true, &p, [0.0, 0.0, -5.0]));
     }
 
+    /// Stripes a third of a pixel wide, red and blue, average to their mix in linear light
+    /// (one sample per pixel showed whichever stripe held the pixel's centre); a pixel whose
+    /// centre the mesh misses stays background, so coverage is as with one sample.
+    #[test]
+    fn sub_pixel_stripes_average_and_coverage_stays_centre_sampled() {
+        let cam = crate::camera::Camera { eye: [0.0, 0.0, 10.0], target: [0.0; 3], up: [0.0, 1.0, 0.0], fov_y_deg: 30.0, width: 64, height: 64 };
+        let view = View::new(&cam, 0.1).expect("view");
+        // One pixel is this wide at the target plane.
+        let px = 2.0 * 10.0 * (15f32.to_radians()).tan() / 64.0;
+        let stripe = px / 3.0;
+        let mut quads = Vec::new();
+        for i in 0..60 {
+            let x0 = -10.0 * stripe + i as f32 * stripe;
+            let color = if i % 2 == 0 { [1.0, 0.0, 0.0, 1.0] } else { [0.0, 0.0, 1.0, 1.0] };
+            quads.push(([[x0, -5.0 * px, 0.0], [x0 + stripe, -5.0 * px, 0.0], [x0 + stripe, 5.0 * px, 0.0], [x0, 5.0 * px, 0.0]], color));
+        }
+        let mesh = crate::synth::quads(&quads);
+        let f = render_reference(&mesh, &view, Shading::Flat, [0, 0, 0]);
+        let covered: Vec<usize> = (0..f.depth.len()).filter(|&i| f.depth[i].is_finite()).collect();
+        assert!(covered.len() > 100, "{} pixels covered", covered.len());
+        let inner: Vec<usize> = covered.iter().copied().filter(|&i| i % 64 > 24 && i % 64 < 40).collect();
+        for &i in &inner {
+            let [r, _, b, _] = f.color[i];
+            assert!(r > 120 && b > 120, "pixel {i} shows a single stripe: {:?}", f.color[i]);
+        }
+        // The mesh's rows: exactly the pixels whose centre lies within ±5 px of the axis.
+        let rows: std::collections::BTreeSet<usize> = covered.iter().map(|i| i / 64).collect();
+        assert_eq!(rows.len(), 10, "rows {rows:?}");
+    }
+
     #[test]
     fn mirrored_determinant() {
         let mut m = voxelize::mesh::IDENTITY;
