@@ -272,7 +272,8 @@ pub fn render_reference(mesh: &WorldMesh, view: &View, shading: Shading, backgro
 pub const REFERENCE_PIXEL_COST: u64 = 8;
 
 /// [`render_reference`] that tests at most `max_pixels` pixels (each triangle and point
-/// counted by its bounding box clipped to the image) and fails with a limit error naming
+/// counted by its bounding box clipped to the image, in output pixels; a triangle's pixel
+/// is [`SUPERSAMPLE`]² subpixel tests) and fails with a limit error naming
 /// [`crate::PIXELS_COVERED`] past it: 76,000 stacked triangles filling the view (a 1 MB
 /// PLY) rasterized for more than a minute.
 pub fn render_reference_bounded(mesh: &WorldMesh, view: &View, shading: Shading, background: [u8; 3], max_pixels: u64) -> Result<Frame> {
@@ -293,7 +294,12 @@ fn draw(mesh: &WorldMesh, view: &View, shading: Shading, background: [u8; 3], ma
     } else {
         let fine = view.supersampled(SUPERSAMPLE);
         let mut sub = Frame::new(fine.width as usize, fine.height as usize, bg);
-        let r = draw_triangles(mesh, &fine, shading, &mut sub, &mut pixels, max_pixels);
+        // Counted in output pixels, as points are (the limit's unit): each costs
+        // `SUPERSAMPLE²` subpixel tests.
+        let per_pixel = u64::from(SUPERSAMPLE * SUPERSAMPLE);
+        let mut subpixels = 0u64;
+        let r = draw_triangles(mesh, &fine, shading, &mut sub, &mut subpixels, max_pixels.saturating_mul(per_pixel));
+        pixels = subpixels / per_pixel;
         let frame = resolve(&sub, SUPERSAMPLE as usize, bg);
         if r.is_err() {
             return Err((frame, pixels));
