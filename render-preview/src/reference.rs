@@ -576,6 +576,19 @@ mod tests {
         assert_eq!(rows.len(), 10, "rows {rows:?}");
     }
 
+    /// The budget is in output pixels: a quad whose two triangles' boxes cover about 2 × 400
+    /// pixels (7,200 subpixel tests) fits in 1,000 and not in 500.
+    #[test]
+    fn the_pixel_budget_counts_output_pixels() {
+        let cam = crate::camera::Camera { eye: [0.0, 0.0, 10.0], target: [0.0; 3], up: [0.0, 1.0, 0.0], fov_y_deg: 30.0, width: 64, height: 64 };
+        let view = View::new(&cam, 0.1).expect("view");
+        let px = 2.0 * 10.0 * (15f32.to_radians()).tan() / 64.0;
+        let h = 10.0 * px;
+        let mesh = crate::synth::quads(&[([[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]], [1.0, 1.0, 1.0, 1.0])]);
+        assert!(render_reference_bounded(&mesh, &view, Shading::Flat, [0, 0, 0], 1_000).is_ok());
+        assert!(render_reference_bounded(&mesh, &view, Shading::Flat, [0, 0, 0], 500).is_err());
+    }
+
     #[test]
     fn mirrored_determinant() {
         let mut m = voxelize::mesh::IDENTITY;
