@@ -34,9 +34,10 @@ impl LoadedScene {
 /// is shared by exactly two triangles that run it in opposite directions: a closed,
 /// consistently oriented surface. Degenerate triangles (two equal corners) are ignored.
 ///
-/// Sorts rather than hashes: a dense scan has tens of millions of edges, and hash maps of
-/// them cost seconds and hundreds of bytes per triangle (4.4 M triangles: 30 s, the larger
-/// part of sampling); two parallel sorts of 8-byte keys cost a fraction of a second.
+/// Sorts and counts rather than hashes: a dense scan has tens of millions of edges, and hash
+/// maps of them cost seconds and hundreds of bytes per triangle (4.4 M triangles: 30 s, the
+/// larger part of sampling); a parallel sort of the vertices and a counting layout of the
+/// edges cost a fraction of a second and 4 bytes an edge.
 pub fn closed_and_oriented(mesh: &Mesh) -> bool {
     // Weld: every vertex of every primitive, ordered by position (±0 alike), gets the id
     // of its position class.
@@ -66,30 +67,69 @@ pub fn closed_and_oriented(mesh: &Mesh) -> bool {
         return false;
     }
     drop(verts);
-    // Each edge as (low id, high id, direction): a closed, oriented mesh has every
-    // undirected edge exactly twice, once in each direction.
-    let mut edges: Vec<u64> = Vec::new();
-    for (pi, p) in mesh.primitives.iter().enumerate() {
+    // Each edge filed under its lower id as (higher id, direction): a closed, oriented mesh
+    // has every undirected edge exactly twice, once in each direction, so the list of each
+    // id holds each of its higher neighbours twice, once per direction. The lists are laid
+    // out by counting (two passes over the triangles, 4 bytes an edge, `end` of 4 bytes an
+    // id: counts below 2^32, larger meshes are judged open) and checked in parallel, each
+    // sorted on its own in cache: cheaper than sorting every edge as one 8-byte key.
+    let tris: usize = mesh.primitives.iter().map(|p| p.triangles.len()).sum();
+    if tris.checked_mul(3).is_none_or(|e| e > u32::MAX as usize) {
+        return false;
+    }
+    let ids = class as usize + 1;
+    let mut end = vec![0u32; ids];
+    if !for_each_edge(mesh, &first, &id, |lo, _| end[lo as usize] += 1) {
+        return false;
+    }
+    // Running sums: `end[v]` is where v's list starts, then (after filling) where it ends.
+    let mut sum = 0u32;
+    for e in &mut end {
+        (*e, sum) = (sum, sum + *e);
+    }
+    if sum == 0 {
+        return false;
+    }
+    let mut entries = vec![0u32; sum as usize];
+    for_each_edge(mesh, &first, &id, |lo, entry| {
+        let at = &mut end[lo as usize];
+        entries[*at as usize] = entry;
+        *at += 1;
+    });
+    (0..ids).into_par_iter().with_min_len(1 << 12).map_init(Vec::new, |list: &mut Vec<u32>, v| {
+        let begin = if v == 0 { 0 } else { end[v - 1] as usize };
+        list.clear();
+        list.extend_from_slice(&entries[begin..end[v] as usize]);
+        list.sort_unstable();
+        list.len() % 2 == 0 && list.chunks_exact(2).all(|e| e[0] >> 1 == e[1] >> 1 && e[0] & 1 == 0 && e[1] & 1 == 1)
+    })
+    .all(|ok| ok)
+}
+
+/// Calls `f(lower id, higher id << 1 | direction)` for each edge of each non-degenerate
+/// triangle (ids welded by position: `id[first[primitive] + vertex]`), direction 0 when the
+/// triangle runs the edge from the lower id to the higher; false (after no call) when an
+/// index is out of range.
+fn for_each_edge(mesh: &Mesh, first: &[usize], id: &[u32], mut f: impl FnMut(u32, u32)) -> bool {
+    for p in &mesh.primitives {
         let n = p.positions.len();
+        if p.triangles.iter().any(|t| t.iter().any(|&v| v as usize >= n)) {
+            return false;
+        }
+    }
+    for (pi, p) in mesh.primitives.iter().enumerate() {
         for t in &p.triangles {
-            if t.iter().any(|&v| v as usize >= n) {
-                return false;
-            }
             let [a, b, c] = t.map(|v| id[first[pi] + v as usize]);
             if a == b || b == c || a == c {
                 continue;
             }
             for (u, v) in [(a, b), (b, c), (c, a)] {
                 let (lo, hi, dir) = if u < v { (u, v, 0) } else { (v, u, 1) };
-                edges.push(u64::from(lo) << 32 | u64::from(hi) << 1 | dir);
+                f(lo, hi << 1 | dir);
             }
         }
     }
-    if edges.is_empty() {
-        return false;
-    }
-    edges.par_sort_unstable();
-    edges.len() % 2 == 0 && edges.par_chunks_exact(2).all(|e| e[0] >> 1 == e[1] >> 1 && e[0] & 1 == 0 && e[1] & 1 == 1)
+    true
 }
 
 #[cfg(test)]
