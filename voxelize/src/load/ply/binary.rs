@@ -9,6 +9,8 @@
 //! texcoords, a face that is not a triangle, an index out of range, a non-finite position,
 //! too few bytes. Faults are thus reported by one reader, with its element, index and place.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use rayon::prelude::*;
 
 use super::{binary_scalar, Elem, Payload, Prop, Ty, VertexLayout, SLOTS, X};
@@ -66,7 +68,23 @@ pub(super) fn read(body: &[u8], big: bool, elems: &[Elem], nverts: usize) -> Opt
         v
     };
     let has = lay.attributes();
-    let positions: Vec<[f32; 3]> = vdata.par_chunks_exact(vrec).map(|r| VertexLayout::position(&slots(r))).collect::<Option<_>>()?;
+    // Indexed collections write in place (collecting `Option`s would gather pieces and copy
+    // them); a fault is flagged and the result dropped.
+    let fault = AtomicBool::new(false);
+    let flag = |ok: bool| {
+        if !ok {
+            fault.store(true, Ordering::Relaxed);
+        }
+    };
+    let mut positions: Vec<[f32; 3]> = Vec::new();
+    vdata
+        .par_chunks_exact(vrec)
+        .map(|r| {
+            let p = VertexLayout::position(&slots(r));
+            flag(p.is_some());
+            p.unwrap_or_default()
+        })
+        .collect_into_vec(&mut positions);
     let normals = has.normals.then(|| vdata.par_chunks_exact(vrec).map(|r| VertexLayout::normal(&slots(r))).collect());
     let colors = has.colors.then(|| vdata.par_chunks_exact(vrec).map(|r| lay.color(&slots(r), has.alpha)).collect());
     let uvs = has.uvs.then(|| vdata.par_chunks_exact(vrec).map(|r| VertexLayout::uv(&slots(r))).collect());
@@ -74,25 +92,26 @@ pub(super) fn read(body: &[u8], big: bool, elems: &[Elem], nverts: usize) -> Opt
     let (csize, isz) = (ict.size(), ity.size());
     let first = count_at + csize;
     let n = nverts as f64;
-    let triangles: Vec<[u32; 3]> = fdata
+    let mut triangles: Vec<[u32; 3]> = Vec::new();
+    fdata
         .par_chunks_exact(frec)
         .map(|r| {
-            if binary_scalar(&r[count_at..first], ict, big) != 3.0 {
-                return None;
-            }
+            let mut ok = binary_scalar(&r[count_at..first], ict, big) == 3.0;
             let mut t = [0u32; 3];
             for (k, v) in t.iter_mut().enumerate() {
                 let at = first + k * isz;
                 let i = binary_scalar(&r[at..at + isz], ity, big);
                 // An integer type (checked above), so `i` is an exact integer.
-                if !(i >= 0.0 && i < n) {
-                    return None;
-                }
+                ok &= i >= 0.0 && i < n;
                 *v = i as u32;
             }
-            Some(t)
+            flag(ok);
+            t
         })
-        .collect::<Option<_>>()?;
+        .collect_into_vec(&mut triangles);
+    if fault.into_inner() {
+        return None;
+    }
     Some(Payload { positions, normals, colors, uvs, triangles, ..Payload::default() })
 }
 
