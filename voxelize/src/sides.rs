@@ -39,32 +39,34 @@ impl LoadedScene {
 /// larger part of sampling); a parallel sort of the vertices and a counting layout of the
 /// edges cost a fraction of a second and 4 bytes an edge.
 pub fn closed_and_oriented(mesh: &Mesh) -> bool {
-    // Weld: every vertex of every primitive, ordered by position (±0 alike), gets the id
-    // of its position class.
-    let bits = |c: f32| if c == 0.0 { 0 } else { c.to_bits() };
-    let mut verts: Vec<([u32; 3], u32, u32)> = Vec::new();
-    for (pi, p) in mesh.primitives.iter().enumerate() {
-        verts.extend(p.positions.iter().enumerate().map(|(i, q)| (q.map(bits), pi as u32, i as u32)));
-    }
-    verts.par_sort_unstable();
+    // Vertices are numbered over the primitives in order; ids hold 31 bits (below), so
+    // larger meshes are judged open (two-sided: never wrong, only slower to draw).
     let mut first = Vec::with_capacity(mesh.primitives.len());
     let mut total = 0usize;
     for p in &mesh.primitives {
         first.push(total);
         total += p.positions.len();
     }
-    let mut id = vec![0u32; total];
-    let mut class = 0u64;
-    for (k, v) in verts.iter().enumerate() {
-        if k > 0 && verts[k - 1].0 != v.0 {
-            class += 1;
-        }
-        id[first[v.1 as usize] + v.2 as usize] = class as u32;
-    }
-    // Keys hold two ids of 31 bits and a direction bit; larger meshes are judged open
-    // (two-sided: never wrong, only slower to draw).
-    if class >= 1 << 31 {
+    if total >= 1 << 31 {
         return false;
+    }
+    // Weld: every vertex, ordered by position (±0 alike) then number, gets the id of its
+    // position class: the smallest number in it. Ids then follow the file's vertex order,
+    // which the triangles' order mostly follows, so the passes below read and write memory
+    // nearly in order (ids in position order scattered them over the whole array).
+    let bits = |c: f32| if c == 0.0 { 0 } else { c.to_bits() };
+    let mut verts: Vec<([u32; 3], u32)> = Vec::with_capacity(total);
+    for (p, &f) in mesh.primitives.iter().zip(&first) {
+        verts.par_extend(p.positions.par_iter().enumerate().map(|(i, q)| (q.map(bits), (f + i) as u32)));
+    }
+    verts.par_sort_unstable();
+    let mut id = vec![0u32; total];
+    let mut class = 0u32;
+    for (k, v) in verts.iter().enumerate() {
+        if k == 0 || verts[k - 1].0 != v.0 {
+            class = v.1;
+        }
+        id[v.1 as usize] = class;
     }
     drop(verts);
     // Each edge filed under its lower id as (higher id, direction): a closed, oriented mesh
@@ -77,7 +79,7 @@ pub fn closed_and_oriented(mesh: &Mesh) -> bool {
     if tris.checked_mul(3).is_none_or(|e| e > u32::MAX as usize) {
         return false;
     }
-    let ids = class as usize + 1;
+    let ids = total;
     let mut end = vec![0u32; ids];
     if !for_each_edge(mesh, &first, &id, |lo, _| end[lo as usize] += 1) {
         return false;
