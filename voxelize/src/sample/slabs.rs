@@ -32,8 +32,8 @@ pub(super) fn sample_slabs<E: Send>(
     emit: &mut Sink<'_, E>,
 ) -> Result<(u64, u64), E> {
     // Triangles are numbered over the primitives in order (`gi`); `first[pi]` is primitive
-    // `pi`'s first number. Per triangle only its x-cell range is kept (8 bytes: the cells'
-    // count is bounded below), its expected samples go straight into the cells' difference
+    // `pi`'s first number. Per triangle only its x-cell range is kept (8 bytes: there are at
+    // most 2^20 + 1 cells, below), its expected samples go straight into the cells' difference
     // array and the total, added in triangle order (the same bits on any thread count).
     let mut first = Vec::with_capacity(pp.len() + 1);
     let mut ntris = 0usize;
