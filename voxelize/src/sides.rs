@@ -50,6 +50,12 @@ pub fn closed_and_oriented(mesh: &Mesh) -> bool {
     if total >= 1 << 31 {
         return false;
     }
+    // An index out of range (the loaders refuse them) makes the mesh open; checked once, in
+    // parallel, so the passes below index freely.
+    let out_of_range = |p: &crate::mesh::Primitive| p.triangles.par_iter().any(|t| t.iter().any(|&v| v as usize >= p.positions.len()));
+    if mesh.primitives.iter().any(out_of_range) {
+        return false;
+    }
     // Weld: every vertex, ordered by position (±0 alike) then number, gets the id of its
     // position class: the smallest number in it. Ids then follow the file's vertex order,
     // which the triangles' order mostly follows, so the passes below read and write memory
@@ -81,9 +87,7 @@ pub fn closed_and_oriented(mesh: &Mesh) -> bool {
     }
     let ids = total;
     let mut end = vec![0u32; ids];
-    if !for_each_edge(mesh, &first, &id, |lo, _| end[lo as usize] += 1) {
-        return false;
-    }
+    for_each_edge(mesh, &first, &id, |lo, _| end[lo as usize] += 1);
     // Running sums: `end[v]` is where v's list starts, then (after filling) where it ends.
     let mut sum = 0u32;
     for e in &mut end {
@@ -110,15 +114,8 @@ pub fn closed_and_oriented(mesh: &Mesh) -> bool {
 
 /// Calls `f(lower id, higher id << 1 | direction)` for each edge of each non-degenerate
 /// triangle (ids welded by position: `id[first[primitive] + vertex]`), direction 0 when the
-/// triangle runs the edge from the lower id to the higher; false (after no call) when an
-/// index is out of range.
-fn for_each_edge(mesh: &Mesh, first: &[usize], id: &[u32], mut f: impl FnMut(u32, u32)) -> bool {
-    for p in &mesh.primitives {
-        let n = p.positions.len();
-        if p.triangles.iter().any(|t| t.iter().any(|&v| v as usize >= n)) {
-            return false;
-        }
-    }
+/// triangle runs the edge from the lower id to the higher. Every index must be in range.
+fn for_each_edge(mesh: &Mesh, first: &[usize], id: &[u32], mut f: impl FnMut(u32, u32)) {
     for (pi, p) in mesh.primitives.iter().enumerate() {
         for t in &p.triangles {
             let [a, b, c] = t.map(|v| id[first[pi] + v as usize]);
@@ -131,7 +128,6 @@ fn for_each_edge(mesh: &Mesh, first: &[usize], id: &[u32], mut f: impl FnMut(u32
             }
         }
     }
-    true
 }
 
 #[cfg(test)]
@@ -241,6 +237,10 @@ mod tests {
         // A single quad (a leaf card) is open.
         let quad = mesh(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]], vec![[0, 1, 2], [0, 2, 3]]);
         assert!(!closed_and_oriented(&quad));
+        // An index past the vertices (which no loader lets through) is open, not a panic.
+        let mut bad = tetra(false);
+        bad.primitives[0].triangles[1][2] = 4;
+        assert!(!closed_and_oriented(&bad));
     }
 
     #[test]
