@@ -20,6 +20,7 @@ pub mod interrupt;
 pub mod load;
 pub mod mesh;
 pub mod polygon;
+mod par;
 pub mod sides;
 
 pub use error::{Error, LoadError};

@@ -215,16 +215,17 @@ impl LoadedScene {
             .sum()
     }
 
-    /// Total world-space surface area over all instances.
+    /// Total world-space surface area over all instances (added triangle by triangle in
+    /// order, computed in parallel: the same bits on any number of threads).
     pub fn world_area(&self) -> f64 {
         let mut total = 0.0;
         for inst in &self.instances {
             let Some(mesh) = self.meshes.get(inst.mesh) else { continue };
             for p in &mesh.primitives {
-                for t in &p.triangles {
-                    let [a, b, c] = t.map(|i| transform_point(&inst.transform, p.positions[i as usize]));
-                    total += 0.5 * norm(cross(sub(b, a), sub(c, a)));
-                }
+                [total] = crate::par::ordered_sum(p.triangles.len(), [total], |ti| {
+                    let [a, b, c] = p.triangles[ti].map(|i| transform_point(&inst.transform, p.positions[i as usize]));
+                    [0.5 * norm(cross(sub(b, a), sub(c, a)))]
+                });
             }
         }
         total

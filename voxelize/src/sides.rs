@@ -34,62 +34,100 @@ impl LoadedScene {
 /// is shared by exactly two triangles that run it in opposite directions: a closed,
 /// consistently oriented surface. Degenerate triangles (two equal corners) are ignored.
 ///
-/// Sorts rather than hashes: a dense scan has tens of millions of edges, and hash maps of
-/// them cost seconds and hundreds of bytes per triangle (4.4 M triangles: 30 s, the larger
-/// part of sampling); two parallel sorts of 8-byte keys cost a fraction of a second.
+/// Sorts and counts rather than hashes: a dense scan has tens of millions of edges, and hash
+/// maps of them cost seconds and hundreds of bytes per triangle (4.4 M triangles: 30 s, the
+/// larger part of sampling); a parallel sort of the vertices and a counting layout of the
+/// edges cost a fraction of a second and 4 bytes an edge.
 pub fn closed_and_oriented(mesh: &Mesh) -> bool {
-    // Weld: every vertex of every primitive, ordered by position (±0 alike), gets the id
-    // of its position class.
-    let bits = |c: f32| if c == 0.0 { 0 } else { c.to_bits() };
-    let mut verts: Vec<([u32; 3], u32, u32)> = Vec::new();
-    for (pi, p) in mesh.primitives.iter().enumerate() {
-        verts.extend(p.positions.iter().enumerate().map(|(i, q)| (q.map(bits), pi as u32, i as u32)));
-    }
-    verts.par_sort_unstable();
+    // Vertices are numbered over the primitives in order; ids hold 31 bits (below), so
+    // larger meshes are judged open (two-sided: never wrong, only slower to draw).
     let mut first = Vec::with_capacity(mesh.primitives.len());
     let mut total = 0usize;
     for p in &mesh.primitives {
         first.push(total);
         total += p.positions.len();
     }
-    let mut id = vec![0u32; total];
-    let mut class = 0u64;
-    for (k, v) in verts.iter().enumerate() {
-        if k > 0 && verts[k - 1].0 != v.0 {
-            class += 1;
-        }
-        id[first[v.1 as usize] + v.2 as usize] = class as u32;
-    }
-    // Keys hold two ids of 31 bits and a direction bit; larger meshes are judged open
-    // (two-sided: never wrong, only slower to draw).
-    if class >= 1 << 31 {
+    if total >= 1 << 31 {
         return false;
     }
+    // An index out of range (the loaders refuse them) makes the mesh open; checked once, in
+    // parallel, so the passes below index freely.
+    let out_of_range = |p: &crate::mesh::Primitive| p.triangles.par_iter().any(|t| t.iter().any(|&v| v as usize >= p.positions.len()));
+    if mesh.primitives.iter().any(out_of_range) {
+        return false;
+    }
+    // Weld: every vertex, ordered by position (±0 alike) then number, gets the id of its
+    // position class: the smallest number in it. Ids then follow the file's vertex order,
+    // which the triangles' order mostly follows, so the passes below read and write memory
+    // nearly in order (ids in position order scattered them over the whole array).
+    let bits = |c: f32| if c == 0.0 { 0 } else { c.to_bits() };
+    let mut verts: Vec<([u32; 3], u32)> = Vec::with_capacity(total);
+    for (p, &f) in mesh.primitives.iter().zip(&first) {
+        verts.par_extend(p.positions.par_iter().enumerate().map(|(i, q)| (q.map(bits), (f + i) as u32)));
+    }
+    verts.par_sort_unstable();
+    let mut id = vec![0u32; total];
+    let mut class = 0u32;
+    for (k, v) in verts.iter().enumerate() {
+        if k == 0 || verts[k - 1].0 != v.0 {
+            class = v.1;
+        }
+        id[v.1 as usize] = class;
+    }
     drop(verts);
-    // Each edge as (low id, high id, direction): a closed, oriented mesh has every
-    // undirected edge exactly twice, once in each direction.
-    let mut edges: Vec<u64> = Vec::new();
+    // Each edge filed under its lower id as (higher id, direction): a closed, oriented mesh
+    // has every undirected edge exactly twice, once in each direction, so the list of each
+    // id holds each of its higher neighbours twice, once per direction. The lists are laid
+    // out by counting (two passes over the triangles, 4 bytes an edge, `end` of 4 bytes an
+    // id: counts below 2^32, larger meshes are judged open) and checked in parallel, each
+    // sorted on its own in cache: cheaper than sorting every edge as one 8-byte key.
+    let tris: usize = mesh.primitives.iter().map(|p| p.triangles.len()).sum();
+    if tris.checked_mul(3).is_none_or(|e| e > u32::MAX as usize) {
+        return false;
+    }
+    let ids = total;
+    let mut end = vec![0u32; ids];
+    for_each_edge(mesh, &first, &id, |lo, _| end[lo as usize] += 1);
+    // Running sums: `end[v]` is where v's list starts, then (after filling) where it ends.
+    let mut sum = 0u32;
+    for e in &mut end {
+        (*e, sum) = (sum, sum + *e);
+    }
+    if sum == 0 {
+        return false;
+    }
+    let mut entries = vec![0u32; sum as usize];
+    for_each_edge(mesh, &first, &id, |lo, entry| {
+        let at = &mut end[lo as usize];
+        entries[*at as usize] = entry;
+        *at += 1;
+    });
+    (0..ids).into_par_iter().with_min_len(1 << 12).map_init(Vec::new, |list: &mut Vec<u32>, v| {
+        let begin = if v == 0 { 0 } else { end[v - 1] as usize };
+        list.clear();
+        list.extend_from_slice(&entries[begin..end[v] as usize]);
+        list.sort_unstable();
+        list.len() % 2 == 0 && list.chunks_exact(2).all(|e| e[0] >> 1 == e[1] >> 1 && e[0] & 1 == 0 && e[1] & 1 == 1)
+    })
+    .all(|ok| ok)
+}
+
+/// Calls `f(lower id, higher id << 1 | direction)` for each edge of each non-degenerate
+/// triangle (ids welded by position: `id[first[primitive] + vertex]`), direction 0 when the
+/// triangle runs the edge from the lower id to the higher. Every index must be in range.
+fn for_each_edge(mesh: &Mesh, first: &[usize], id: &[u32], mut f: impl FnMut(u32, u32)) {
     for (pi, p) in mesh.primitives.iter().enumerate() {
-        let n = p.positions.len();
         for t in &p.triangles {
-            if t.iter().any(|&v| v as usize >= n) {
-                return false;
-            }
             let [a, b, c] = t.map(|v| id[first[pi] + v as usize]);
             if a == b || b == c || a == c {
                 continue;
             }
             for (u, v) in [(a, b), (b, c), (c, a)] {
                 let (lo, hi, dir) = if u < v { (u, v, 0) } else { (v, u, 1) };
-                edges.push(u64::from(lo) << 32 | u64::from(hi) << 1 | dir);
+                f(lo, hi << 1 | dir);
             }
         }
     }
-    if edges.is_empty() {
-        return false;
-    }
-    edges.par_sort_unstable();
-    edges.len() % 2 == 0 && edges.par_chunks_exact(2).all(|e| e[0] >> 1 == e[1] >> 1 && e[0] & 1 == 0 && e[1] & 1 == 1)
 }
 
 #[cfg(test)]
@@ -199,6 +237,10 @@ mod tests {
         // A single quad (a leaf card) is open.
         let quad = mesh(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]], vec![[0, 1, 2], [0, 2, 3]]);
         assert!(!closed_and_oriented(&quad));
+        // An index past the vertices (which no loader lets through) is open, not a panic.
+        let mut bad = tetra(false);
+        bad.primitives[0].triangles[1][2] = 4;
+        assert!(!closed_and_oriented(&bad));
     }
 
     #[test]

@@ -52,15 +52,19 @@ impl<W: Write + Seek> SamplesWriter<W> {
     }
 
     /// Appends samples, in order. Whole chunks are compressed (in parallel, a batch at a
-    /// time) and written; what is left of a chunk, or fewer than 16 chunks (42 MB)
-    /// from small pushes, stays buffered until more come or [`Self::finish`].
+    /// time) and written; what is left of a chunk, or fewer whole chunks from small pushes
+    /// than there are threads (at most 16, 42 MB), stays buffered until more come or
+    /// [`Self::finish`]. Compressing as soon as every thread has a chunk lets a producer
+    /// that pushes while its other threads work (the sampler) overlap the two, rather than
+    /// leave the whole file's compression to the end when it is smaller than 16 chunks.
     pub fn push(&mut self, samples: &[Node]) -> Result<()> {
+        let flush_at = rayon::current_num_threads().clamp(1, BATCH_CHUNKS) * CHUNK_SAMPLES;
         let mut rest = samples;
         if !self.pending.is_empty() {
-            let take = rest.len().min((BATCH_CHUNKS * CHUNK_SAMPLES).saturating_sub(self.pending.len()));
+            let take = rest.len().min(flush_at.saturating_sub(self.pending.len()));
             self.pending.extend_from_slice(&rest[..take]);
             rest = &rest[take..];
-            if self.pending.len() < BATCH_CHUNKS * CHUNK_SAMPLES {
+            if self.pending.len() < flush_at {
                 return Ok(());
             }
             let pending = std::mem::take(&mut self.pending);

@@ -221,53 +221,41 @@ pub(crate) fn finish_primitive(
     p: &mut Primitive,
     stats: &mut LoadStats,
 ) -> Result<(), LoadError> {
-    for (i, v) in p.positions.iter().enumerate() {
-        if !v.iter().all(|c| c.is_finite()) {
-            return Err(LoadError::NonFinite { path: path.to_path_buf(), element: format!("position of {what}"), index: i as u64 });
-        }
+    use rayon::prelude::*;
+    // Checked in parallel; `position_first` finds the first fault, the one a serial scan
+    // would report.
+    if let Some(i) = p.positions.par_iter().position_first(|v| !v.iter().all(|c| c.is_finite())) {
+        return Err(LoadError::NonFinite { path: path.to_path_buf(), element: format!("position of {what}"), index: i as u64 });
     }
     if let Some(n) = &mut p.normals {
         // Bad normals are not worth refusing a file for: zero or non-finite ones are
         // replaced by computed normals at sampling time (zeroed here).
-        for v in n.iter_mut() {
-            if !v.iter().all(|c| c.is_finite()) {
-                *v = [0.0; 3];
-            }
-        }
+        n.par_iter_mut().filter(|v| !v.iter().all(|c| c.is_finite())).for_each(|v| *v = [0.0; 3]);
     }
     for (k, set) in p.uvs.iter_mut().enumerate() {
-        for (i, v) in set.iter().enumerate() {
-            if !v.iter().all(|c| c.is_finite()) {
-                return Err(LoadError::NonFinite { path: path.to_path_buf(), element: format!("TEXCOORD_{k} of {what}"), index: i as u64 });
-            }
+        if let Some(i) = set.par_iter().position_first(|v| !v.iter().all(|c| c.is_finite())) {
+            return Err(LoadError::NonFinite { path: path.to_path_buf(), element: format!("TEXCOORD_{k} of {what}"), index: i as u64 });
         }
     }
     if let Some(c) = &p.colors {
-        for (i, v) in c.iter().enumerate() {
-            if !v.iter().all(|c| c.is_finite()) {
-                return Err(LoadError::NonFinite { path: path.to_path_buf(), element: format!("colour of {what}"), index: i as u64 });
-            }
+        if let Some(i) = c.par_iter().position_first(|v| !v.iter().all(|c| c.is_finite())) {
+            return Err(LoadError::NonFinite { path: path.to_path_buf(), element: format!("colour of {what}"), index: i as u64 });
         }
     }
     let n = p.positions.len() as u64;
-    for (i, t) in p.triangles.iter().enumerate() {
-        for &v in t {
-            if u64::from(v) >= n {
-                return Err(LoadError::IndexOutOfRange {
-                    path: path.to_path_buf(),
-                    element: format!("triangle of {what}"),
-                    index: i as u64,
-                    value: v.into(),
-                    count: n,
-                });
-            }
-        }
+    if let Some(i) = p.triangles.par_iter().position_first(|t| t.iter().any(|&v| u64::from(v) >= n)) {
+        let value = p.triangles[i].iter().map(|&v| u64::from(v)).find(|&v| v >= n).unwrap_or(n);
+        return Err(LoadError::IndexOutOfRange { path: path.to_path_buf(), element: format!("triangle of {what}"), index: i as u64, value, count: n });
     }
     stats.triangles_read += p.triangles.len() as u64;
-    let before = p.triangles.len();
     let pos = &p.positions;
-    p.triangles.retain(|t| !is_degenerate(pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]));
-    stats.degenerate_triangles += (before - p.triangles.len()) as u64;
+    let degenerate = |t: &[u32; 3]| is_degenerate(pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]);
+    // Most meshes have none: looked for in parallel, removed (in order) only when found.
+    if p.triangles.par_iter().any(degenerate) {
+        let before = p.triangles.len();
+        p.triangles.retain(|t| !degenerate(t));
+        stats.degenerate_triangles += (before - p.triangles.len()) as u64;
+    }
     Ok(())
 }
 

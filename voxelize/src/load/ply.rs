@@ -17,6 +17,8 @@ use super::{decode_image, finish_primitive, read_file, LoadOptions};
 use crate::error::LoadError;
 use crate::mesh::*;
 
+mod binary;
+
 /// A PLY scalar type.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Ty {
@@ -140,25 +142,10 @@ impl<'a> Body<'a> {
     fn scalar(&mut self, t: Ty) -> Result<f64, String> {
         match self {
             Body::Binary { data, pos, big } => {
-                let n = t.size();
-                let end = pos.checked_add(n).filter(|&e| e <= data.len()).ok_or("the file ends early (truncated?)")?;
-                let b = &data[*pos..end];
+                let end = pos.checked_add(t.size()).filter(|&e| e <= data.len()).ok_or("the file ends early (truncated?)")?;
+                let v = binary_scalar(&data[*pos..end], t, *big);
                 *pos = end;
-                let mut a = [0u8; 8];
-                a[..n].copy_from_slice(b);
-                if *big {
-                    a[..n].reverse();
-                }
-                Ok(match t {
-                    Ty::I8 => f64::from(a[0] as i8),
-                    Ty::U8 => f64::from(a[0]),
-                    Ty::I16 => f64::from(i16::from_le_bytes([a[0], a[1]])),
-                    Ty::U16 => f64::from(u16::from_le_bytes([a[0], a[1]])),
-                    Ty::I32 => f64::from(i32::from_le_bytes([a[0], a[1], a[2], a[3]])),
-                    Ty::U32 => f64::from(u32::from_le_bytes([a[0], a[1], a[2], a[3]])),
-                    Ty::F32 => f64::from(f32::from_le_bytes([a[0], a[1], a[2], a[3]])),
-                    Ty::F64 => f64::from_le_bytes(a),
-                })
+                Ok(v)
             }
             Body::Ascii { tokens, .. } => {
                 let s = tokens.next().ok_or("the line has too few values")?;
@@ -206,6 +193,27 @@ impl<'a> Body<'a> {
                 Ok(())
             }
         }
+    }
+}
+
+/// A binary scalar of type `t` from its `t.size()` bytes, as f64 (every PLY scalar type
+/// converts exactly).
+fn binary_scalar(b: &[u8], t: Ty, big: bool) -> f64 {
+    let n = t.size().min(b.len());
+    let mut a = [0u8; 8];
+    a[..n].copy_from_slice(&b[..n]);
+    if big {
+        a[..n].reverse();
+    }
+    match t {
+        Ty::I8 => f64::from(a[0] as i8),
+        Ty::U8 => f64::from(a[0]),
+        Ty::I16 => f64::from(i16::from_le_bytes([a[0], a[1]])),
+        Ty::U16 => f64::from(u16::from_le_bytes([a[0], a[1]])),
+        Ty::I32 => f64::from(i32::from_le_bytes([a[0], a[1], a[2], a[3]])),
+        Ty::U32 => f64::from(u32::from_le_bytes([a[0], a[1], a[2], a[3]])),
+        Ty::F32 => f64::from(f32::from_le_bytes([a[0], a[1], a[2], a[3]])),
+        Ty::F64 => f64::from_le_bytes(a),
     }
 }
 
@@ -276,6 +284,46 @@ impl VertexLayout {
     fn has(&self, k: usize) -> bool {
         self.slot.contains(&Some(k))
     }
+
+    /// Whether the vertices have normals, colours, alpha and UVs (all their slots filled).
+    fn attributes(&self) -> Attributes {
+        Attributes {
+            normals: self.has(NX) && self.has(NX + 1) && self.has(NX + 2),
+            colors: self.has(R) && self.has(R + 1) && self.has(R + 2),
+            alpha: self.has(R + 3),
+            uvs: self.has(U) && self.has(U + 1),
+        }
+    }
+
+    /// A vertex's position from its slot values (`None` when not finite).
+    fn position(v: &[f64; SLOTS]) -> Option<[f32; 3]> {
+        let p = [v[X] as f32, v[X + 1] as f32, v[X + 2] as f32];
+        p.iter().all(|c| c.is_finite()).then_some(p)
+    }
+
+    fn normal(v: &[f64; SLOTS]) -> [f32; 3] {
+        [v[NX] as f32, v[NX + 1] as f32, v[NX + 2] as f32]
+    }
+
+    /// A vertex's linear colour (alpha 1 without an alpha property).
+    fn color(&self, v: &[f64; SLOTS], alpha: bool) -> [f32; 4] {
+        let ch = |k: usize| channel(self.types[k], v[k]);
+        [srgb_to_linear(ch(R)), srgb_to_linear(ch(R + 1)), srgb_to_linear(ch(R + 2)), if alpha { ch(R + 3) } else { 1.0 }]
+    }
+
+    /// A vertex's UV, v flipped to the glTF convention.
+    fn uv(v: &[f64; SLOTS]) -> [f32; 2] {
+        [v[U] as f32, 1.0 - v[U + 1] as f32]
+    }
+}
+
+/// Which optional vertex attributes a file has.
+#[derive(Clone, Copy)]
+struct Attributes {
+    normals: bool,
+    colors: bool,
+    alpha: bool,
+    uvs: bool,
 }
 
 /// Everything read from the body.
@@ -293,6 +341,9 @@ struct Payload {
     face_uv: Option<Vec<f32>>,
     /// Triangle strips, flat, -1 separating strips and ending each element.
     strips: Vec<i64>,
+    /// Triangles decoded straight from the file (the parallel binary reader), before those
+    /// of `face_len` and `strips`.
+    triangles: Vec<[u32; 3]>,
 }
 
 /// Some exporters (Blender 2.4x) write free text lines in the header; they are turned into
@@ -340,33 +391,24 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
             return Err(perr(format!("element {name}"), format!("header declares {} elements but only {remaining} bytes follow (truncated file?)", e.count)));
         }
     }
-    let mut body = if binary {
-        Body::Binary { data: bytes, pos: start, big: header.encoding == Encoding::BinaryBigEndian }
-    } else {
-        let text = std::str::from_utf8(&bytes[start..]).map_err(|e| perr(format!("byte {}", start + e.valid_up_to()), "ASCII body is not valid text".into()))?;
-        let line_base = bytes[..start].iter().filter(|&&b| b == b'\n').count();
-        Body::Ascii { lines: text.lines().enumerate(), tokens: "".split_ascii_whitespace(), line: line_base, line_base }
-    };
+    let big = header.encoding == Encoding::BinaryBigEndian;
     let nverts = elems.iter().find(|e| e.name == "vertex").map_or(0, |e| e.count);
-    let mut pl = Payload::default();
-    for e in &elems {
-        let name = &e.name;
-        let r = match name.as_str() {
-            "vertex" => read_vertices(path, &mut body, e, &mut pl),
-            "face" => read_faces(path, &mut body, e, nverts, opts.max_face_corners, &mut pl),
-            "tristrips" => read_strips(path, &mut body, e, nverts, &mut pl),
-            _ => (0..e.count).try_for_each(|i| {
-                body.begin().and_then(|_| e.props.iter().try_for_each(|(_, p)| body.skip(*p))).map_err(|m| (i, m))
-            }).map_err(|(i, m)| perr(format!("{name} {i} at {}", body.location()), m)),
-        };
-        r?;
-    }
+    // The common binary layout (fixed-size vertices, then triangles only) is decoded in
+    // parallel; anything else, and any file it finds a fault in, is read by the reader
+    // below, which says what and where the fault is.
+    let fast = if binary && opts.max_face_corners >= 3 { binary::read(&bytes[start..], big, &elems, nverts) } else { None };
+    let pl = match fast {
+        Some(pl) => pl,
+        None => read_body(path, bytes, start, binary, big, &elems, nverts, opts)?,
+    };
     if pl.positions.is_empty() {
         return Err(perr("element vertex".into(), "no vertices".into()));
     }
-    let Payload { positions, normals, colors, uvs, face_len, face_idx, face_uv, strips } = pl;
+    let Payload { positions, normals, colors, uvs, face_len, face_idx, face_uv, strips, triangles } = pl;
 
-    let mut triangles: Vec<[u32; 3]> = Vec::new();
+    let mut triangles = triangles;
+    // Faces of the general reader: at least a triangle each, mostly (bounded by the bytes).
+    triangles.reserve(face_len.len());
     let mut polygons = 0u64;
     // Per-corner UVs: every corner becomes its own vertex (attributes copied), since the
     // same position can carry different UVs across a seam.
@@ -470,6 +512,33 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
     Ok(scene)
 }
 
+/// Reads the body element by element, one value at a time (every layout, ASCII and binary).
+#[allow(clippy::too_many_arguments)]
+fn read_body(path: &Path, bytes: &[u8], start: usize, binary: bool, big: bool, elems: &[Elem], nverts: usize, opts: &LoadOptions) -> Result<Payload, LoadError> {
+    let perr = |loc: String, msg: String| LoadError::parse(path, "PLY", loc, msg);
+    let mut body = if binary {
+        Body::Binary { data: bytes, pos: start, big }
+    } else {
+        let text = std::str::from_utf8(&bytes[start..]).map_err(|e| perr(format!("byte {}", start + e.valid_up_to()), "ASCII body is not valid text".into()))?;
+        let line_base = bytes[..start].iter().filter(|&&b| b == b'\n').count();
+        Body::Ascii { lines: text.lines().enumerate(), tokens: "".split_ascii_whitespace(), line: line_base, line_base }
+    };
+    let mut pl = Payload::default();
+    for e in elems {
+        let name = &e.name;
+        let r = match name.as_str() {
+            "vertex" => read_vertices(path, &mut body, e, &mut pl),
+            "face" => read_faces(path, &mut body, e, nverts, opts.max_face_corners, &mut pl),
+            "tristrips" => read_strips(path, &mut body, e, nverts, &mut pl),
+            _ => (0..e.count).try_for_each(|i| {
+                body.begin().and_then(|_| e.props.iter().try_for_each(|(_, p)| body.skip(*p))).map_err(|m| (i, m))
+            }).map_err(|(i, m)| perr(format!("{name} {i} at {}", body.location()), m)),
+        };
+        r?;
+    }
+    Ok(pl)
+}
+
 /// Reads the vertex element into positions and the optional normals, colours and UVs.
 fn read_vertices(path: &Path, body: &mut Body, e: &Elem, pl: &mut Payload) -> Result<(), LoadError> {
     let lay = VertexLayout::new(e);
@@ -477,16 +546,13 @@ fn read_vertices(path: &Path, body: &mut Body, e: &Elem, pl: &mut Payload) -> Re
     if e.count > 0 && !(lay.has(X) && lay.has(X + 1) && lay.has(X + 2)) {
         return Err(LoadError::parse(path, "PLY", "vertex 0", "missing x, y or z"));
     }
-    let has_n = lay.has(NX) && lay.has(NX + 1) && lay.has(NX + 2);
-    let has_c = lay.has(R) && lay.has(R + 1) && lay.has(R + 2);
-    let has_a = lay.has(R + 3);
-    let has_uv = lay.has(U) && lay.has(U + 1);
+    let has = lay.attributes();
     // The count was checked against the bytes left, so these are at most a small multiple
     // of the file's size.
     pl.positions = Vec::with_capacity(e.count);
-    pl.normals = has_n.then(|| Vec::with_capacity(e.count));
-    pl.colors = has_c.then(|| Vec::with_capacity(e.count));
-    pl.uvs = has_uv.then(|| Vec::with_capacity(e.count));
+    pl.normals = has.normals.then(|| Vec::with_capacity(e.count));
+    pl.colors = has.colors.then(|| Vec::with_capacity(e.count));
+    pl.uvs = has.uvs.then(|| Vec::with_capacity(e.count));
     let mut v = [0.0f64; SLOTS];
     for i in 0..e.count {
         body.begin().map_err(|m| at(body, i, m))?;
@@ -496,20 +562,18 @@ fn read_vertices(path: &Path, body: &mut Body, e: &Elem, pl: &mut Payload) -> Re
                 (_, t) => body.skip(t).map_err(|m| at(body, i, m))?,
             }
         }
-        let p = [v[X] as f32, v[X + 1] as f32, v[X + 2] as f32];
-        if !p.iter().all(|c| c.is_finite()) {
+        let Some(p) = VertexLayout::position(&v) else {
             return Err(LoadError::NonFinite { path: path.to_path_buf(), element: "vertex".into(), index: i as u64 });
-        }
+        };
         pl.positions.push(p);
         if let Some(n) = &mut pl.normals {
-            n.push([v[NX] as f32, v[NX + 1] as f32, v[NX + 2] as f32]);
+            n.push(VertexLayout::normal(&v));
         }
         if let Some(c) = &mut pl.colors {
-            let ch = |k: usize| channel(lay.types[k], v[k]);
-            c.push([srgb_to_linear(ch(R)), srgb_to_linear(ch(R + 1)), srgb_to_linear(ch(R + 2)), if has_a { ch(R + 3) } else { 1.0 }]);
+            c.push(lay.color(&v, has.alpha));
         }
         if let Some(t) = &mut pl.uvs {
-            t.push([v[U] as f32, 1.0 - v[U + 1] as f32]);
+            t.push(VertexLayout::uv(&v));
         }
     }
     Ok(())

@@ -182,26 +182,29 @@ impl SampleEstimate {
             // (and could ask for billions of baked samples).
             let w = 1.0 + u.affine.len() as f64;
             for p in &mesh.primitives {
-                for t in &p.triangles {
-                    e.per_triangle += w;
+                // Added in triangle order (the terms computed in parallel): the same bits on
+                // any number of threads. A term left out adds +0.0, which changes no sum of
+                // non-negative terms.
+                let acc = [e.per_triangle, e.area, e.perimeter, e.merged_area];
+                [e.per_triangle, e.area, e.perimeter, e.merged_area] = crate::par::ordered_sum(p.triangles.len(), acc, |ti| {
                     if method == Method::Vertex {
-                        continue;
+                        return [w, 0.0, 0.0, 0.0];
                     }
-                    let [a, b, c] = t.map(|i| transform_point(&m, p.positions[i as usize]));
+                    let [a, b, c] = p.triangles[ti].map(|i| transform_point(&m, p.positions[i as usize]));
                     let n = cross(sub(b, a), sub(c, a));
                     let area = w * 0.5 * norm(n) / (k * k);
-                    e.area += area;
                     // Columns are sampled at their centres (no edge term); a conservative
                     // voxelization also takes the voxels along the edges.
-                    if method == Method::Voxel {
-                        e.perimeter += w * (norm(sub(b, a)) + norm(sub(c, b)) + norm(sub(a, c))) / k;
-                    }
+                    let perimeter = if method == Method::Voxel { w * (norm(sub(b, a)) + norm(sub(c, b)) + norm(sub(a, c))) / k } else { 0.0 };
                     let len = norm(n);
-                    if len > 0.0 {
+                    let merged = if len > 0.0 {
                         let [x, y, z] = n.map(|v| v.abs() / len);
-                        e.merged_area += area * if method == Method::Scanline { x.max(y).max(z) } else { x + y + z };
-                    }
-                }
+                        area * if method == Method::Scanline { x.max(y).max(z) } else { x + y + z }
+                    } else {
+                        0.0
+                    };
+                    [w, area, perimeter, merged]
+                });
             }
         }
         e

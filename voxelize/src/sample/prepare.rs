@@ -43,10 +43,11 @@ pub(super) struct Prepared<'a> {
 
 impl<'a> Prepared<'a> {
     pub(super) fn new(prim: &'a Primitive, u: &Unit, mat: MatOwned<'a>, crease_deg: f32) -> Self {
+        use rayon::prelude::*;
         let inv_h = 1.0 / u.h;
         let pos: Vec<[f64; 3]> = prim
             .positions
-            .iter()
+            .par_iter()
             .map(|&p| {
                 let w = match &u.bake {
                     Some(m) => transform_point(m, p),

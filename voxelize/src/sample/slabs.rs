@@ -31,37 +31,55 @@ pub(super) fn sample_slabs<E: Send>(
     progress: &(dyn Fn(u64) + Sync),
     emit: &mut Sink<'_, E>,
 ) -> Result<(u64, u64), E> {
-    // Every triangle: (primitive, index), x-cell range, expected samples.
-    let mut tris: Vec<(u32, u32)> = Vec::new();
-    let mut xr: Vec<(i64, i64)> = Vec::new();
-    let mut est: Vec<f64> = Vec::new();
-    for (pi, p) in pp.iter().enumerate() {
-        for (ti, t) in p.prim.triangles.iter().enumerate() {
-            let [a, b, c] = t.map(|v| p.pos[v as usize]);
-            let lo = a[0].min(b[0]).min(c[0]).floor() as i64;
-            let hi = a[0].max(b[0]).max(c[0]).floor() as i64;
-            tris.push((pi as u32, ti as u32));
-            xr.push((lo.clamp(kp.lo[0], kp.hi[0]), hi.clamp(kp.lo[0], kp.hi[0])));
-            est.push(0.5 * norm(cross(sub(b, a), sub(c, a))) + 0.5 * (norm(sub(b, a)) + norm(sub(c, b)) + norm(sub(a, c))) + 1.0);
-        }
+    // Triangles are numbered over the primitives in order (`gi`); `first[pi]` is primitive
+    // `pi`'s first number. Per triangle only its x-cell range is kept (8 bytes: there are at
+    // most 2^20 + 1 cells, below), its expected samples go straight into the cells' difference
+    // array and the total, added in triangle order (the same bits on any thread count).
+    let mut first = Vec::with_capacity(pp.len() + 1);
+    let mut ntris = 0usize;
+    for p in pp {
+        first.push(ntris);
+        ntris += p.prim.triangles.len();
     }
-    if tris.is_empty() {
+    first.push(ntris);
+    if ntris == 0 {
         return Ok((0, 0));
     }
     // Expected samples per x cell (difference array), cells of `cell` voxels (coarser only
-    // for enormous grids), then slab boundaries at equal quantiles.
+    // for enormous grids: at most 2^20 + 1 cells), then slab boundaries at equal quantiles.
     let width = (kp.hi[0] - kp.lo[0] + 1) as u64;
     let cell = width.div_ceil(1 << 20).max(1) as i64;
     let ncells = ((kp.hi[0] - kp.lo[0]) / cell + 1) as usize;
     let cell_of = |x: i64| ((x - kp.lo[0]) / cell) as usize;
     let mut diff = vec![0.0f64; ncells + 1];
-    for (r, e) in xr.iter().zip(&est) {
-        let (c0, c1) = (cell_of(r.0), cell_of(r.1));
-        let per = e / (c1 - c0 + 1) as f64;
-        diff[c0] += per;
-        diff[c1 + 1] -= per;
+    let mut total = 0.0f64;
+    let mut cells: Vec<(u32, u32)> = Vec::with_capacity(ntris);
+    let mut block: Vec<(u32, u32, f64)> = Vec::new();
+    for p in pp {
+        let n = p.prim.triangles.len();
+        for start in (0..n).step_by(PLAN_BLOCK) {
+            (start..(start + PLAN_BLOCK).min(n))
+                .into_par_iter()
+                .map(|ti| {
+                    let [a, b, c] = p.prim.triangles[ti].map(|v| p.pos[v as usize]);
+                    let lo = (a[0].min(b[0]).min(c[0]).floor() as i64).clamp(kp.lo[0], kp.hi[0]);
+                    let hi = (a[0].max(b[0]).max(c[0]).floor() as i64).clamp(kp.lo[0], kp.hi[0]);
+                    let est = 0.5 * norm(cross(sub(b, a), sub(c, a))) + 0.5 * (norm(sub(b, a)) + norm(sub(c, b)) + norm(sub(a, c))) + 1.0;
+                    (cell_of(lo) as u32, cell_of(hi) as u32, est)
+                })
+                .collect_into_vec(&mut block);
+            for &(c0, c1, e) in &block {
+                let per = e / (c1 - c0 + 1) as f64;
+                diff[c0 as usize] += per;
+                diff[c1 as usize + 1] -= per;
+                total += e;
+                cells.push((c0, c1));
+            }
+        }
     }
-    let total: f64 = est.iter().sum();
+    drop(block);
+    // The slabs must not depend on the thread count: a triangle is cut to its slab's x band
+    // before it is swept, which moves the pieces' vertices by rounding.
     let slabs = ((total / slab_target()).ceil() as usize).clamp(8, 16_384).min(ncells);
     let mut slab_of_cell = vec![0u32; ncells];
     let mut slab_x: Vec<(i64, i64)> = Vec::with_capacity(slabs);
@@ -79,8 +97,8 @@ pub(super) fn sample_slabs<E: Send>(
         }
     }
     let mut lists: Vec<Vec<u32>> = vec![Vec::new(); slab_x.len()];
-    for (gi, r) in xr.iter().enumerate() {
-        for l in &mut lists[slab_of_cell[cell_of(r.0)] as usize..=slab_of_cell[cell_of(r.1)] as usize] {
+    for (gi, r) in cells.iter().enumerate() {
+        for l in &mut lists[slab_of_cell[r.0 as usize] as usize..=slab_of_cell[r.1 as usize] as usize] {
             l.push(gi as u32);
         }
     }
@@ -130,9 +148,11 @@ pub(super) fn sample_slabs<E: Send>(
                     bufs.parts.reset(kp, (x0, x1), per_slab);
                     let mut dropped = 0u64;
                     for &gi in list {
-                        let (pi, ti) = tris[gi as usize];
-                        let p = &pp[pi as usize];
-                        let t = p.tri(ti as usize);
+                        let gi = gi as usize;
+                        // The primitive holding triangle `gi`: the last to start at or before it.
+                        let pi = first.partition_point(|&f| f <= gi) - 1;
+                        let p = &pp[pi];
+                        let t = p.tri(gi - first[pi]);
                         let mat = p.mat.view();
                         if opts.method == Method::Scanline {
                             // Per-triangle areas (EQ 17) need the whole triangle's sample count:
@@ -153,7 +173,8 @@ pub(super) fn sample_slabs<E: Send>(
                         bufs.parts.extend(&bufs.recs);
                     }
                     // Progress counts a triangle once, in its first slab.
-                    progress(list.iter().filter(|&&gi| xr[gi as usize].0 >= x0).count() as u64);
+                    let first_cell = cell_of(x0) as u32;
+                    progress(list.iter().filter(|&&gi| cells[gi as usize].0 >= first_cell).count() as u64);
                     let before = bufs.parts.len();
                     let mut out = outs.lock().ok().and_then(|mut o| o.pop()).unwrap_or_default();
                     out.clear();
@@ -192,6 +213,9 @@ pub(super) fn sample_slabs<E: Send>(
     let (b, d) = emit_batch(made)?;
     Ok((before + b, dropped + d))
 }
+
+/// Triangles planned per parallel call (their cells and estimates: 512 KiB).
+const PLAN_BLOCK: usize = 1 << 15;
 
 /// Expected samples per slab (unit tests lower it to get many slabs and batches from small
 /// meshes).
