@@ -217,3 +217,31 @@ fn chains_composing_past_the_float_range_read_and_traverse() {
         }
     }
 }
+
+/// Regression (structured fuzzing): a group over an affine instance with entries near
+/// f32::MAX has an infinite leaf, so its tree's root is not finite. The writer wrote that
+/// file and the reader refused it at open; the writer now refuses it.
+#[test]
+fn writer_refuses_a_group_tree_whose_root_overflows() {
+    let big = f32::MAX as f64;
+    let a = Affine { matrix: diag(big, big, big) };
+    let t = ball();
+    let bound = TraversalState::IDENTITY.push(&Transform::from(a), &InstanceAttrs::default()).apply(&t.nodes()[0]);
+    assert!(!bound.is_finite());
+    let group = SceneTree::from_bfs(vec![parent_of(&t.nodes()[0], &bound), t.nodes()[0], bound], vec![true, false, false]).expect("tree");
+    let nodes = vec![
+        sct_format::GraphNode::Tree { tree: 0 },
+        sct_format::GraphNode::Affine { child: 0, transform: a, attrs: InstanceAttrs::default() },
+        sct_format::GraphNode::Group { children: vec![0, 1], tree: 1 },
+    ];
+    let scene = Scene { generator: Generator::default(), graph: sct_format::SceneGraph { nodes, root: 2 }, trees: vec![t, group] };
+    match write_scene(&scene, &WriteOptions::default(), Vec::new()) {
+        Err(Error::Misuse(m)) => assert!(m.contains("tree 1") && m.contains("non-finite"), "{m}"),
+        other => panic!("{:?}", other.map(|_| ())),
+    }
+    // The affine instance alone (its world nodes overflow, its file is fine) is written.
+    let scene = Scene { trees: vec![scene.trees[0].clone()], graph: sct_format::SceneGraph { nodes: scene.graph.nodes[..2].to_vec(), root: 1 }, ..scene };
+    let mut b = Vec::new();
+    write_scene(&scene, &WriteOptions::default(), &mut b).expect("valid");
+    SctReader::from_bytes(b, &Limits::default()).expect("reads");
+}
