@@ -309,7 +309,7 @@ impl Placement {
             return self.s;
         }
         let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-        if !(l > 0.0) || cone >= std::f32::consts::FRAC_PI_2 {
+        if l.is_nan() || l <= 0.0 || cone >= std::f32::consts::FRAC_PI_2 {
             return self.s;
         }
         let (t1, t2) = tangents(n.map(|v| v / l));
@@ -510,7 +510,7 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
 fn affine_splat(n: &Node, pl: &Placement, view: &View, c: [f32; 3], cap: f32, area_cover: f32, [x, y]: [f32; 2], color: [u8; 4]) -> Option<Splat> {
     let nt = n.normal;
     let len = dot3(nt, nt).sqrt();
-    if !(len > 0.0) || c[2] <= 0.0 {
+    if len.is_nan() || len <= 0.0 || c[2] <= 0.0 {
         return None;
     }
     let nt = nt.map(|v| v / len);
