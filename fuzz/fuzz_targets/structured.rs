@@ -24,9 +24,8 @@ use sct_format::samples::{AffineInstance, MeshEntry, SampleInstance, SamplesFile
 use sct_format::traverse::{Traversal, TraverseOptions};
 use sct_format::validate::{validate_bytes, validate_file, ValidateOptions};
 use sct_format::{
-    LeafRefinement,
-    write_scene, Generator, GraphNode, InstanceAttrs, Limits, Node, Profile, Propagation, Scene, SceneGraph, SceneTree, SctReader, Similarity,
-    WriteOptions,
+    write_scene, Affine, Generator, GraphNode, InstanceAttrs, LeafRefinement, Limits, Node, Profile, Propagation, Scene, SceneGraph, SceneTree,
+    SctReader, Similarity, Transform, WriteOptions,
 };
 
 /// Reads the recipe; zeros once it is used up.
@@ -159,6 +158,111 @@ fn blake3_like(bytes: &[u8]) -> &'static [u8; 32] {
 
 // ---------------------------------------------------------------- scene files
 
+/// An affine map the writer accepts: from a menu of shapes near the limits the reader
+/// enforces (entries near f32::MAX or tiny, condition near 10⁶, mirrors, shears), or read
+/// from the recipe (kept when valid, else a plain stretch).
+fn affine_of(r: &mut Recipe) -> Affine {
+    let big = f32::MAX as f64;
+    let diag = |x: f64, y: f64, z: f64, t: f64| Affine { matrix: [[x, 0.0, 0.0, t], [0.0, y, 0.0, -t], [0.0, 0.0, z, t]] };
+    let a = match r.below(10) {
+        0 => diag(big, big, big, 0.0),
+        1 => diag(-big, big, big, big),
+        2 => diag(999.0, 1.0, 1e-3, 0.0),
+        3 => diag(1e-30, 1e-30, 1e-30, 1e-30),
+        4 => Affine { matrix: [[1.0, 900.0, 0.0, 1e30], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, -1e30]] },
+        5 => diag(-1.0, 2.0, 0.5, 3.0),
+        _ => {
+            let mut m = [[0.0; 4]; 3];
+            for v in m.iter_mut().flatten() {
+                *v = (r.byte() as i8) as f64 / 16.0;
+            }
+            Affine { matrix: m }
+        }
+    };
+    if a.is_valid() {
+        a
+    } else {
+        diag(2.0, 1.0, 0.5, 1.0)
+    }
+}
+
+/// Where each affine instance record starts in a decoded graph (spec §7 record layout), as
+/// far as the records parse.
+fn affine_records(g: &[u8]) -> Vec<usize> {
+    let u32_at = |at: usize| g.get(at..at + 4).map(|s| u32::from_le_bytes(s.try_into().unwrap_or([0; 4])) as usize);
+    let u64_at = |at: usize| g.get(at..at + 8).map(|s| u64::from_le_bytes(s.try_into().unwrap_or([0; 8])));
+    let mut out = Vec::new();
+    let Some(n) = u64_at(0) else { return out };
+    let mut at = 12;
+    for _ in 0..n.min(1 << 16) {
+        let len = match g.get(at) {
+            Some(0) => 5,
+            Some(1) => match u64_at(at + 5) {
+                Some(k) if k < 1 << 20 => 13 + 4 * k as usize,
+                _ => break,
+            },
+            Some(2) => 1 + 4 + 64 + 1 + 4,
+            Some(3) => match u32_at(at + 1) {
+                // Path, hash, then the bound as a raw node record (40 bytes).
+                Some(l) => 5 + l + 32 + 40,
+                None => break,
+            },
+            Some(4) => {
+                out.push(at);
+                1 + 4 + 96 + 1 + 4
+            }
+            _ => break,
+        };
+        at += len;
+    }
+    out
+}
+
+/// Rewrites part of an affine instance record with a hostile value: a matrix entry (NaN,
+/// ±inf, zero, past f32::MAX, subnormal, scaled far), a row copied over another (singular),
+/// or the child reference (itself, a later node, none).
+fn mutate_affine(r: &mut Recipe, g: &mut [u8], node_count: usize) {
+    let recs = affine_records(g);
+    if recs.is_empty() {
+        return;
+    }
+    let at = recs[r.below(recs.len())];
+    let entry = |k: usize| at + 5 + 8 * k;
+    let get = |g: &[u8], k: usize| f64::from_le_bytes(g[entry(k)..entry(k) + 8].try_into().unwrap_or([0; 8]));
+    match r.below(4) {
+        0 | 1 => {
+            let k = r.below(12);
+            let cur = get(g, k);
+            let v = match r.below(14) {
+                0 => f64::NAN,
+                1 => f64::INFINITY,
+                2 => f64::NEG_INFINITY,
+                3 => 0.0,
+                4 => -cur,
+                5 => f32::MAX as f64,
+                6 => (f32::MAX as f64).next_up(),
+                7 => 1e38,
+                8 => -1e38,
+                9 => 5e-324,
+                10 => cur * 1e6,
+                11 => cur * 1e-6,
+                12 => 1e300,
+                _ => get(g, r.below(12)),
+            };
+            g[entry(k)..entry(k) + 8].copy_from_slice(&v.to_le_bytes());
+        }
+        2 => {
+            let (a, b) = (r.below(3), r.below(3));
+            let row: Vec<u8> = g[entry(4 * a)..entry(4 * a) + 32].to_vec();
+            g[entry(4 * b)..entry(4 * b) + 32].copy_from_slice(&row);
+        }
+        _ => {
+            let v = [node_count as u32, u32::MAX, (node_count as u32).wrapping_sub(1), 0][r.below(4)];
+            g[at + 1..at + 5].copy_from_slice(&v.to_le_bytes());
+        }
+    }
+}
+
 struct TreeM {
     header: TreeHeader,
     levels: Vec<LevelEntry>,
@@ -190,7 +294,21 @@ fn build_scene(r: &mut Recipe) -> Option<SceneM> {
     let unit = [[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.7071067811865476, 0.7071067811865476], [1.0, 0.0, 0.0, 0.0], [0.5, 0.5, 0.5, 0.5]];
     for _ in 0..r.below(7) {
         let k = nodes.len();
-        match r.below(4) {
+        match r.below(5) {
+            4 => {
+                // An affine instance (format 1.3): a placement the writer accepts; hostile
+                // matrices come from [`mutate_affine`] on the bytes.
+                let child = r.below(k) as u32;
+                let a = affine_of(r);
+                let tint = r.bool().then(|| [r.byte(), r.byte(), r.byte(), r.byte()]);
+                let attrs = InstanceAttrs {
+                    size: if r.bool() { Propagation::PushDown } else { Propagation::PullUp },
+                    color: if r.bool() { Propagation::PushDown } else { Propagation::PullUp },
+                    tint,
+                };
+                bounds.push(bounds[child as usize].map(|b| sct_format::traverse::TraversalState::IDENTITY.push(&Transform::from(a), &attrs).apply(&b)));
+                nodes.push(GraphNode::Affine { child, transform: a, attrs });
+            }
             0 => {
                 let child = r.below(k) as u32;
                 let t = Similarity {
@@ -239,7 +357,7 @@ fn build_scene(r: &mut Recipe) -> Option<SceneM> {
         profile,
         compression_level: [None, Some(0), Some(1)][r.below(3)],
         block_nodes: 2 + 2 * r.below(12) as u32,
-        centre_offsets: r.below(2) == 1,
+        centre_offsets: r.bool(),
         leaf_refinement: [LeafRefinement::None, LeafRefinement::All, LeafRefinement::Trees(vec![0])][r.below(3)].clone(),
     };
     let mut bytes = Vec::new();
@@ -279,7 +397,11 @@ fn flip(r: &mut Recipe, v: &mut [u8]) {
 fn mutate_model(r: &mut Recipe, m: &mut SceneM) {
     for _ in 0..r.below(5) {
         let nt = m.trees.len();
-        match r.below(12) {
+        match r.below(13) {
+            12 => {
+                let n = m.graph.get(..8).map_or(0, |s| u64::from_le_bytes(s.try_into().unwrap_or([0; 8]))) as usize;
+                mutate_affine(r, &mut m.graph, n);
+            }
             0 => flip(r, &mut m.graph),
             1 => {
                 // A graph record's reference or count: a u32 somewhere after the head.
@@ -492,7 +614,9 @@ fn exercise_scene(bytes: &[u8], file_checks: bool) {
                 let _ = rd.read_tree_levels(t, 2);
                 let _ = rd.walk_tree(t, |_, _| Ok(()));
             }
-            let _ = sct_format::traverse::graph_bound(&rd, rd.graph().root);
+            for i in 0..rd.graph().nodes.len().min(256) {
+                let _ = sct_format::traverse::graph_bound(&rd, i as u32);
+            }
         }
         Err(e) => {
             assert!(!quick.is_valid(), "quick validation said valid, the reader refused: {e}");

@@ -29,6 +29,11 @@
 //!   octree children). Such cells are sorted again every frame along their kept axis
 //!   (`cells_recut`). Wide samples reach across their cell's split plane, which breaks the
 //!   order between cells: the paper's own "non-infinitesimal primitives" failure (tested).
+//! - **Affine instances** (SCT 1.3): a cell's samples are sized by the most the matrix
+//!   stretches them, not by their mapped area, and wide samples are drawn as the matrix's
+//!   image of their disc (see `lod::Placement::patch_stretch`); sized by area, cells of
+//!   stretched boxes held samples wider than the footprint whose virtual children spilled
+//!   over every edge (SimpleInstancing −2.4 dB against baked copies; now −0.1 dB).
 //! - Cracks between single-pixel samples are closed by the same hole filling as the other
 //!   methods. A frame is drawn on one thread (no tiles) and is the same on any thread count.
 
@@ -172,10 +177,12 @@ pub(crate) fn render(files: &mut SceneFiles, view: &View, p: &LodParams, o: &Par
             continue;
         }
         // A plain tree's node becomes a cell once its samples (CELL_LEVELS down, each about
-        // 2^-CELL_LEVELS of its area) are at most the footprint; group trees and inlines
-        // refine until they reach plain trees.
+        // 2^-CELL_LEVELS of its area) are at most the footprint wide: their equal-area
+        // radius in the tree frame times the most the placement stretches the patch (under
+        // an affine instance a stretched patch is wider than its equal-area disc); group
+        // trees and inlines refine until they reach plain trees.
         let depth = c[2].max(view.near);
-        let sample_radius = view.focal * (n.node.area * pl.area_factor(n.node.normal) / std::f32::consts::PI / (1u64 << CELL_LEVELS) as f32).sqrt() / depth;
+        let sample_radius = view.focal * pl.patch_stretch(n.node.normal, n.node.cone) * (n.node.area / std::f32::consts::PI / (1u64 << CELL_LEVELS) as f32).sqrt() / depth;
         if n.refinable && !(it.is_plain_tree() && sample_radius <= footprint && c[2] > r) {
             let mut kids = files.item_children(&it)?;
             order_children(files, view, &mut kids);

@@ -372,6 +372,11 @@ fn check_graph(scene: &Scene) -> Result<()> {
         if t.level_count() > 0 && t.leaf_count() * 2 != t.len() + 1 {
             return Err(Error::Misuse(format!("tree {i} is truncated (not all levels are present)")));
         }
+        // The reader refuses such a file at open. A group tree built over instances whose
+        // placements reach past f32 (an affine entry near f32::MAX, a huge scale) gets one.
+        if let Some(root) = t.nodes().first().filter(|r| !r.is_finite()) {
+            return Err(Error::Misuse(format!("tree {i} has a root with non-finite or out-of-range attributes ({root})")));
+        }
     }
     Ok(())
 }

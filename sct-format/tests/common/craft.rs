@@ -178,6 +178,8 @@ pub enum G {
     Group(u32, Vec<u32>),
     /// child, transform, flags, tint
     Instance(u32, Similarity, u8, [u8; 4]),
+    /// child, row-major 3 × 4 matrix, flags, tint (format 1.3)
+    Affine(u32, [[f64; 4]; 3], u8, [u8; 4]),
     Inline(String, [u8; 32], Node),
 }
 
@@ -219,6 +221,13 @@ pub fn graph_bytes(nodes: &[G], root: u32) -> Vec<u8> {
                     out.extend_from_slice(&v.to_le_bytes());
                 }
                 out.extend_from_slice(&t.scale.to_le_bytes());
+                out.push(*flags);
+                out.extend_from_slice(tint);
+            }
+            G::Affine(c, m, flags, tint) => {
+                out.push(4);
+                out.extend_from_slice(&c.to_le_bytes());
+                m.iter().flatten().for_each(|v| out.extend_from_slice(&v.to_le_bytes()));
                 out.push(*flags);
                 out.extend_from_slice(tint);
             }
