@@ -393,7 +393,7 @@ fn setup(files: &SceneFiles, opts: &RenderOptions) -> Result<(Camera, f64, View,
         outline_refine: OUTLINE_REFINE,
         kernel: (opts.method == Method::Gauss).then(|| gauss::Kernel::new(&opts.gauss)),
         leaves: (opts.method == Method::Wald).then_some(opts.wald.radius_scale),
-        matrix_splats: opts.method == Method::Parilov,
+        matrix_splats: matches!(opts.method, Method::Parilov | Method::Zbuffer),
     };
     Ok((camera, near, view, params, up, t0.elapsed().as_secs_f64()))
 }

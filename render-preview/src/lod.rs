@@ -369,7 +369,8 @@ pub(crate) struct LodParams {
     pub leaves: Option<f32>,
     /// Under an affine placement, draw a flat patch as the matrix's image of its disc
     /// ([`affine_splat`]) instead of the disc of its mapped area (`parilov`, whose wide
-    /// samples have no depth test to trim what sticks out over an edge).
+    /// samples have no depth test to trim what sticks out over an edge, and `zbuffer`: on
+    /// SimpleInstancing's 120 stretched boxes 25.0 → 25.4 dB front, 25.7 → 27.0 iso).
     pub matrix_splats: bool,
 }
 

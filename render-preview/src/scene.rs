@@ -17,12 +17,15 @@
 //! the inverse transpose and renormalised, the radius scaled by σ_max (a disc slightly fat
 //! along the squashed directions), cones widened by the condition number (so normal-cone
 //! back-face culling stays safe) and areas scaled by Nanson's factor of the node's axis. Per
-//! method: `zbuffer` and `gauss` decide the LOD cut and draw their discs, ellipses or
-//! Gaussian kernels from those mapped attributes (the equal-area shrink uses the mapped area
-//! over the mapped radius); `canopy` builds its image graph from the mapped spheres and its
+//! method: `zbuffer` and `gauss` decide the LOD cut from those mapped attributes; `gauss`
+//! draws its Gaussian kernels from them (the equal-area shrink uses the mapped area over the
+//! mapped radius), `zbuffer` draws a flat patch as the matrix's image of its disc (an
+//! ellipse: discs of the mapped area stuck out over the edges of stretched boxes);
+//! `canopy` builds its image graph from the mapped spheres and its
 //! occlusion strength from the mapped area and widened cone; `parilov` sorts a cell's samples
-//! along the mapped normal of a tree axis (planes of constant tree coordinate stay planes)
-//! and sizes cells by the mapped area; `wald` collects mapped surfels (support capped by the
+//! along the mapped normal of a tree axis (planes of constant tree coordinate stay planes),
+//! sizes cells by the widest stretch of the matrix in a patch's plane and draws the matrix's
+//! image of each disc; `wald` collects mapped surfels (support capped by the
 //! mapped patch radius); `wand` places its random points on each leaf's disc in the tree's
 //! frame and maps them exactly (the disc becomes the true ellipse), drawing them with
 //! probability ∝ mapped area.

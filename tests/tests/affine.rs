@@ -68,13 +68,15 @@ fn non_uniform_gltf_instances_stay_instances() {
     let report = validate_file(&kept, &ValidateOptions { deep: true, limits: Limits::default(), allow_outside_inlines: false }).expect("validate");
     assert!(report.issues.is_empty(), "{:?}", report.issues);
 
-    // Against the mesh, under the baked file's camera: the instances draw about as well as
-    // the baked copies (their spheres are σ_max-fat, their cones κ-wide, so a little worse:
-    // against the 3 × 3 supersampled reference, zbuffer iso 25.47 dB kept, 26.06 baked).
+    // Against the mesh, under the baked file's camera: the instances draw as well as the
+    // baked copies (their spheres are σ_max-fat and their cones κ-wide; zbuffer draws their
+    // leaves as the matrix's image of their disc: at the iso view 26.76 dB kept against
+    // 26.06 baked, where discs of the leaves' area gave 25.47).
     let mesh = render_preview::reference::WorldMesh::load(&model).expect("mesh");
-    for (method, view, slack) in [(Method::Zbuffer, ViewPreset::Front, 0.5), (Method::Zbuffer, ViewPreset::Iso, 0.8), (Method::Wald, ViewPreset::Front, 0.5)] {
+    for (method, view, slack) in [(Method::Zbuffer, ViewPreset::Front, 0.5), (Method::Zbuffer, ViewPreset::Iso, 0.5), (Method::Wald, ViewPreset::Front, 0.5)] {
         let (db_baked, camera) = psnr(&baked, &mesh, method, view, None);
         let (db_kept, _) = psnr(&kept, &mesh, method, view, Some(camera));
+        eprintln!("{method:?} {view:?}: {db_kept:.2} dB kept, {db_baked:.2} dB baked");
         assert!(db_kept >= db_baked - slack, "{method:?} {view:?}: {db_kept:.2} dB kept, {db_baked:.2} dB baked");
         assert!(db_kept >= 21.0, "{method:?} {view:?}: {db_kept:.2} dB");
     }
