@@ -37,6 +37,15 @@ fn build_refined(samples: &Path, out: &Path, profile: Profile, leaf_refinement: 
     build_tree::pipeline::run(&cfg, &mut |_| {}).expect("build")
 }
 
+/// Renders `sct` with `opts` and compares the frame with `mesh`'s reference under the same
+/// camera; also returns the render.
+fn against_mesh(sct: &Path, mesh: &render_preview::reference::WorldMesh, opts: &render_preview::RenderOptions) -> (render_preview::metrics::Metrics, render_preview::Rendered) {
+    let out = render_preview::render_file(sct, opts).expect("render");
+    let view = render_preview::View::new(&out.camera, out.near).expect("view");
+    let refr = render_preview::reference::render_reference(mesh, &view, opts.shading, opts.background);
+    (render_preview::metrics::compare(&out.frame, &refr), out)
+}
+
 #[test]
 fn embedded_demo_model_goes_through_every_tool() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -101,12 +110,9 @@ fn two_sided_quad_is_drawn_from_behind_closed_box_is_culled_from_inside() {
     assert!(r.trees()[0].two_sided());
     assert_eq!(r.header().minor, 2);
     let behind = render_preview::RenderOptions { width: 200, height: 200, eye: Some([0.0, 0.0, -4.0]), target: Some([0.0; 3]), ..Default::default() };
-    let out = render_preview::render_file(&sct, &behind).expect("render from behind");
-    let drawn = out.frame.depth.iter().filter(|d| d.is_finite()).count();
     let mesh = render_preview::reference::WorldMesh::load(&quad).expect("load quad");
-    let view = render_preview::View::new(&out.camera, out.near).expect("view");
-    let refr = render_preview::reference::render_reference(&mesh, &view, behind.shading, behind.background);
-    let m = render_preview::metrics::compare(&out.frame, &refr);
+    let (m, out) = against_mesh(&sct, &mesh, &behind);
+    let drawn = out.frame.depth.iter().filter(|d| d.is_finite()).count();
     assert!(drawn > 200 * 200 / 10, "the quad's back is drawn ({drawn} pixels)");
     assert!(m.silhouette_iou > 0.95, "IoU {} against the two-sided reference", m.silhouette_iou);
 
@@ -139,11 +145,8 @@ fn leaning_file_normals_do_not_hide_the_outline() {
     let sct = dir.path().join("capsule.sct");
     build(&samples, &sct, Profile::Default);
     let opts = render_preview::RenderOptions { width: 640, height: 360, view: render_preview::ViewPreset::Iso, ..Default::default() };
-    let out = render_preview::render_file(&sct, &opts).expect("render");
     let mesh = render_preview::reference::WorldMesh::load(&capsule).expect("load capsule");
-    let view = render_preview::View::new(&out.camera, out.near).expect("view");
-    let refr = render_preview::reference::render_reference(&mesh, &view, opts.shading, opts.background);
-    let m = render_preview::metrics::compare(&out.frame, &refr);
+    let (m, _) = against_mesh(&sct, &mesh, &opts);
     assert!(m.silhouette_iou >= 0.985, "IoU {} (missing {})", m.silhouette_iou, m.missing_fraction);
 }
 
@@ -163,11 +166,8 @@ fn outlines_of_many_small_objects_are_refined() {
     let sct = dir.path().join("inst.sct");
     build(&samples, &sct, Profile::Default);
     let opts = render_preview::RenderOptions::default();
-    let out = render_preview::render_file(&sct, &opts).expect("render");
     let mesh = render_preview::reference::WorldMesh::load(&model).expect("load");
-    let view = render_preview::View::new(&out.camera, out.near).expect("view");
-    let refr = render_preview::reference::render_reference(&mesh, &view, opts.shading, opts.background);
-    let m = render_preview::metrics::compare(&out.frame, &refr);
+    let (m, _) = against_mesh(&sct, &mesh, &opts);
     let db = m.fg_psnr_db.expect("scored");
     assert!(db >= 24.0, "foreground PSNR {db:.2} dB, IoU {}", m.silhouette_iou);
 }
@@ -190,11 +190,8 @@ fn a_lossless_point_cloud_tree_matches_its_reference() {
     build(&samples, &sct, Profile::Raw);
     // At the default 1280 × 720 most points are wider than a pixel: leaves are drawn.
     let opts = render_preview::RenderOptions::default();
-    let out = render_preview::render_file(&sct, &opts).expect("render");
     let mesh = render_preview::reference::WorldMesh::load(&pond).expect("load");
-    let view = render_preview::View::new(&out.camera, out.near).expect("view");
-    let refr = render_preview::reference::render_reference(&mesh, &view, opts.shading, opts.background);
-    let m = render_preview::metrics::compare(&out.frame, &refr);
+    let (m, _) = against_mesh(&sct, &mesh, &opts);
     assert!(m.silhouette_iou >= 0.99 && m.fg_psnr_db.expect("scored") >= 30.0, "{m:?}");
 }
 
@@ -217,11 +214,7 @@ fn a_point_cloud_keeps_its_points_by_default() {
         let sct = dir.path().join(format!("pond-{refinement:?}.sct"));
         build_refined(&samples, &sct, Profile::Default, refinement);
         let minor = SctReader::open(&sct, &Limits::default()).expect("open").header().minor;
-        let opts = render_preview::RenderOptions::default();
-        let out = render_preview::render_file(&sct, &opts).expect("render");
-        let view = render_preview::View::new(&out.camera, out.near).expect("view");
-        let refr = render_preview::reference::render_reference(&mesh, &view, opts.shading, opts.background);
-        let m = render_preview::metrics::compare(&out.frame, &refr);
+        let (m, _) = against_mesh(&sct, &mesh, &render_preview::RenderOptions::default());
         (minor, m.fg_psnr_db.expect("scored"), m.silhouette_iou)
     };
     let (minor, db, iou) = score(Refinement::Auto);
