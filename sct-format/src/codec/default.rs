@@ -402,8 +402,8 @@ fn apply_offset(node: &mut Node, s: i8, parent_radius: f32) {
         return;
     }
     let t = s as f32 * parent_radius / OFFSET_STEPS;
-    for a in 0..3 {
-        node.center[a] = node.center[a] + t * node.normal[a];
+    for (c, n) in node.center.iter_mut().zip(node.normal) {
+        *c += t * n;
     }
 }
 
@@ -415,7 +415,7 @@ fn apply_offset(node: &mut Node, s: i8, parent_radius: f32) {
 /// offsets).
 fn pick_offset(p: &Node, orig: &Node, dec: &Node) -> (i8, Node) {
     let step = p.radius as f64 / OFFSET_STEPS as f64;
-    if !(step > 0.0) || !step.is_finite() {
+    if step.is_nan() || step <= 0.0 || !step.is_finite() {
         return (0, *dec);
     }
     let along: f64 = (0..3).map(|a| (orig.center[a] as f64 - dec.center[a] as f64) * dec.normal[a] as f64).sum();
