@@ -206,15 +206,8 @@ fn leaf_refinement_puts_leaves_at_their_place_and_size_and_labels_the_file_1_4()
     let errors = |bytes: &[u8]| {
         let r = SctReader::from_bytes(bytes.to_vec(), &Limits::default()).expect("read");
         let t = r.read_tree(0).expect("decode");
-        let mut v = Vec::new();
-        for i in 0..t.len() {
-            if !t.is_internal(i) {
-                let (d, o) = (t.nodes()[i], orig[i]);
-                let e = (0..3).map(|k| (d.center[k] - o.center[k]).powi(2)).sum::<f32>().sqrt();
-                v.push((e / o.radius, d.radius / o.radius));
-            }
-        }
-        v
+        let leaves = t.nodes().iter().zip(&orig).enumerate().filter(|&(i, _)| !t.is_internal(i));
+        leaves.map(|(_, (d, o))| (dist(d.center, o.center) / o.radius, d.radius / o.radius)).collect::<Vec<_>>()
     };
     let refined = write_with(&tree, WriteOptions { block_nodes: 4096, leaf_refinement: LeafRefinement::All, ..Default::default() });
     assert_eq!(u16::from_le_bytes([refined[10], refined[11]]), 4, "minor version");
