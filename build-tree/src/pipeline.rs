@@ -44,7 +44,7 @@ pub enum Refinement {
     Auto,
     /// Every tree.
     On,
-    /// No tree (1.3 readers can read the file unless it uses other 1.3+ features).
+    /// No tree (the file stays readable by 1.3 readers).
     Off,
 }
 
