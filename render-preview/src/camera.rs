@@ -52,6 +52,8 @@ pub struct View {
     pub height: u32,
     /// Near distance: geometry closer than this along the view axis is not drawn.
     pub near: f32,
+    /// Subpixels per output pixel side: 1, or the factor of [`View::supersampled`].
+    pub subpixels: u32,
     /// tan of the half field of view, horizontally and vertically.
     tan_half: [f32; 2],
     /// 1 / sqrt(1 + tan²) for the side-plane distances.
@@ -110,6 +112,7 @@ impl View {
             width: cam.width,
             height: cam.height,
             near: near.max(1e-30) as f32,
+            subpixels: 1,
             tan_half: [tx as f32, ty as f32],
             inv_norm: [(1.0 / (1.0 + tx * tx).sqrt()) as f32, (1.0 / (1.0 + ty * ty).sqrt()) as f32],
         })
@@ -119,7 +122,7 @@ impl View {
     /// subpixels): what a supersampled render draws before it is resolved.
     pub fn supersampled(&self, s: u32) -> View {
         let k = s as f32;
-        View { focal: self.focal * k, cx: self.cx * k, cy: self.cy * k, width: self.width * s, height: self.height * s, ..*self }
+        View { focal: self.focal * k, cx: self.cx * k, cy: self.cy * k, width: self.width * s, height: self.height * s, subpixels: self.subpixels * s, ..*self }
     }
 
     /// World point to camera space (f64 in, f32 out).

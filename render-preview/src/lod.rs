@@ -372,6 +372,10 @@ pub(crate) struct LodParams {
     /// samples have no depth test to trim what sticks out over an edge, and `zbuffer`: on
     /// SimpleInstancing's 120 stretched boxes 25.0 → 25.4 dB front, 25.7 → 27.0 iso).
     pub matrix_splats: bool,
+    /// Push splats' rims back ([`RIM_DEPTH`]): for `zbuffer`, whose depth test then splits
+    /// the overlap of a surface's splats by nearer centre. The other methods keep flat
+    /// discs (their papers' splats, and the depths they compare).
+    pub rims: bool,
 }
 
 /// Counters of one render.
@@ -493,12 +497,31 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
     if p.ellipses {
         if p.matrix_splats && pl.affine && n.cone < std::f32::consts::FRAC_PI_2 {
             if let Some(sp) = affine_splat(n, pl, view, c, p.max_radius, p.area_cover, [x, y], color) {
-                return Decision::Draw(sp);
+                return Decision::Draw(if p.rims { with_rim(sp, view.focal) } else { sp });
             }
         }
-        return Decision::Draw(surface_splat(c, nrm, cone, s, [x, y], color));
+        let sp = surface_splat(c, nrm, cone, s, [x, y], color);
+        return Decision::Draw(if p.rims { with_rim(sp, view.focal) } else { sp });
     }
-    Decision::Draw(Splat::disc(x, y, c[2], s, color))
+    let sp = Splat::disc(x, y, c[2], s, color);
+    Decision::Draw(if p.rims { with_rim(sp, view.focal) } else { sp })
+}
+
+/// How far behind its centre a drawn splat's rim lies, in units of its radius in the world
+/// ([`Splat::rim`]). Flat discs of one surface tie in depth wherever they overlap and the
+/// first drawn takes the whole overlap, which moves texture edges by up to a splat's
+/// radius; with the rim pushed back, each pixel of the overlap goes to the splat whose
+/// centre is nearer (in its ellipse's metric), as a sphere's front would. Pushed back by
+/// one radius, a surface at most that far behind can show through the rim: leaves are
+/// about a pixel, so such surfaces are within a pixel of each other.
+pub(crate) const RIM_DEPTH: f32 = 1.0;
+
+/// `sp` with its rim ([`RIM_DEPTH`] × its major radius, taken from pixels at its depth to
+/// the world by `focal`, pixels per unit at distance 1).
+pub(crate) fn with_rim(mut sp: Splat, focal: f32) -> Splat {
+    let major = 1.0 / sp.inv_b2.max(1e-30).sqrt();
+    sp.rim = RIM_DEPTH * major * sp.z / focal;
+    sp
 }
 
 /// The splat of a flat patch under an affine placement: the patch's disc in the tree frame

@@ -33,6 +33,9 @@ pub struct Splat {
     pub bounds: [i16; 4],
     /// sRGB colour, straight alpha (alpha < 255 is drawn with an ordered-dither screen door).
     pub color: [u8; 4],
+    /// Depth added at the rim of the splat, growing with the square of the normalised
+    /// distance from its centre: a paraboloid instead of a flat disc.
+    pub rim: f32,
 }
 
 impl Splat {
@@ -40,7 +43,7 @@ impl Splat {
     pub fn disc(x: f32, y: f32, z: f32, r: f32, color: [u8; 4]) -> Splat {
         let r = r.max(1e-6);
         let inv = 1.0 / (r * r);
-        Splat { x, y, z, ux: 1.0, uy: 0.0, inv_a2: inv, inv_b2: inv, bounds: pixel_bounds(x, y, r, r), color }
+        Splat { x, y, z, ux: 1.0, uy: 0.0, inv_a2: inv, inv_b2: inv, bounds: pixel_bounds(x, y, r, r), color, rim: 0.0 }
     }
 
     /// An elliptical splat: major radius `b`, minor radius `a` along unit `(ux, uy)`.
@@ -50,7 +53,7 @@ impl Splat {
         let a = a.clamp(1e-6, b);
         let ex = ((a * ux).powi(2) + (b * uy).powi(2)).sqrt();
         let ey = ((a * uy).powi(2) + (b * ux).powi(2)).sqrt();
-        Splat { x, y, z, ux, uy, inv_a2: 1.0 / (a * a), inv_b2: 1.0 / (b * b), bounds: pixel_bounds(x, y, ex, ey), color }
+        Splat { x, y, z, ux, uy, inv_a2: 1.0 / (a * a), inv_b2: 1.0 / (b * b), bounds: pixel_bounds(x, y, ex, ey), color, rim: 0.0 }
     }
 
     /// Calls `f` with the index (`y × w + x`) of every pixel of a `w × h` frame whose centre
@@ -224,11 +227,13 @@ pub fn rasterize(frame: &mut Frame, splats: &[Splat]) {
     // Splat indices are 32-bit in a candidate: more splats than that go in sequential
     // parts, which keeps "earliest wins" because a later part only replaces nearer depths.
     for part in splats.chunks(u32::MAX as usize) {
-        rasterize_part(frame, part);
+        rasterize_part(frame, part, true);
     }
 }
 
-fn rasterize_part(frame: &mut Frame, splats: &[Splat]) {
+/// `door`: splats with alpha < 255 are drawn through the screen door; otherwise as opaque,
+/// their colour keeping its alpha.
+fn rasterize_part(frame: &mut Frame, splats: &[Splat], door: bool) {
     let (w, h) = (frame.width, frame.height);
     let px = w * h;
     if px == 0 || splats.is_empty() || frame.color.len() != px || frame.depth.len() != px {
@@ -259,7 +264,7 @@ fn rasterize_part(frame: &mut Frame, splats: &[Splat]) {
         let start = i.saturating_mul(CHUNK);
         let Some(Ok(mut col)) = parts.get(i).map(|p| p.lock()) else { break };
         let end = (start + CHUNK).min(splats.len());
-        draw_chunk(&splats[start..end], start as u32, &mut l.cand[..px], &mut l.touched, &mut col, w, h);
+        draw_chunk(&splats[start..end], start as u32, &mut l.cand[..px], &mut l.touched, &mut col, (w, h), door);
     });
     drop(parts);
     let colors_of = &colors[..];
@@ -328,12 +333,56 @@ fn rasterize_part(frame: &mut Frame, splats: &[Splat]) {
     }
 }
 
+/// [`rasterize`] with translucent splats blended rather than screen-doored: the opaque
+/// splats are depth-tested as by [`rasterize`], then the nearest translucent splat in front
+/// of them is blended over them in linear light (`alpha · splat + (1 − alpha) · behind`).
+/// Where nothing opaque lies behind, the translucent splat covers the pixel through the
+/// screen door, unblended.
+///
+/// Why: the screen door dithers a translucent surface pixel by pixel, so a decal's
+/// antialiased edge or a half-transparent panel reads as a checkerboard of full-contrast
+/// pixels, each off by half the contrast; the mesh reference averages its subpixels and
+/// shows the blend. One translucent layer is kept per pixel, so overlapping splats of one
+/// surface do not compound its alpha; a second translucent surface behind the first is lost.
+pub fn rasterize_blended(frame: &mut Frame, splats: &[Splat]) {
+    if splats.iter().all(|s| s.color[3] == 255) {
+        rasterize(frame, splats);
+        return;
+    }
+    let (opaque, clear): (Vec<Splat>, Vec<Splat>) = splats.iter().partition(|s| s.color[3] == 255);
+    rasterize(frame, &opaque);
+    drop(opaque);
+    let (w, h) = (frame.width, frame.height);
+    let mut top = Frame::new(w, h, [0; 4]);
+    for part in clear.chunks(u32::MAX as usize) {
+        rasterize_part(&mut top, part, false);
+    }
+    let lin = crate::shade::srgb_to_linear_lut();
+    for (i, (t, &tz)) in top.color.iter().zip(&top.depth).enumerate() {
+        let (Some(c), Some(z)) = (frame.color.get_mut(i), frame.depth.get_mut(i)) else { break };
+        if !(tz < *z) || t[3] == 0 {
+            continue;
+        }
+        if z.is_finite() {
+            let a = f32::from(t[3]) / 255.0;
+            for k in 0..3 {
+                c[k] = crate::shade::linear_to_srgb8(a * lin[t[k] as usize] + (1.0 - a) * lin[c[k] as usize]);
+            }
+        } else if alpha_passes(t[3], i % w, i / w) {
+            *c = [t[0], t[1], t[2], 255];
+        } else {
+            continue;
+        }
+        *z = tz;
+    }
+}
+
 /// Splats drawn as one batch by [`draw_batch`].
 const BATCH: usize = 64;
 
 /// Draws the splats of one chunk (`base`: index of its first splat) into a worker's layer.
 #[inline(never)]
-fn draw_chunk(splats: &[Splat], base: u32, cand: &mut [Cand], touched: &mut [bool], colors: &mut [u32], w: usize, h: usize) {
+fn draw_chunk(splats: &[Splat], base: u32, cand: &mut [Cand], touched: &mut [bool], colors: &mut [u32], (w, h): (usize, usize), door: bool) {
     let batches = splats.chunks_exact(BATCH);
     let rest = batches.remainder();
     // First rows of the batches' boxes: a superset of the rows `draw_batch` writes itself
@@ -341,7 +390,7 @@ fn draw_chunk(splats: &[Splat], base: u32, cand: &mut [Cand], touched: &mut [boo
     let (mut lo, mut hi) = (i32::MAX, i32::MIN);
     for (g, (batch, col)) in batches.zip(colors.chunks_exact_mut(BATCH)).enumerate() {
         if let (Ok(batch), Ok(col)) = (<&[Splat; BATCH]>::try_from(batch), <&mut [u32; BATCH]>::try_from(col)) {
-            draw_batch(batch, base + (g * BATCH) as u32, cand, touched, col, w, h, (&mut lo, &mut hi));
+            draw_batch(batch, base + (g * BATCH) as u32, cand, touched, col, (w, h), door, (&mut lo, &mut hi));
         }
     }
     if lo <= hi {
@@ -353,7 +402,7 @@ fn draw_chunk(splats: &[Splat], base: u32, cand: &mut [Cand], touched: &mut [boo
     let first = base + (splats.len() - rest.len()) as u32;
     for (j, (s, c)) in rest.iter().zip(colors.iter_mut().skip(splats.len() - rest.len())).enumerate() {
         *c = u32::from_ne_bytes(s.color);
-        draw_any(s, first + j as u32, cand, touched, w, h);
+        draw_any(s, first + j as u32, cand, touched, (w, h), door);
     }
 }
 
@@ -375,11 +424,11 @@ fn key(z: f32, index: u32) -> Cand {
 /// both draw the same pixels.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn draw_batch(q: &[Splat; BATCH], base: u32, cand: &mut [Cand], touched: &mut [bool], col: &mut [u32; BATCH], w: usize, h: usize, rows: (&mut i32, &mut i32)) {
+fn draw_batch(q: &[Splat; BATCH], base: u32, cand: &mut [Cand], touched: &mut [bool], col: &mut [u32; BATCH], (w, h): (usize, usize), door: bool, rows: (&mut i32, &mut i32)) {
     // Per splat: the candidates offered to its four centres (zero where it misses one)
     // and whether the fast path draws it.
     let mut m = [[0u32; BATCH]; 4];
-    let mut nk = [0u32; BATCH];
+    let mut nk = [[0u32; BATCH]; 4];
     let mut ok = [0u32; BATCH];
     let (wl, hl) = (w as u32 - 1, h as u32 - 1);
     let (mut lo, mut hi) = (*rows.0, *rows.1);
@@ -393,20 +442,24 @@ fn draw_batch(q: &[Splat; BATCH], base: u32, cand: &mut [Cand], touched: &mut [b
         let fy = y0 as f32 + 0.5 - s.y;
         let fy1 = (y0 + 1) as f32 + 0.5 - s.y;
         let (ux, uy, ia, ib) = (s.ux, s.uy, s.inv_a2, s.inv_b2);
-        let hit = |dx: f32, dy: f32| {
+        let q = |dx: f32, dy: f32| {
             let (a, b) = (dx * ux + dy * uy, dy * ux - dx * uy);
-            0u32.wrapping_sub((a * a * ia + b * b * ib <= 1.0) as u32)
+            a * a * ia + b * b * ib
         };
+        let hit = |q: f32| 0u32.wrapping_sub((q <= 1.0) as u32);
         // Centres (0,0), (1,0), (0,1), (1,1) inside the box; none for an empty box.
         let (c0, c1, r0, r1) = (!(ex >> 31) as u32, !((ex - 1) >> 31) as u32, !(ey >> 31) as u32, !((ey - 1) >> 31) as u32);
-        nk[k] = !depth_key(s.z);
-        m[0][k] = hit(fx, fy) & c0 & r0;
-        m[1][k] = hit(fx1, fy) & c1 & r0;
-        m[2][k] = hit(fx, fy1) & c0 & r1;
-        m[3][k] = hit(fx1, fy1) & c1 & r1;
+        let qs = [q(fx, fy), q(fx1, fy), q(fx, fy1), q(fx1, fy1)];
+        for (j, qj) in qs.into_iter().enumerate() {
+            nk[j][k] = !depth_key(s.z + s.rim * qj);
+        }
+        m[0][k] = hit(qs[0]) & c0 & r0;
+        m[1][k] = hit(qs[1]) & c1 & r0;
+        m[2][k] = hit(qs[2]) & c0 & r1;
+        m[3][k] = hit(qs[3]) & c1 & r1;
         // A negative coordinate fails the unsigned comparison. NaN and +inf depths never
         // pass a depth test; `draw_any` drops them.
-        ok[k] = ((ex <= 1) & (ey <= 1) & ((x0 as u32) < wl) & ((y0 as u32) < hl) & (s.color[3] == 255) & (s.z < f32::INFINITY)) as u32;
+        ok[k] = ((ex <= 1) & (ey <= 1) & ((x0 as u32) < wl) & ((y0 as u32) < hl) & (s.color[3] == 255 || !door) & (s.z < f32::INFINITY)) as u32;
         all &= ok[k];
         lo = lo.min(y0);
         hi = hi.max(y0);
@@ -414,9 +467,9 @@ fn draw_batch(q: &[Splat; BATCH], base: u32, cand: &mut [Cand], touched: &mut [b
     (*rows.0, *rows.1) = (lo, hi);
     let at = |s: &Splat| s.bounds[2] as i32 as usize * w + s.bounds[0] as i32 as usize;
     let cands = |k: usize| {
-        let key = ((nk[k] as u64) << 32) | !(base + k as u32) as u64;
-        let pick = |m: u32| key & (m as i32 as i64 as u64);
-        [pick(m[0][k]), pick(m[1][k]), pick(m[2][k]), pick(m[3][k])]
+        let idx = !(base + k as u32) as u64;
+        let pick = |j: usize| (((nk[j][k] as u64) << 32) | idx) & (m[j][k] as i32 as i64 as u64);
+        [pick(0), pick(1), pick(2), pick(3)]
     };
     if all != 0 {
         // The usual case, without a branch per splat.
@@ -430,7 +483,7 @@ fn draw_batch(q: &[Splat; BATCH], base: u32, cand: &mut [Cand], touched: &mut [b
             if ok[k] != 0 {
                 put_quad(cand, at(&q[k]), w, cands(k));
             } else {
-                draw_any(&q[k], base + k as u32, cand, touched, w, h);
+                draw_any(&q[k], base + k as u32, cand, touched, (w, h), door);
             }
         }
     }
@@ -453,19 +506,18 @@ fn put_quad(cand: &mut [Cand], i: usize, w: usize, k: [Cand; 4]) {
 
 /// Draws splat `index` of any size, clipped to the frame, into a worker's layer.
 #[inline(never)]
-fn draw_any(s: &Splat, index: u32, cand: &mut [Cand], touched: &mut [bool], w: usize, h: usize) {
+fn draw_any(s: &Splat, index: u32, cand: &mut [Cand], touched: &mut [bool], (w, h): (usize, usize), door: bool) {
     // NaN and +inf depths never pass a depth test.
     let finite = s.z < f32::INFINITY;
     if !finite {
         return;
     }
-    let key = key(s.z, index);
     let [x0, x1, y0, y1] = s.bounds.map(i32::from);
     let (xa, xb, ya, yb) = (x0.max(0), x1.min(w as i32 - 1), y0.max(0), y1.min(h as i32 - 1));
     if xa > xb || ya > yb {
         return;
     }
-    let opaque = s.color[3] == 255;
+    let opaque = s.color[3] == 255 || !door;
     let x0f = xa as f32 + 0.5 - s.x;
     for py in ya..=yb {
         let dy = py as f32 + 0.5 - s.y;
@@ -476,8 +528,9 @@ fn draw_any(s: &Splat, index: u32, cand: &mut [Cand], touched: &mut [bool], w: u
         for (k, c) in crow.iter_mut().enumerate() {
             let dx = x0f + k as f32;
             let (a, b) = (dx * s.ux + ay, by - dx * s.uy);
-            if a * a * s.inv_a2 + b * b * s.inv_b2 <= 1.0 && (opaque || alpha_passes(s.color[3], xa as usize + k, py as usize)) {
-                *c = (*c).max(key);
+            let q = a * a * s.inv_a2 + b * b * s.inv_b2;
+            if q <= 1.0 && (opaque || alpha_passes(s.color[3], xa as usize + k, py as usize)) {
+                *c = (*c).max(key(s.z + s.rim * q, index));
             }
         }
     }
@@ -607,6 +660,67 @@ mod tests {
         assert_eq!(f.covered(), 0);
         rasterize(&mut f, &[Splat::disc(-5e4, 4.0, 1.0, 6e4, [2, 2, 2, 255])]);
         assert_eq!(f.covered(), 16 * 8);
+    }
+
+    /// A half-transparent splat over an opaque one shows their mix in linear light, over
+    /// nothing it covers through the screen door unblended, and two overlapping splats of
+    /// one translucent surface do not compound their alpha.
+    #[test]
+    fn translucent_splats_blend_over_the_opaque_surface_once() {
+        let lin = crate::shade::srgb_to_linear_lut();
+        let (red, blue) = ([255, 0, 0, 255], [0, 0, 255, 128]);
+        let mut f = Frame::new(16, 8, [0, 0, 0, 255]);
+        let splats = [
+            Splat::disc(4.0, 4.0, 2.0, 3.0, red),
+            Splat::disc(4.0, 4.0, 1.0, 3.0, blue),
+            Splat::disc(4.5, 4.0, 1.0, 3.0, blue),
+            Splat::disc(12.0, 4.0, 1.0, 3.0, blue),
+        ];
+        rasterize_blended(&mut f, &splats);
+        let a = 128.0 / 255.0;
+        let want = [crate::shade::linear_to_srgb8((1.0 - a) * lin[255]), 0, crate::shade::linear_to_srgb8(a * lin[255])];
+        let c = f.color[4 * 16 + 4];
+        assert_eq!([c[0], c[1], c[2]], want, "blended once, in linear light");
+        assert_eq!(f.depth[4 * 16 + 4], 1.0);
+        // Over the background: the pixels the screen door passes, in the splat's colour.
+        let (mut shown, mut pixels) = (0, 0);
+        Splat::disc(12.0, 4.0, 1.0, 3.0, blue).for_each_pixel(16, 8, |i| {
+            pixels += 1;
+            if f.depth[i].is_finite() {
+                shown += 1;
+                assert_eq!(f.color[i], [0, 0, 255, 255]);
+            } else {
+                assert_eq!(f.color[i], [0, 0, 0, 255]);
+            }
+        });
+        assert!(shown > pixels / 4 && shown < pixels * 3 / 4, "{shown} of {pixels}");
+        // Opaque splats alone draw as `rasterize` draws them.
+        let mut g = Frame::new(16, 8, [0, 0, 0, 255]);
+        let mut h = g.clone();
+        rasterize_blended(&mut g, &splats[..1]);
+        rasterize(&mut h, &splats[..1]);
+        assert_eq!(g, h);
+    }
+
+    /// Two coplanar overlapping discs split their overlap at the bisector (each pixel goes
+    /// to the nearer centre) instead of the first drawn taking all of it.
+    #[test]
+    fn coplanar_splats_split_their_overlap_by_the_rim_depth() {
+        for first in [0usize, 1] {
+            let mut f = Frame::new(16, 4, [0; 4]);
+            let mut s = [Splat::disc(5.0, 2.0, 1.0, 4.0, [1, 0, 0, 255]), Splat::disc(11.0, 2.0, 1.0, 4.0, [2, 0, 0, 255])];
+            for sp in &mut s {
+                sp.rim = 0.01;
+            }
+            if first == 1 {
+                s.swap(0, 1);
+            }
+            rasterize(&mut f, &s);
+            for x in 2..14 {
+                let want = if (x as f32 + 0.5) < 8.0 { 1 } else { 2 };
+                assert_eq!(f.color[16 + x][0], want, "pixel {x}, drawn first: {first}");
+            }
+        }
     }
 
     #[test]

@@ -288,41 +288,38 @@ pub fn render_reference_bounded(mesh: &WorldMesh, view: &View, shading: Shading,
 fn draw(mesh: &WorldMesh, view: &View, shading: Shading, background: [u8; 3], max_pixels: u64) -> std::result::Result<Frame, (Frame, u64)> {
     let [r, g, b] = background;
     let bg = [r, g, b, 255];
-    let mut pixels = 0u64;
-    let mut frame = if mesh.tris.is_empty() {
-        Frame::new(view.width as usize, view.height as usize, bg)
-    } else {
-        let fine = view.supersampled(SUPERSAMPLE);
-        let mut sub = Frame::new(fine.width as usize, fine.height as usize, bg);
-        // Counted in output pixels, as points are (the limit's unit): each costs
-        // `SUPERSAMPLE²` subpixel tests.
-        let per_pixel = u64::from(SUPERSAMPLE * SUPERSAMPLE);
-        let mut subpixels = 0u64;
-        let r = draw_triangles(mesh, &fine, shading, &mut sub, &mut subpixels, max_pixels.saturating_mul(per_pixel));
-        pixels = subpixels / per_pixel;
-        let frame = resolve(&sub, SUPERSAMPLE as usize, bg);
-        if r.is_err() {
-            return Err((frame, pixels));
-        }
-        frame
-    };
-    if !mesh.points.is_empty() {
-        let splats = point_splats(&mesh.points, view, shading);
-        let (iw, ih) = (i64::from(view.width), i64::from(view.height));
-        pixels = splats.iter().fold(pixels, |sum, s| {
+    // Triangles and points are drawn into `SUPERSAMPLE²` subpixels a pixel, as the default
+    // `zbuffer` preview draws its splats, and resolved alike.
+    let fine = view.supersampled(SUPERSAMPLE);
+    let mut sub = Frame::new(fine.width as usize, fine.height as usize, bg);
+    // Counted in output pixels, as the limit is: a pixel is `SUPERSAMPLE²` subpixel tests.
+    let per_pixel = u64::from(SUPERSAMPLE * SUPERSAMPLE);
+    let mut subpixels = 0u64;
+    let drawn = draw_triangles(mesh, &fine, shading, &mut sub, &mut subpixels, max_pixels.saturating_mul(per_pixel));
+    if drawn.is_ok() && !mesh.points.is_empty() {
+        let splats = point_splats(&mesh.points, &fine, shading);
+        let (iw, ih) = (i64::from(fine.width), i64::from(fine.height));
+        subpixels = splats.iter().fold(subpixels, |sum, s| {
             let [x0, x1, y0, y1] = s.bounds.map(i64::from);
             let n = (x1.min(iw - 1) - x0.max(0) + 1).max(0) * (y1.min(ih - 1) - y0.max(0) + 1).max(0);
             sum.saturating_add(n as u64)
         });
-        if pixels > max_pixels {
-            return Err((frame, pixels));
+        if subpixels / per_pixel <= max_pixels {
+            crate::raster::rasterize_blended(&mut sub, &splats);
+            crate::raster::fill_holes(&mut sub);
         }
-        crate::raster::rasterize(&mut frame, &splats);
+    }
+    let pixels = subpixels / per_pixel;
+    let mut frame = resolve(&sub, SUPERSAMPLE as usize, bg);
+    if drawn.is_err() || pixels > max_pixels {
+        return Err((frame, pixels));
+    }
+    if !mesh.points.is_empty() {
+        crate::raster::fill_holes(&mut frame);
         // Cracks between the discs are closed as the default (`zbuffer`) splat renderer
         // closes them, its depth pits included: a lossless tree of the pond scan scored
         // 34.3 dB against a reference without the pit fill and 30.0 dB once the renderer
         // filled its pits (single far points seen between near ones).
-        crate::raster::fill_holes(&mut frame);
         crate::raster::fill_depth_pits(&mut frame);
     }
     Ok(frame)
@@ -342,7 +339,7 @@ pub const SUPERSAMPLE: u32 = 3;
 /// one sample per pixel, a hard edge as the previews draw it), with that subpixel's depth
 /// and the mean colour of the block's covered subpixels in linear light; the background
 /// elsewhere.
-fn resolve(sub: &Frame, s: usize, bg: [u8; 4]) -> Frame {
+pub(crate) fn resolve(sub: &Frame, s: usize, bg: [u8; 4]) -> Frame {
     let (w, h) = (sub.width / s, sub.height / s);
     let lin = shade::srgb_to_linear_lut();
     let mut out = Frame::new(w, h, bg);
@@ -461,7 +458,8 @@ fn point_splats(points: &[Point], view: &View, shading: Shading) -> Vec<crate::r
             // covered 9 % more of a pond scan seen at a low angle than its own leaves did.
             let n = view.dir_to_camera(pt.n.map(f64::from)).map(|v| v as f32);
             let unit = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2] - 1.0).abs() < 1e-3;
-            Some(if unit { crate::lod::surface_splat(c, n, 0.0, s, [x, y], color) } else { crate::raster::Splat::disc(x, y, c[2], s, color) })
+            let sp = if unit { crate::lod::surface_splat(c, n, 0.0, s, [x, y], color) } else { crate::raster::Splat::disc(x, y, c[2], s, color) };
+            Some(crate::lod::with_rim(sp, view.focal))
         })
         .collect()
 }

@@ -371,6 +371,8 @@ impl SceneFiles {
         // `wald` method): the same bound, so that a large radius scale or a close-up fails
         // fast instead of tracing for hours.
         let pixels = surfels.iter().fold(pixels, |sum, sf| sum.saturating_add(crate::wald::support_pixels(sf, view)));
+        // The limit is in output pixels; a supersampled view counted subpixels.
+        let pixels = pixels / u64::from(view.subpixels).pow(2).max(1);
         if pixels > p.max_splat_pixels {
             let e = sct_format::Error::LimitExceeded { what: lod::PIXELS_COVERED, value: pixels, limit: p.max_splat_pixels };
             return Err(Error::sct(&self.files[0].path, e));

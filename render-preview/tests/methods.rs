@@ -167,18 +167,19 @@ fn gauss_is_deterministic_across_runs_and_threads() {
 /// - blending: a mean drop of 4.7–4.8 everywhere (the black behind shows by about 2 %), at
 ///   most 105 at one pixel, and 0.00–0.07 % of pixels darker by more than 64;
 /// - normalised weighting: mean 0.02–0.30, 0.00–0.04 % darker by more than 64;
-/// - the depth buffer: 1.5 / 1.4 / 3.1 / 3.9 % of pixels at pixel error 0.5 / 1 / 2 / 4 show
+/// - the depth buffer: 0.07 / 0.5 / 1.8 / 2.7 % of pixels at pixel error 0.5 / 1 / 2 / 4 show
 ///   the black plate outright (cracks between internal splats drawn at `AREA_COVER ×` their
 ///   equal-area radius, which `raster::fill_holes` does not close because the plate behind
-///   covers them; 4.6–5.3 % before `raster::fill_depth_pits` closed the one-pixel pits).
+///   covers them; 4.6–5.3 % before `raster::fill_depth_pits` closed the one-pixel pits, and
+///   1.5 / 1.4 / 3.1 / 3.9 % with one sample a pixel and flat discs).
 ///
 /// The bounds are those figures with a margin.
 const LEAK_PIXEL_ERRORS: [f32; 4] = [0.5, 1.0, 2.0, 4.0];
 
 /// See [`gauss_leaks_the_layer_behind_within_a_bound`]: the depth buffer's share of front
 /// plate pixels showing the black plate, after `raster::fill_depth_pits`, at pixel error ≤ 1
-/// and above (measured 1.5 % and 3.9 % at most; 4.6–5.3 % without it).
-const ZBUFFER_CRACKS: [f64; 2] = [0.02, 0.045];
+/// and above (measured 0.5 % and 2.7 % at most; 4.6–5.3 % without it).
+const ZBUFFER_CRACKS: [f64; 2] = [0.01, 0.035];
 
 #[test]
 fn gauss_leaks_the_layer_behind_within_a_bound() {
@@ -217,7 +218,7 @@ fn gauss_leaks_the_layer_behind_within_a_bound() {
         eprintln!("pixel_error {pe}: luma drop (mean, max, fraction > 64) blend {b:?}, normalized {n:?}, zbuffer {z:?}");
         assert!(b.mean <= 6.0 && b.dark <= 0.002, "pixel_error {pe}: blending {b:?}");
         assert!(n.mean <= 0.6 && n.dark <= 0.001, "pixel_error {pe}: normalized {n:?}");
-        assert!(z.dark <= ZBUFFER_CRACKS[(pe > 1.0) as usize] && b.dark < z.dark, "pixel_error {pe}: blending {b:?} vs zbuffer {z:?}");
+        assert!(z.dark <= ZBUFFER_CRACKS[(pe > 1.0) as usize] && b.dark <= z.dark, "pixel_error {pe}: blending {b:?} vs zbuffer {z:?}");
     }
 }
 
@@ -269,7 +270,8 @@ fn cli_method_flag_and_work_counters() {
 fn gauss_in_mask_order() {
     let dir = tempfile::tempdir().unwrap();
     let Some((mesh, sct)) = synth_shared("scans/stanford-bunny-original-ply/bun_zipper_res2.ply", dir.path()) else { return };
-    let depth = gauss(small(384, 384));
+    // At pixel error 1, where the figures above were measured.
+    let depth = gauss(RenderOptions { pixel_error: 1.0, ..small(384, 384) });
     let d = render_file(&sct, &depth).unwrap();
     let refr = reference_for(&mesh, &d, &depth);
     let mask = RenderOptions { gauss: render_preview::GaussOptions { order: render_preview::Order::Mask, ..depth.gauss }, ..depth.clone() };

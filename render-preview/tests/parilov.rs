@@ -132,7 +132,8 @@ fn sample_cube_shows_its_inside_only_past_the_threshold() {
             // Face-on looks along −z; the others turn about y (and, for the corner, x too).
             let a = deg.to_radians();
             let eye = if toward_corner { [1.443, 1.443, 1.443] } else { [2.5 * a.sin(), 0.0, 2.5 * a.cos()] };
-            let o = parilov(RenderOptions { width: 80, height: 80, eye: Some(eye), target: Some([0.0; 3]), parilov: ParilovOptions { threshold_deg: threshold }, ..RenderOptions::default() });
+            // Pixel error 1, as measured.
+            let o = parilov(RenderOptions { width: 80, height: 80, eye: Some(eye), target: Some([0.0; 3]), parilov: ParilovOptions { threshold_deg: threshold }, pixel_error: 1.0, ..RenderOptions::default() });
             let out = render(&mut files, &o).unwrap();
             let m = magenta(&out.frame);
             let ps = out.stats.parilov.unwrap();

@@ -32,7 +32,7 @@ pub enum MethodArg {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum DensityArg {
-    /// The intended view: the model framed as sct-render-preview frames it by default (90 % of 1280 × 720, 40°), voxels --screen-error pixels wide there (default 1.5: the finest leaves its default --pixel-error 1 draws).
+    /// The intended view: the model framed as sct-render-preview frames it by default (90 % of 1280 × 720, 40°), voxels --screen-error pixels wide there (default 1.5: its default --pixel-error 0.75 draws splats up to 1.5 px across).
     View,
     /// The thesis's EQ 16 from the mesh's edge lengths (--k, --gamma, --min-base): follows the triangles, not any view.
     Eq16,

@@ -626,4 +626,50 @@ mod tests {
             assert!(held, "point {p:?} of the quad in no sample's sphere");
         }
     }
+
+    /// A decal: a transparent (BLEND) quad with opaque black lines one texel wide, a quarter
+    /// of a voxel, on the left edge of every fourth voxel column. The voxels' centroids lie
+    /// on transparent texels, so one decision at the centroid dropped every line; the pieces
+    /// a line crosses are sampled by quarters instead, and only the lines' quarters are kept.
+    #[test]
+    fn a_decal_line_off_the_voxel_centroid_is_kept() {
+        let (w, h) = (64u32, 64u32);
+        let rgba: Vec<[u8; 4]> = (0..w * h).map(|i| if (i % w) % 16 == 4 { [0, 0, 0, 255] } else { [255, 255, 255, 0] }).collect();
+        let quad = Primitive {
+            positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
+            uvs: vec![vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]],
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            material: Some(0),
+            ..Default::default()
+        };
+        let tex = TextureRef { image: 0, tex_coord: 0, transform: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], wrap_s: Wrap::ClampToEdge, wrap_t: Wrap::ClampToEdge };
+        let scene = LoadedScene {
+            meshes: vec![Mesh { name: "decal".into(), primitives: vec![quad] }],
+            instances: vec![Instance { mesh: 0, transform: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]] }],
+            materials: vec![Material { base_color: [1.0; 4], texture: Some(tex), alpha_mode: AlphaMode::Blend, ..Default::default() }],
+            images: vec![Image { width: w, height: h, rgba, source: "decal".into() }],
+            ..Default::default()
+        };
+        let voxel = 1.0 / 16.0;
+        let opts = SampleOptions { density: Density::VoxelSize(voxel), ..Default::default() };
+        let s = sample_scene(&scene, &opts, &|_, _| {}).expect("samples");
+        // Per line voxel: its darkest sample. Bilinear lookups mix the white of the
+        // transparent texels into a line one texel wide (about half and half at the
+        // quarters' centroids), but a line's sample is never the white alone.
+        let mut darkest = std::collections::BTreeMap::<(i64, i64), u8>::new();
+        for n in &s.meshes[0].samples {
+            let x = f64::from(n.center[0]) / voxel;
+            let (v, u) = (x.floor() as i64, (f64::from(n.center[1]) / voxel).floor() as i64);
+            assert_eq!(v % 4, 1, "{n:?}: a sample off the lines");
+            assert!(x - (v as f64) < 0.5, "{n:?}: not in the line's half of its voxel");
+            let d = darkest.entry((v, u)).or_insert(255);
+            *d = (*d).min(n.color[0]);
+        }
+        for v in [1, 5, 9, 13] {
+            for u in 0..16 {
+                let d = darkest.get(&(v, u)).copied();
+                assert!(d.is_some_and(|d| d < 192), "line at voxel {v},{u}: darkest sample {d:?}");
+            }
+        }
+    }
 }

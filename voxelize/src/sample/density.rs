@@ -46,10 +46,10 @@ pub enum Density {
 
 impl Density {
     /// Voxel edge, in pixels of the intended view, of the default density. The preview's
-    /// default LOD (`--pixel-error 1`: splats whose equal-area disc has a radius of at most
-    /// one pixel) draws leaves of up to π px²; a voxel of 1.5 px gives leaves of about
-    /// 2.25 px², so the default preview draws the leaves themselves, and nothing finer is
-    /// made than it draws (a 1-px voxel made 2.2× the samples for the same image).
+    /// default LOD (`--pixel-error 0.75`: splats of at most 0.75 px radius, 1.5 px across)
+    /// draws the leaves themselves, and the half-voxel quarters where colour varies, and
+    /// nothing finer is made than it draws (a 1-px voxel made 2.2× the samples for the same
+    /// image).
     pub const VIEW_PIXELS: f64 = 1.5;
 }
 

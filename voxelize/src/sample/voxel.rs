@@ -63,7 +63,13 @@ impl<const D: usize> Emitter<'_, '_, D> {
                 };
                 self.push(out, v, area2, cen, dc, reach, normal, color, false);
             }
-            (None, _) => self.dropped += 1,
+            // The centroid is dropped by alpha, but the edge of an alpha-textured decal may
+            // cross the piece: its kept part is sampled by quarters.
+            (None, _) => {
+                if !(self.fine && self.planes.flat_c.is_none() && any_kept(self.planes, cen, piece) && self.quarters(out, self.kp.clamp(key), ia, ib, piece)) {
+                    self.dropped += 1;
+                }
+            }
         }
     }
 
@@ -153,25 +159,44 @@ pub(super) enum Piece<'a> {
 fn piece_color(planes: &Planes, cen: [f64; 2], at_cen: [f32; 4], piece: Piece) -> ([f32; 4], f32) {
     let mut sum = at_cen;
     let mut n = 1.0f32;
-    // Square roots of the smallest and largest red, green and blue (for the spread).
-    let mut lo = [at_cen[0], at_cen[1], at_cen[2]];
+    // Square roots of the smallest and largest red, green and blue (for the spread), and the
+    // smallest and largest alpha, a point the alpha mode drops counting as alpha 0: the edge
+    // of a decal is detail too.
+    let mut lo = [at_cen[0], at_cen[1], at_cen[2], at_cen[3]];
     let mut hi = lo;
-    let mut add = |p: [f64; 2]| {
-        if let (Some(c), _) = planes.shade(p) {
+    piece_points(cen, piece, |p| match planes.shade(p) {
+        (Some(c), _) => {
             for k in 0..4 {
                 sum[k] += c[k];
-            }
-            for k in 0..3 {
                 lo[k] = lo[k].min(c[k]);
                 hi[k] = hi[k].max(c[k]);
             }
             n += 1.0;
         }
-    };
+        (None, _) => lo[3] = 0.0,
+    });
+    let spread = (0..3).fold(hi[3] - lo[3], |s, k| s.max(hi[k].max(0.0).sqrt() - lo[k].max(0.0).sqrt()));
+    (sum.map(|x| x / n), spread)
+}
+
+/// Whether the alpha mode keeps any of the four points [`piece_color`] adds to a piece's
+/// centroid.
+#[inline(never)]
+fn any_kept(planes: &Planes, cen: [f64; 2], piece: Piece) -> bool {
+    let mut any = false;
+    piece_points(cen, piece, |p| any |= planes.shade(p).0.is_some());
+    any
+}
+
+/// Calls `f` with the four points of a piece that [`piece_color`] adds to its centroid
+/// `cen`: halfway from the centroid to the unit square's corners, or to (at most four of)
+/// the polygon's vertices.
+#[inline(always)]
+fn piece_points(cen: [f64; 2], piece: Piece, mut f: impl FnMut([f64; 2])) {
     match piece {
         Piece::Square => {
             for (da, db) in [(-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)] {
-                add([cen[0] + da, cen[1] + db]);
+                f([cen[0] + da, cen[1] + db]);
             }
         }
         Piece::Poly(poly) => {
@@ -179,12 +204,10 @@ fn piece_color(planes: &Planes, cen: [f64; 2], at_cen: [f32; 4], piece: Piece) -
             let m = poly.n.min(MAXV);
             let step = m.div_ceil(4).max(1);
             for v in poly.v[..m].iter().step_by(step) {
-                add([0.5 * (cen[0] + v[0]), 0.5 * (cen[1] + v[1])]);
+                f([0.5 * (cen[0] + v[0]), 0.5 * (cen[1] + v[1])]);
             }
         }
     }
-    let spread = (0..3).fold(0.0f32, |s, k| s.max(hi[k].max(0.0).sqrt() - lo[k].max(0.0).sqrt()));
-    (sum.map(|x| x / n), spread)
 }
 
 /// The mean of the vertices of `poly` whose depth (`dv`, per vertex) is at least `kf`: a
