@@ -134,21 +134,24 @@ pub fn level_cut(tree: &SceneTree, level: usize) -> Vec<Node> {
 /// Refuses more than `max_points` points before writing anything. Memory: the cut of each
 /// distinct tree is held once (40 bytes per cut node), however often it is instanced.
 pub fn scene_to_ply(sct: &Path, level: Option<usize>, out: &Path, opts: TraverseOptions, max_points: u64) -> Result<ExportSummary> {
+    scene_to_ply_holding(sct, level, out, opts, max_points, KEPT_PLACEMENTS)
+}
+
+/// [`scene_to_ply`] holding at most `kept` placements in memory: past them the scene is
+/// traversed a second time to write them. The output is the same.
+pub fn scene_to_ply_holding(sct: &Path, level: Option<usize>, out: &Path, opts: TraverseOptions, max_points: u64, kept: usize) -> Result<ExportSummary> {
     let level = level.unwrap_or(usize::MAX - 1);
-    // Each distinct tree's cut once; a placement is its cut's index and a state (88 bytes),
-    // and empty cuts place nothing, so placements are bounded by the points and by the
-    // traversal's visit limit.
+    // Each distinct tree's cut once; a placement is its cut's index and a state (up to 136
+    // bytes under an affine instance), and empty cuts place nothing, so placements are
+    // bounded by the points and by the traversal's visit limit. Past `kept` the scene is
+    // traversed a second time to write them instead of holding them: 10^7
+    // placements of a 60-level DAG held 1.0 GB.
     let mut cut_of: HashMap<(PathBuf, usize), usize> = HashMap::new();
     let mut cuts: Vec<Vec<Node>> = Vec::new();
-    let mut placements: Vec<(usize, TraversalState)> = Vec::new();
-    let mut total: u64 = 0;
-    for reached in Traversal::open(sct, opts)? {
-        let r = reached.map_err(|e| match e.kind {
-            TraverseErrorKind::Read(inner) => inner,
-            // A missing, changed or cyclic inline is a defect of the scene (exit 1), as in
-            // validation and rendering.
-            other => Error::Malformed { offset: 0, what: format!("{}: {other}", e.path) },
-        })?;
+    let mut placements: Option<Vec<(usize, TraversalState)>> = Some(Vec::new());
+    let (mut total, mut placed) = (0u64, 0u64);
+    for reached in Traversal::open(sct, opts.clone())? {
+        let r = reached.map_err(traversal_error)?;
         if !matches!(r.kind, ReachedKind::Tree) {
             continue;
         }
@@ -171,7 +174,11 @@ pub fn scene_to_ply(sct: &Path, level: Option<usize>, out: &Path, opts: Traverse
         if total > max_points {
             return Err(Error::LimitExceeded { what: "PLY export points (choose a coarser level)", value: total, limit: max_points });
         }
-        placements.push((c, r.state));
+        placed += 1;
+        match &mut placements {
+            Some(p) if p.len() < kept => p.push((c, r.state)),
+            _ => placements = None,
+        }
     }
     crate::atomic::write_atomic(out, |w| {
         let io = |e| Error::io(out, e);
@@ -180,14 +187,51 @@ pub fn scene_to_ply(sct: &Path, level: Option<usize>, out: &Path, opts: Traverse
             l => format!("level {l} cut"),
         };
         header(w, total, &format!("SCT {what} of {} exported by sct-format {}", sct.display(), env!("CARGO_PKG_VERSION"))).map_err(io)?;
-        for (c, state) in &placements {
-            for n in cuts.get(*c).map(Vec::as_slice).unwrap_or_default() {
+        let mut written = 0u64;
+        let mut place = |c: usize, state: &TraversalState| -> Result<()> {
+            for n in cuts.get(c).map(Vec::as_slice).unwrap_or_default() {
+                written += 1;
                 point(w, &state.apply(n)).map_err(io)?;
             }
+            Ok(())
+        };
+        match &placements {
+            Some(p) => {
+                for (c, state) in p {
+                    place(*c, state)?;
+                }
+            }
+            None => {
+                for reached in Traversal::open(sct, opts)? {
+                    let r = reached.map_err(traversal_error)?;
+                    if let (ReachedKind::Tree, Some(&c)) = (&r.kind, cut_of.get(&(r.file_path.clone(), r.tree))) {
+                        place(c, &r.state)?;
+                    }
+                }
+            }
+        }
+        // The second traversal reaches what the first did (the same files, unchanged: an
+        // inline's hash is checked on each open); anything else would leave the header wrong.
+        if written != total {
+            return Err(Error::Malformed { offset: 0, what: format!("{}: the scene changed while it was exported", sct.display()) });
         }
         Ok(())
     })?;
-    Ok(ExportSummary { points: total, bytes: ply_size(out)?, placements: placements.len() as u64 })
+    Ok(ExportSummary { points: total, bytes: ply_size(out)?, placements: placed })
+}
+
+/// Placements [`scene_to_ply`] holds before it traverses the scene a second time instead
+/// (2^20: about 130 MB).
+const KEPT_PLACEMENTS: usize = 1 << 20;
+
+/// A traversal error as [`scene_to_ply`] reports it.
+fn traversal_error(e: crate::traverse::TraverseError) -> Error {
+    match e.kind {
+        TraverseErrorKind::Read(inner) => inner,
+        // A missing, changed or cyclic inline is a defect of the scene (exit 1), as in
+        // validation and rendering.
+        other => Error::Malformed { offset: 0, what: format!("{}: {other}", e.path) },
+    }
 }
 
 #[cfg(test)]

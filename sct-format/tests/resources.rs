@@ -9,7 +9,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::craft::{self, Sec, G};
-use sct_format::export::{samples_file_to_ply, scene_to_ply};
+use sct_format::export::{samples_file_to_ply, scene_to_ply, scene_to_ply_holding};
 use sct_format::geometry::parent_of;
 use sct_format::raw::{tags, BlockEntry, LevelEntry, TreeHeader, SAMPLES_MAGIC, SCT_MAGIC};
 use sct_format::samples::SamplesFile;
@@ -117,6 +117,11 @@ fn empty_tree_reached_from_the_graph_validates_and_exports() {
         for (level, want) in [(None, leaves), (Some(0), roots), (Some(1), leaves.min(2)), (Some(7), leaves)] {
             let s = scene_to_ply(&p, level, &out, TraverseOptions::default(), 1000).expect("export");
             assert_eq!(s.points, want, "{name} at level {level:?}");
+            // Holding no placement (a second traversal writes them) gives the same file.
+            let again = dir.path().join(format!("{name}-again.ply"));
+            let t = scene_to_ply_holding(&p, level, &again, TraverseOptions::default(), 1000, 0).expect("export");
+            assert_eq!((t.points, t.placements), (s.points, s.placements), "{name} at level {level:?}");
+            assert_eq!(std::fs::read(&again).expect("ply"), std::fs::read(&out).expect("ply"), "{name} at level {level:?}");
         }
     }
 }
