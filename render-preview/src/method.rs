@@ -108,14 +108,15 @@ impl Work {
 }
 
 /// Pixel centres inside the splats (clipped to a `w × h` frame): the fragments a depth
-/// buffer tests. Counted apart from the timed rasterization, with its inside test.
+/// buffer tests. Counted apart from the timed rasterization, by row spans
+/// ([`Splat::pixels_covered`]).
 pub fn count_fragments(splats: &[Splat], w: usize, h: usize) -> u64 {
     splats
         .par_chunks(4096)
         .map(|chunk| {
             let mut n = 0u64;
             for s in chunk {
-                s.for_each_pixel(w, h, |_| n += 1);
+                n += s.pixels_covered(w, h);
             }
             n
         })
