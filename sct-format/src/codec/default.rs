@@ -444,6 +444,93 @@ fn pick_offset(p: &Node, orig: &Node, dec: &Node) -> (i8, Node) {
     (0, *dec)
 }
 
+/// Unit vector of `n` in f64, or `None` when it has no usable direction.
+fn unit64(n: [f32; 3]) -> Option<[f64; 3]> {
+    if !normal::usable(n) {
+        return None;
+    }
+    let l = (0..3).map(|a| n[a] as f64 * n[a] as f64).sum::<f64>().sqrt();
+    Some([n[0] as f64 / l, n[1] as f64 / l, n[2] as f64 / l])
+}
+
+/// `(c - orig.center) · n` in f64: the signed distance of `c` from the plane through the
+/// original centre normal to unit `n`.
+fn plane_error(orig: &Node, n: [f64; 3], c: [f32; 3]) -> f64 {
+    (0..3).map(|a| (c[a] as f64 - orig.center[a] as f64) * n[a]).sum()
+}
+
+/// How far from its tangent plane the encoder leaves a leaf before it looks at other states:
+/// `r / 128` of the original leaf's radius `r` (a voxel sample's radius is 0.7–1 voxel, so
+/// under 1 % of the voxel).
+const PLANE_STEPS: f64 = 128.0;
+
+/// The state and centre offset of leaf `orig` under parent `p`, given the first choice
+/// `s0` (decoding to `plain` without and to `first` with its offset): when `first`'s centre
+/// lies farther than `tol` from the plane through the original centre normal to the
+/// original normal (the surface itself, on a planar piece), the state of the same radius
+/// code at a neighbouring grid point whose nearest offset lands within `tol` of that plane
+/// (the one with the most frequent state bytes, `weight`), else the one that lands nearest,
+/// if nearer than `first`.
+///
+/// The offset's step is `r_P / 128`, so the first choice may leave up to `r_P / 256` along
+/// the normal. A neighbour's grid point lies `r_P / 6` (21⅓ steps) away along each axis, so
+/// its offset ends at another fraction of a step: for an axis-aligned plane the three grid
+/// points along the normal leave at most `r_P / 768`. Each candidate keeps the documented
+/// rule for its offset (the step nearest along its decoded normal, which never ends farther
+/// along that normal than `plain`) and every bound ([`acceptable`]); its radius is `plain`'s.
+#[allow(clippy::too_many_arguments)]
+fn pick_state_near_plane(
+    t: &posrad::Tables,
+    p: &Node,
+    orig: &Node,
+    s0: u16,
+    plain: &Node,
+    first: (i8, Node),
+    tol: f64,
+    weight: impl Fn(u16) -> u64,
+    decode: impl Fn(u16) -> Option<Node>,
+) -> (u16, i8, Node) {
+    let keep = (s0, first.0, first.1);
+    let Some(n) = unit64(orig.normal) else { return keep };
+    let step = p.radius as f64 / OFFSET_STEPS as f64;
+    let e0 = plane_error(orig, n, first.1.center).abs();
+    if !(e0 > tol) || !(step > 0.0) || !step.is_finite() {
+        return keep;
+    }
+    let along = |d: &Node| (0..3).map(|a| (orig.center[a] as f64 - d.center[a] as f64) * d.normal[a] as f64).sum::<f64>();
+    let limit = along(plain).abs();
+    let Some(&(g0, q0)) = t.state.get(s0 as usize) else { return keep };
+    // On the stack: this runs for a good share of all leaves.
+    let mut cands = [(0f64, 0u16, 0i8, *plain); 26];
+    let mut k = 0;
+    for b in 0..27 {
+        let d = [b / 9 - 1, b / 3 % 3 - 1, b % 3 - 1];
+        if d == [0, 0, 0] {
+            continue;
+        }
+        let g = [0, 1, 2].map(|a| g0[a] as i32 + d[a]);
+        let Some(s) = t.index(g, q0 as i32) else { continue };
+        let Some(dec) = decode(s) else { continue };
+        let want = (along(&dec) / step).round();
+        if !(want.abs() <= i8::MAX as f64) {
+            continue;
+        }
+        let o = want as i8;
+        let mut moved = dec;
+        apply_offset(&mut moved, o, p.radius);
+        let e = plane_error(orig, n, moved.center).abs();
+        if e < e0 && along(&moved).abs() <= limit {
+            cands[k] = (e, s, o, moved);
+            k += 1;
+        }
+    }
+    let cands = &mut cands[..k];
+    // Those within `tol` first, the cheapest (most frequent state bytes) of them first;
+    // then the others, nearest first.
+    cands.sort_by(|a, b| (a.0 > tol).cmp(&(b.0 > tol)).then(weight(b.1).cmp(&weight(a.1))).then(a.0.total_cmp(&b.0)));
+    cands.iter().find(|c| acceptable(p, orig, &c.3)).map_or(keep, |c| (c.1, c.2, c.3))
+}
+
 /// The decoded child with codes `c` (`ch` colour channels), `axis = oct_decode(c.normal)` and
 /// decoded area `area`: the one definition the
 /// encoder (to return what a reader gets) and the decoder share, so they agree bit for bit.
@@ -549,7 +636,15 @@ pub fn encode_with_leaves(params: CodecParams, parents: &[Node], children: &[Nod
                 let mut node = child_node(t, p, Codes { state: s, cone, color: q }, axis, ch, if h == 0 { area_a } else { area_b })
                     .ok_or_else(|| Error::Misuse(format!("default encoder: state {s} of child {i} is not decodable (bug)")))?;
                 if params.centre_offsets && !has_children.is_some_and(|f| f[i]) {
-                    let (o, moved) = pick_offset(p, c, &node);
+                    let first = pick_offset(p, c, &node);
+                    let tol = c.radius as f64 / PLANE_STEPS;
+                    let (s2, o, moved) = pick_state_near_plane(t, p, c, s, &node, first, tol, |s2| hist.weight(s2), |s2| {
+                        child_node(t, p, Codes { state: s2, cone, color: q }, axis, ch, if h == 0 { area_a } else { area_b })
+                    });
+                    if s2 != s {
+                        states[i] = s2 as u8;
+                        states[m + i] = (s2 >> 8) as u8;
+                    }
                     node = moved;
                     offsets[i] = zz(o as u8, 0, 8);
                 }
