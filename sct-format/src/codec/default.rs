@@ -527,7 +527,8 @@ fn pick_state_near_plane(
     let cands = &mut cands[..k];
     // Those within `tol` first, the cheapest (most frequent state bytes) of them first;
     // then the others, nearest first.
-    cands.sort_by(|a, b| (a.0 > tol).cmp(&(b.0 > tol)).then(weight(b.1).cmp(&weight(a.1))).then(a.0.total_cmp(&b.0)));
+    let key = |c: &(f64, u16, i8, Node)| if c.0 <= tol { (false, u64::MAX - weight(c.1)) } else { (true, 0) };
+    cands.sort_by(|a, b| key(a).cmp(&key(b)).then(a.0.total_cmp(&b.0)));
     cands.iter().find(|c| acceptable(p, orig, &c.3)).map_or(keep, |c| (c.1, c.2, c.3))
 }
 
