@@ -49,7 +49,11 @@
 //! along the normal, and only values that keep the original child contained and the decoded
 //! child inside the stick-out slack of its parent, so every bound below is unchanged. It refines
 //! leaves only and stores 0 for nodes with children ([`encode_with_leaves`]); a decoder
-//! applies whatever is stored.
+//! applies whatever is stored. When a leaf's moved centre still lies more than `r/128` (its
+//! own radius) off its tangent plane, the encoder tries the same radius code at the
+//! neighbouring grid points, whose offsets end at other fractions of a step
+//! ([`pick_state_near_plane`]): voxelized planes then hold their leaves within 1 % of the
+//! voxel.
 //!
 //! # Leaf refinement (1.4)
 //!
