@@ -473,8 +473,9 @@ const PLANE_STEPS: f64 = 128.0;
 /// lies farther than `tol` from the plane through the original centre normal to the
 /// original normal (the surface itself, on a planar piece), the state of the same radius
 /// code at a neighbouring grid point whose nearest offset lands within `tol` of that plane
-/// (the one with the most frequent state bytes, `weight`), else the one that lands nearest,
-/// if nearer than `first`.
+/// (preferring one that leaves the error along the plane as `first` left it, then the one
+/// with the most frequent state bytes, `weight`), else the one that lands nearest, if nearer
+/// than `first`.
 ///
 /// The offset's step is `r_P / 128`, so the first choice may leave up to `r_P / 256` along
 /// the normal. A neighbour's grid point lies `r_P / 6` (21⅓ steps) away along each axis, so
@@ -503,6 +504,10 @@ fn pick_state_near_plane(
     }
     let along = |d: &Node| (0..3).map(|a| (orig.center[a] as f64 - d.center[a] as f64) * d.normal[a] as f64).sum::<f64>();
     let limit = along(plain).abs();
+    let dist2 = |d: &Node| (0..3).map(|a| (orig.center[a] as f64 - d.center[a] as f64).powi(2)).sum::<f64>();
+    // Tangential error: what the offset cannot correct.
+    let tangential = |d: &Node, e: f64| (dist2(d) - e * e).max(0.0).sqrt();
+    let t0 = tangential(&first.1, e0) + step / 2.0;
     let Some(&(g0, q0)) = t.state.get(s0 as usize) else { return keep };
     // On the stack: this runs for a good share of all leaves.
     let mut cands = [(0f64, 0u16, 0i8, *plain); 26];
@@ -529,9 +534,11 @@ fn pick_state_near_plane(
         }
     }
     let cands = &mut cands[..k];
-    // Those within `tol` first, the cheapest (most frequent state bytes) of them first;
-    // then the others, nearest first.
-    let key = |c: &(f64, u16, i8, Node)| if c.0 <= tol { (false, u64::MAX - weight(c.1)) } else { (true, 0) };
+    // Those within `tol` first: of them, those that keep the tangential error (to half a
+    // step: a longer move along a tilted decoded normal shifts the centre a little), which
+    // decides whether a leaf at the edge of a face lies past it, then the cheapest (most
+    // frequent state bytes). Then the others, nearest the plane first.
+    let key = |c: &(f64, u16, i8, Node)| if c.0 <= tol { (false, tangential(&c.3, c.0) > t0, u64::MAX - weight(c.1)) } else { (true, false, 0) };
     cands.sort_by(|a, b| key(a).cmp(&key(b)).then(a.0.total_cmp(&b.0)));
     cands.iter().find(|c| acceptable(p, orig, &c.3)).map_or(keep, |c| (c.1, c.2, c.3))
 }
