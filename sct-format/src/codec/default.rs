@@ -493,7 +493,6 @@ fn pick_state_near_plane(
     first: (i8, Node),
     tol: f64,
     weight: impl Fn(u16) -> u64,
-    decode: impl Fn(u16) -> Option<Node>,
 ) -> (u16, i8, Node) {
     let keep = (s0, first.0, first.1);
     let Some(n) = unit64(orig.normal) else { return keep };
@@ -507,7 +506,17 @@ fn pick_state_near_plane(
     let dist2 = |d: &Node| (0..3).map(|a| (orig.center[a] as f64 - d.center[a] as f64).powi(2)).sum::<f64>();
     // Tangential error: what the offset cannot correct.
     let tangential = |d: &Node, e: f64| (dist2(d) - e * e).max(0.0).sqrt();
-    let t0 = tangential(&first.1, e0) + step / 2.0;
+    let t_first = tangential(&first.1, e0);
+    let t0 = t_first + step / 2.0;
+    // A neighbour moves the centre along the plane by `(δ - (δ·n)n) · r_P/6` from where
+    // `first` left it (its offset moves it along a normal within 0.64° of `n`: at most
+    // 0.01 r_P sideways); where that lies beyond the radius's room for error it cannot
+    // contain the child. Skipping those early keeps the search cheap (on an axis-aligned face
+    // only the two along the normal remain).
+    let e_first = plane_error(orig, n, first.1.center);
+    let side0: [f64; 3] = [0, 1, 2].map(|a| first.1.center[a] as f64 - orig.center[a] as f64 - e_first * n[a]);
+    let room = plain.radius as f64 - orig.radius as f64 + 0.01 * p.radius as f64;
+    let grid = p.radius as f64 / posrad::QP as f64;
     let Some(&(g0, q0)) = t.state.get(s0 as usize) else { return keep };
     // On the stack: this runs for a good share of all leaves.
     let mut cands = [(0f64, 0u16, 0i8, *plain); 26];
@@ -517,9 +526,16 @@ fn pick_state_near_plane(
         if d == [0, 0, 0] {
             continue;
         }
+        let dn = d[0] as f64 * n[0] + d[1] as f64 * n[1] + d[2] as f64 * n[2];
+        let side: f64 = (0..3).map(|a| (side0[a] + grid * (d[a] as f64 - dn * n[a])).powi(2)).sum();
+        if side > room * room {
+            continue;
+        }
         let g = [0, 1, 2].map(|a| g0[a] as i32 + d[a]);
         let Some(s) = t.index(g, q0 as i32) else { continue };
-        let Some(dec) = decode(s) else { continue };
+        // The state decides only the centre and radius (`child_node`); the rest is `plain`'s.
+        let Some((center, radius)) = posrad::decode_state(t, s as usize, p.center, p.radius) else { continue };
+        let dec = Node { center, radius, ..*plain };
         let want = (along(&dec) / step).round();
         if !(want.abs() <= i8::MAX as f64) {
             continue;
@@ -528,7 +544,9 @@ fn pick_state_near_plane(
         let mut moved = dec;
         apply_offset(&mut moved, o, p.radius);
         let e = plane_error(orig, n, moved.center).abs();
-        if e < e0 && along(&moved).abs() <= limit {
+        // Containment first (as `acceptable` tests it): a neighbour off the plane's normal
+        // moves the centre along the plane by up to a grid step, which most radii refuse.
+        if e < e0 && dist2(&moved).sqrt() + orig.radius as f64 <= moved.radius as f64 && along(&moved).abs() <= limit {
             cands[k] = (e, s, o, moved);
             k += 1;
         }
@@ -650,9 +668,7 @@ pub fn encode_with_leaves(params: CodecParams, parents: &[Node], children: &[Nod
                 if params.centre_offsets && !has_children.is_some_and(|f| f[i]) {
                     let first = pick_offset(p, c, &node);
                     let tol = c.radius as f64 / PLANE_STEPS;
-                    let (s2, o, moved) = pick_state_near_plane(t, p, c, s, &node, first, tol, |s2| hist.weight(s2), |s2| {
-                        child_node(t, p, Codes { state: s2, cone, color: q }, axis, ch, if h == 0 { area_a } else { area_b })
-                    });
+                    let (s2, o, moved) = pick_state_near_plane(t, p, c, s, &node, first, tol, |s2| hist.weight(s2));
                     if s2 != s {
                         states[i] = s2 as u8;
                         states[m + i] = (s2 >> 8) as u8;
