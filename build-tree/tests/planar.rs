@@ -25,9 +25,12 @@ fn face_samples(origin: [f32; 3], n: [f32; 3], u: [f32; 3], v: [f32; 3], side: u
     }
 }
 
+/// A face's plane: a point on it and its outward unit normal.
+type Face = ([f32; 3], [f32; 3]);
+
 /// The six faces of a cube of `side` voxels with corner `c` and edges along the orthonormal
 /// frame `e`: (samples, faces as (point, outward normal)).
-fn cube(c: [f32; 3], e: [[f32; 3]; 3], side: usize) -> (Vec<Node>, Vec<([f32; 3], [f32; 3])>) {
+fn cube(c: [f32; 3], e: [[f32; 3]; 3], side: usize) -> (Vec<Node>, Vec<Face>) {
     let len = side as f32 * VOXEL;
     let (mut samples, mut faces) = (Vec::new(), Vec::new());
     for axis in 0..3 {
@@ -44,7 +47,7 @@ fn cube(c: [f32; 3], e: [[f32; 3]; 3], side: usize) -> (Vec<Node>, Vec<([f32; 3]
 
 /// Largest distance, in voxels, of a decoded leaf centre from the plane of its face (the
 /// face whose normal is nearest the leaf's decoded normal), and the number of leaves.
-fn worst_leaf_offset(samples: &[Node], faces: &[([f32; 3], [f32; 3])]) -> (f64, usize) {
+fn worst_leaf_offset(samples: &[Node], faces: &[Face]) -> (f64, usize) {
     let (tree, _) = build_tree(samples, &BuildOptions::default()).expect("build");
     let scene = Scene::single_tree(Generator { tool: "test".into(), version: "0".into(), ..Default::default() }, tree);
     let mut bytes = Vec::new();

@@ -498,7 +498,7 @@ fn pick_state_near_plane(
     let Some(n) = unit64(orig.normal) else { return keep };
     let step = p.radius as f64 / OFFSET_STEPS as f64;
     let e0 = plane_error(orig, n, first.1.center).abs();
-    if !(e0 > tol) || !(step > 0.0) || !step.is_finite() {
+    if e0.is_nan() || e0 <= tol || step.is_nan() || step <= 0.0 || !step.is_finite() {
         return keep;
     }
     let along = |d: &Node| (0..3).map(|a| (orig.center[a] as f64 - d.center[a] as f64) * d.normal[a] as f64).sum::<f64>();
@@ -537,7 +537,7 @@ fn pick_state_near_plane(
         let Some((center, radius)) = posrad::decode_state(t, s as usize, p.center, p.radius) else { continue };
         let dec = Node { center, radius, ..*plain };
         let want = (along(&dec) / step).round();
-        if !(want.abs() <= i8::MAX as f64) {
+        if want.is_nan() || want.abs() > i8::MAX as f64 {
             continue;
         }
         let o = want as i8;
