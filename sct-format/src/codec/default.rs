@@ -497,7 +497,8 @@ fn pick_state_near_plane(
     let keep = (s0, first.0, first.1);
     let Some(n) = unit64(orig.normal) else { return keep };
     let step = p.radius as f64 / OFFSET_STEPS as f64;
-    let e0 = plane_error(orig, n, first.1.center).abs();
+    let e_first = plane_error(orig, n, first.1.center);
+    let e0 = e_first.abs();
     if e0.is_nan() || e0 <= tol || step.is_nan() || step <= 0.0 || !step.is_finite() {
         return keep;
     }
@@ -513,7 +514,6 @@ fn pick_state_near_plane(
     // 0.01 r_P sideways); where that lies beyond the radius's room for error it cannot
     // contain the child. Skipping those early keeps the search cheap (on an axis-aligned face
     // only the two along the normal remain).
-    let e_first = plane_error(orig, n, first.1.center);
     let side0: [f64; 3] = [0, 1, 2].map(|a| first.1.center[a] as f64 - orig.center[a] as f64 - e_first * n[a]);
     let room = plain.radius as f64 - orig.radius as f64 + 0.01 * p.radius as f64;
     let grid = p.radius as f64 / posrad::QP as f64;
