@@ -49,7 +49,11 @@
 //! along the normal, and only values that keep the original child contained and the decoded
 //! child inside the stick-out slack of its parent, so every bound below is unchanged. It refines
 //! leaves only and stores 0 for nodes with children ([`encode_with_leaves`]); a decoder
-//! applies whatever is stored.
+//! applies whatever is stored. When a leaf's moved centre still lies more than `r/128` (its
+//! own radius) off its tangent plane, the encoder tries the same radius code at the
+//! neighbouring grid points, whose offsets end at other fractions of a step
+//! ([`pick_state_near_plane`]): voxelized planes then hold their leaves within 1 % of the
+//! voxel.
 //!
 //! # Leaf refinement (1.4)
 //!
@@ -444,6 +448,119 @@ fn pick_offset(p: &Node, orig: &Node, dec: &Node) -> (i8, Node) {
     (0, *dec)
 }
 
+/// Unit vector of `n` in f64, or `None` when it has no usable direction.
+fn unit64(n: [f32; 3]) -> Option<[f64; 3]> {
+    if !normal::usable(n) {
+        return None;
+    }
+    let l = (0..3).map(|a| n[a] as f64 * n[a] as f64).sum::<f64>().sqrt();
+    Some([n[0] as f64 / l, n[1] as f64 / l, n[2] as f64 / l])
+}
+
+/// `(c - orig.center) · n` in f64: the signed distance of `c` from the plane through the
+/// original centre normal to unit `n`.
+fn plane_error(orig: &Node, n: [f64; 3], c: [f32; 3]) -> f64 {
+    (0..3).map(|a| (c[a] as f64 - orig.center[a] as f64) * n[a]).sum()
+}
+
+/// How far from its tangent plane the encoder leaves a leaf before it looks at other states:
+/// `r / 128` of the original leaf's radius `r` (a voxel sample's radius is 0.7–1 voxel, so
+/// under 1 % of the voxel).
+const PLANE_STEPS: f64 = 128.0;
+
+/// The state and centre offset of leaf `orig` under parent `p`, given the first choice
+/// `s0` (decoding to `plain` without and to `first` with its offset): when `first`'s centre
+/// lies farther than `tol` from the plane through the original centre normal to the
+/// original normal (the surface itself, on a planar piece), the state of the same radius
+/// code at a neighbouring grid point whose nearest offset lands within `tol` of that plane
+/// (preferring one that leaves the error along the plane as `first` left it, then the one
+/// with the most frequent state bytes, `weight`), else the one that lands nearest, if nearer
+/// than `first`.
+///
+/// The offset's step is `r_P / 128`, so the first choice may leave up to `r_P / 256` along
+/// the normal. A neighbour's grid point lies `r_P / 6` (21⅓ steps) away along each axis, so
+/// its offset ends at another fraction of a step: for an axis-aligned plane the three grid
+/// points along the normal leave at most `r_P / 768`. Each candidate keeps the documented
+/// rule for its offset (the step nearest along its decoded normal, which never ends farther
+/// along that normal than `plain`) and every bound ([`acceptable`]); its radius is `plain`'s.
+#[allow(clippy::too_many_arguments)]
+fn pick_state_near_plane(
+    t: &posrad::Tables,
+    p: &Node,
+    orig: &Node,
+    s0: u16,
+    plain: &Node,
+    first: (i8, Node),
+    tol: f64,
+    weight: impl Fn(u16) -> u64,
+) -> (u16, i8, Node) {
+    let keep = (s0, first.0, first.1);
+    let Some(n) = unit64(orig.normal) else { return keep };
+    let step = p.radius as f64 / OFFSET_STEPS as f64;
+    let e_first = plane_error(orig, n, first.1.center);
+    let e0 = e_first.abs();
+    if e0.is_nan() || e0 <= tol || step.is_nan() || step <= 0.0 || !step.is_finite() {
+        return keep;
+    }
+    let along = |d: &Node| (0..3).map(|a| (orig.center[a] as f64 - d.center[a] as f64) * d.normal[a] as f64).sum::<f64>();
+    let limit = along(plain).abs();
+    let dist2 = |d: &Node| (0..3).map(|a| (orig.center[a] as f64 - d.center[a] as f64).powi(2)).sum::<f64>();
+    // Tangential error: what the offset cannot correct.
+    let tangential = |d: &Node, e: f64| (dist2(d) - e * e).max(0.0).sqrt();
+    let t_first = tangential(&first.1, e0);
+    let t0 = t_first + step / 2.0;
+    // A neighbour moves the centre along the plane by `(δ - (δ·n)n) · r_P/6` from where
+    // `first` left it (its offset moves it along a normal within 0.64° of `n`: at most
+    // 0.01 r_P sideways); where that lies beyond the radius's room for error it cannot
+    // contain the child. Skipping those early keeps the search cheap (on an axis-aligned face
+    // only the two along the normal remain).
+    let side0: [f64; 3] = [0, 1, 2].map(|a| first.1.center[a] as f64 - orig.center[a] as f64 - e_first * n[a]);
+    let room = plain.radius as f64 - orig.radius as f64 + 0.01 * p.radius as f64;
+    let grid = p.radius as f64 / posrad::QP as f64;
+    let Some(&(g0, q0)) = t.state.get(s0 as usize) else { return keep };
+    // On the stack: this runs for a good share of all leaves.
+    let mut cands = [(0f64, 0u16, 0i8, *plain); 26];
+    let mut k = 0;
+    for b in 0..27 {
+        let d = [b / 9 - 1, b / 3 % 3 - 1, b % 3 - 1];
+        if d == [0, 0, 0] {
+            continue;
+        }
+        let dn = d[0] as f64 * n[0] + d[1] as f64 * n[1] + d[2] as f64 * n[2];
+        let side: f64 = (0..3).map(|a| (side0[a] + grid * (d[a] as f64 - dn * n[a])).powi(2)).sum();
+        if side > room * room {
+            continue;
+        }
+        let g = [0, 1, 2].map(|a| g0[a] as i32 + d[a]);
+        let Some(s) = t.index(g, q0 as i32) else { continue };
+        // The state decides only the centre and radius (`child_node`); the rest is `plain`'s.
+        let Some((center, radius)) = posrad::decode_state(t, s as usize, p.center, p.radius) else { continue };
+        let dec = Node { center, radius, ..*plain };
+        let want = (along(&dec) / step).round();
+        if want.is_nan() || want.abs() > i8::MAX as f64 {
+            continue;
+        }
+        let o = want as i8;
+        let mut moved = dec;
+        apply_offset(&mut moved, o, p.radius);
+        let e = plane_error(orig, n, moved.center).abs();
+        // Containment first (as `acceptable` tests it): a neighbour off the plane's normal
+        // moves the centre along the plane by up to a grid step, which most radii refuse.
+        if e < e0 && dist2(&moved).sqrt() + orig.radius as f64 <= moved.radius as f64 && along(&moved).abs() <= limit {
+            cands[k] = (e, s, o, moved);
+            k += 1;
+        }
+    }
+    let cands = &mut cands[..k];
+    // Those within `tol` first: of them, those that keep the tangential error (to half a
+    // step: a longer move along a tilted decoded normal shifts the centre a little), which
+    // decides whether a leaf at the edge of a face lies past it, then the cheapest (most
+    // frequent state bytes). Then the others, nearest the plane first.
+    let key = |c: &(f64, u16, i8, Node)| if c.0 <= tol { (false, tangential(&c.3, c.0) > t0, u64::MAX - weight(c.1)) } else { (true, false, 0) };
+    cands.sort_by(|a, b| key(a).cmp(&key(b)).then(a.0.total_cmp(&b.0)));
+    cands.iter().find(|c| acceptable(p, orig, &c.3)).map_or(keep, |c| (c.1, c.2, c.3))
+}
+
 /// The decoded child with codes `c` (`ch` colour channels), `axis = oct_decode(c.normal)` and
 /// decoded area `area`: the one definition the
 /// encoder (to return what a reader gets) and the decoder share, so they agree bit for bit.
@@ -549,7 +666,13 @@ pub fn encode_with_leaves(params: CodecParams, parents: &[Node], children: &[Nod
                 let mut node = child_node(t, p, Codes { state: s, cone, color: q }, axis, ch, if h == 0 { area_a } else { area_b })
                     .ok_or_else(|| Error::Misuse(format!("default encoder: state {s} of child {i} is not decodable (bug)")))?;
                 if params.centre_offsets && !has_children.is_some_and(|f| f[i]) {
-                    let (o, moved) = pick_offset(p, c, &node);
+                    let first = pick_offset(p, c, &node);
+                    let tol = c.radius as f64 / PLANE_STEPS;
+                    let (s2, o, moved) = pick_state_near_plane(t, p, c, s, &node, first, tol, |s2| hist.weight(s2));
+                    if s2 != s {
+                        states[i] = s2 as u8;
+                        states[m + i] = (s2 >> 8) as u8;
+                    }
                     node = moved;
                     offsets[i] = zz(o as u8, 0, 8);
                 }

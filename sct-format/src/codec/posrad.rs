@@ -149,8 +149,8 @@ pub fn tables() -> &'static Tables {
 }
 
 impl Tables {
-    /// State index of `(g, q)`, if legal (the reference search's lookup).
-    #[cfg(test)]
+    /// State index of `(g, q)`, if legal (the reference search's lookup, and the default
+    /// encoder's for states near its first choice).
     pub fn index(&self, g: [i32; 3], q: i32) -> Option<u16> {
         if g.iter().any(|&a| !(-QP..=QP).contains(&a)) || q < 1 {
             return None;
