@@ -268,8 +268,8 @@ pub fn run(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summa
 }
 
 /// Samples into the samples file at `path`, written atomically as the samples are made
-/// ([`SamplesWriter`]: chunks are compressed and written while the sampler makes the next
-/// batch, so no run holds all its samples). `seconds_write` is the finishing step alone.
+/// ([`SamplesWriter`]: chunks are compressed and written while the sampler makes later
+/// slabs, so no run holds all its samples). `seconds_write` is the finishing step alone.
 fn sample_to_file(opts: &Options, path: &Path, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summary, Error> {
     let write_error = |source| Error::Write { path: path.to_path_buf(), source };
     let written = sct_format::atomic::write_atomic_with(path, |w| -> Result<Summary, ToFile> {
