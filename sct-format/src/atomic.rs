@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 
+mod writeback;
+
 /// Calls `fill` with a buffered writer on a temporary file next to `path`, then renames it
 /// over `path`. On any error the temporary file is removed and `path` is untouched.
 ///
@@ -42,9 +44,16 @@ pub fn write_atomic_with<T, E: From<Error>>(path: &Path, fill: impl FnOnce(&mut 
     };
     let (file, tmp) = create_temp(&target)?;
     let result = (|| -> std::result::Result<T, E> {
+        // A second handle for the thread that writes the data back early.
+        let shared = file.try_clone();
         let mut w = BufWriter::with_capacity(1 << 20, file);
-        let value = fill(&mut w)?;
-        w.flush().map_err(|e| Error::io(&tmp, e))?;
+        let (value, early) = writeback::with_early_writeback(shared, || -> std::result::Result<T, E> {
+            let value = fill(&mut w)?;
+            w.flush().map_err(|e| Error::io(&tmp, e))?;
+            Ok(value)
+        });
+        let value = value?;
+        early.map_err(|e| Error::io(&tmp, e))?;
         let file = w.into_inner().map_err(|e| Error::io(&tmp, e.into_error()))?;
         file.sync_all().map_err(|e| Error::io(&tmp, e))?;
         std::fs::rename(&tmp, &target).map_err(|e| Error::io(&target, e))?;

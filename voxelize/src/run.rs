@@ -1,5 +1,6 @@
 //! The whole job of `sct-voxelize`: load inputs into one scene, sample, write atomically.
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -8,7 +9,7 @@ use sct_format::{Generator, Node, Similarity, SourceRef};
 use serde_json::json;
 
 use crate::error::{Error, LoadError};
-use crate::load::{load, LoadOptions};
+use crate::load::{load, load_and_hash, LoadOptions};
 use crate::mesh::{Instance, LoadedScene};
 use crate::sample::{sample_points_into, sample_scene_into, AreaMode, Density, SampleOptions, Sampled, Sink, StreamError, Streamed};
 
@@ -95,9 +96,21 @@ pub struct Summary {
 /// Loads every input into one scene (indices offset so meshes, materials and images stay
 /// distinct).
 pub fn load_all(inputs: &[PathBuf], opts: &LoadOptions) -> Result<LoadedScene, Error> {
+    load_inputs(inputs, opts, false).map(|(scene, _)| scene)
+}
+
+/// [`load_all`], and with `hash` the BLAKE3 of each input's bytes as they were loaded.
+fn load_inputs(inputs: &[PathBuf], opts: &LoadOptions, hash: bool) -> Result<(LoadedScene, HashMap<PathBuf, String>), Error> {
     let mut all = LoadedScene::default();
+    let mut hashes = HashMap::new();
     for path in inputs {
-        let s = load(path, opts)?;
+        let s = if hash {
+            let (s, h) = load_and_hash(path, opts)?;
+            hashes.insert(path.clone(), h);
+            s
+        } else {
+            load(path, opts)?
+        };
         let (mo, mato, io) = (all.meshes.len(), all.materials.len(), all.images.len());
         for mut m in s.meshes {
             for p in &mut m.primitives {
@@ -151,7 +164,7 @@ pub fn load_all(inputs: &[PathBuf], opts: &LoadOptions) -> Result<LoadedScene, E
     }
     all.missing.sort();
     all.missing.dedup();
-    Ok(all)
+    Ok((all, hashes))
 }
 
 /// A samples file's tables: everything but its samples, which [`sample_into`]'s sink received
@@ -255,8 +268,8 @@ pub fn run(opts: &Options, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summa
 }
 
 /// Samples into the samples file at `path`, written atomically as the samples are made
-/// ([`SamplesWriter`]: chunks are compressed and written while the sampler makes the next
-/// batch, so no run holds all its samples). `seconds_write` is the finishing step alone.
+/// ([`SamplesWriter`]: chunks are compressed and written while the sampler makes later
+/// slabs, so no run holds all its samples). `seconds_write` is the finishing step alone.
 fn sample_to_file(opts: &Options, path: &Path, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Summary, Error> {
     let write_error = |source| Error::Write { path: path.to_path_buf(), source };
     let written = sct_format::atomic::write_atomic_with(path, |w| -> Result<Summary, ToFile> {
@@ -313,22 +326,12 @@ pub fn sample_into(
             return Err(Error::Usage(format!("--voxel-size must be a positive number, got {h}")));
         }
     }
-    // The inputs are hashed before they are read and the resources they name (MTL,
-    // textures, buffers) are checked for changes made while we ran: a hash taken after the
-    // load could describe bytes the samples were not made from, and batch mode would then
-    // call a stale output up to date forever.
+    // The inputs are hashed as they are loaded (the hash of the very bytes the samples are
+    // made from), and the resources they name (MTL, textures, buffers), hashed afterwards,
+    // are checked for changes made while we ran: a hash that described other bytes than
+    // those sampled would let batch mode call a stale output up to date forever.
     let started = std::time::SystemTime::now();
-    let mut hashes = std::collections::HashMap::new();
-    for f in &opts.inputs {
-        // A missing or oversized input is left to the loader, which names the problem.
-        let fits = std::fs::metadata(f).is_ok_and(|m| m.is_file() && m.len() <= opts.load.max_file_bytes);
-        if fits && !hashes.contains_key(f) {
-            if let Ok(h) = sct_format::atomic::hash_file(f) {
-                hashes.insert(f.clone(), h);
-            }
-        }
-    }
-    let scene = load_all(&opts.inputs, &opts.load)?;
+    let (scene, hashes) = load_inputs(&opts.inputs, &opts.load, true)?;
     let t_load = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let has_tris = scene.meshes.iter().any(|m| m.triangle_count() > 0);
@@ -539,6 +542,30 @@ mod tests {
         assert!(err.to_string().contains("64-bit voxel keys"), "{err}");
         let left: Vec<_> = std::fs::read_dir(dir.path().join("out")).expect("read dir").map(|e| e.expect("entry").file_name()).collect();
         assert_eq!(left, [std::ffi::OsString::from("x.samples")]);
+    }
+
+    /// The provenance hash of each input is the BLAKE3 of its bytes, on 1 and 2 threads, also
+    /// for an input large enough (over 1 MiB) to be hashed in parallel subtrees while it is
+    /// parsed.
+    #[test]
+    fn input_hashes_are_the_files_blake3() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut inputs = write_inputs(dir.path());
+        let big = dir.path().join("big.obj");
+        let mut text = std::fs::read_to_string(&inputs[0]).expect("read obj");
+        while text.len() < 3 << 19 {
+            text += "# a comment line that pads the file past the parallel hashing threshold\n";
+        }
+        std::fs::write(&big, text).expect("write big obj");
+        inputs.push(big);
+        let opts = Options { inputs, output: None, load: LoadOptions::default(), sample: SampleOptions { density: Density::VoxelSize(0.05), ..Default::default() } };
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+            let summary = pool.install(|| run(&opts, &|_, _| {})).expect("run");
+            let got: Vec<_> = summary.inputs.iter().map(|s| (s.path.clone(), s.blake3.clone())).collect();
+            let want: Vec<_> = opts.inputs.iter().map(|p| (p.display().to_string(), blake3::hash(&std::fs::read(p).expect("read")).to_hex().to_string())).collect();
+            assert_eq!(got, want, "{threads} threads");
+        }
     }
 
     #[test]

@@ -59,6 +59,7 @@ use crate::mesh::*;
 mod clip;
 mod coverage;
 mod density;
+mod in_order;
 mod keys;
 mod merge;
 mod plan;
@@ -239,7 +240,7 @@ pub enum StreamError<E> {
 pub type Never = std::convert::Infallible;
 
 /// Where samples go as they are made, in runs, in their final order. `Send`: a sink works
-/// while the threads make the next batch.
+/// on any thread while the others make later slabs.
 pub type Sink<'a, E> = dyn FnMut(&[Node]) -> Result<(), E> + Send + 'a;
 
 /// A [`Sink`] told which mesh (index into [`Streamed::meshes`]) each run belongs to.
@@ -271,8 +272,9 @@ pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn F
 
 /// Samples a loaded scene, handing the samples to `sink(mesh, samples)` in runs, mesh after
 /// mesh (`mesh` indexes the result's meshes) and in each mesh's final (voxel) order, as they
-/// are made: no result is held, only two batches of slabs (the sink works on one while the
-/// threads make the next). A sink error stops sampling and is returned.
+/// are made: no result is held, only a window of slabs made ahead of the sink (8 per thread;
+/// the sink works on one while the other threads make later ones). A sink error stops
+/// sampling and is returned.
 pub fn sample_scene_into<E: Send>(
     scene: &LoadedScene,
     opts: &SampleOptions,
@@ -436,7 +438,7 @@ mod tests {
         }
     }
 
-    /// The sink gets each mesh's samples in runs (many slabs, several batches), mesh after
+    /// The sink gets each mesh's samples in runs (more slabs than the window made ahead), mesh after
     /// mesh, in the order and with the counters of the collected result, and the areas summed
     /// run by run equal, bit for bit, the sums over whole meshes (instances applied).
     #[test]
@@ -456,7 +458,7 @@ mod tests {
             assert_eq!(streamed.meshes.len(), 2);
             assert_eq!(streamed.stats, collected.stats, "{method:?}");
             if method != Method::Vertex {
-                assert!(runs.len() > 8 * rayon::current_num_threads(), "{method:?}: {} runs, not several batches", runs.len());
+                assert!(runs.len() > 8 * rayon::current_num_threads(), "{method:?}: {} runs, not more than the window", runs.len());
             }
             for (mi, (m, c)) in streamed.meshes.iter().zip(&collected.meshes).enumerate() {
                 let got: Vec<Node> = runs.iter().filter(|r| r.0 == mi).flat_map(|r| r.1.iter().copied()).collect();
@@ -503,7 +505,7 @@ mod tests {
         assert!(matches!(r, Err(StreamError::Sampling(_))));
     }
 
-    /// A bumpy sheet over many slabs (small slab target: dozens of slabs, several batches):
+    /// A bumpy sheet over many slabs (small slab target: more slabs than the window made ahead):
     /// 1 and 2 threads give the same samples for every method; progress counts each triangle
     /// once; EQ 17 and scan-line areas still divide each triangle's area by its whole sample
     /// count (they sum to the mesh area) although multi-slab triangles are shaded per slab.

@@ -54,6 +54,21 @@ impl Default for LoadOptions {
 /// binary magic and the `ply` magic are also recognised).
 pub fn load(path: &Path, opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
     let bytes = read_file(path, opts.max_file_bytes)?;
+    load_bytes(path, &bytes, opts)
+}
+
+/// [`load`], and the BLAKE3 of the bytes it read (lowercase hex, the value of
+/// [`sct_format::atomic::hash_file`] on the same bytes): the hash describes exactly what
+/// was loaded, and is computed on every thread while the file is parsed rather than in a
+/// pass of its own.
+pub fn load_and_hash(path: &Path, opts: &LoadOptions) -> Result<(LoadedScene, String), LoadError> {
+    let bytes = read_file(path, opts.max_file_bytes)?;
+    let (hash, scene) = rayon::join(|| sct_format::atomic::hash_bytes(&bytes), || load_bytes(path, &bytes, opts));
+    Ok((scene?, hash))
+}
+
+/// [`load`] of the bytes read from `path`.
+fn load_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
     let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
     let sniffed = sniff::sniff(&bytes[..bytes.len().min(sniff::SNIFF_BYTES)], bytes.len() as u64);
     // The content wins over a misleading extension only where it is unambiguous (a GLB
@@ -81,9 +96,9 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
     // Third-party parsers are not all panic-free on hostile input; a panic becomes a typed
     // error naming the file instead of aborting the tool.
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| match kind {
-        Kind::Obj => obj::load(path, &bytes, opts),
-        Kind::Gltf => gltf_load::load(path, &bytes, opts),
-        Kind::Ply => ply::load(path, &bytes, opts),
+        Kind::Obj => obj::load(path, bytes, opts),
+        Kind::Gltf => gltf_load::load(path, bytes, opts),
+        Kind::Ply => ply::load(path, bytes, opts),
     }));
     let mut scene = match result {
         Ok(r) => r?,

@@ -58,7 +58,7 @@ impl<'a> Prepared<'a> {
             .collect();
         let flip = u.bake.as_ref().is_some_and(|m| determinant(m) < 0.0);
         let nrm: Option<Vec<[f32; 3]>> = prim.normals.as_ref().map(|ns| {
-            ns.iter()
+            ns.par_iter()
                 .map(|&n| {
                     let w = match &u.bake {
                         Some(m) => transform_normal(m, n),

@@ -6,6 +6,7 @@ use sct_format::Node;
 
 use crate::mesh::*;
 
+use super::in_order::make_in_order;
 use super::keys::{KeyPack, Rec, RecSink};
 use super::merge::{merge_sorted, NodeShape};
 use super::prepare::Prepared;
@@ -20,8 +21,9 @@ use super::{scanline, AreaMode, Method, SampleOptions, Sink};
 /// radix-sorts and merges them in buffers reused by its thread. Voxel keys are x-major, so
 /// concatenating slabs in order gives the globally sorted result, and equal voxels (always in
 /// one slab) merge in triangle order whatever the thread count: deterministic output, no
-/// global sort, and memory per batch of slabs rather than per scene: each batch's slab
-/// outputs go to `emit` in slab order, then their buffers serve a later batch. Returns
+/// global sort, and memory for a window of slabs rather than per scene: slab outputs go to
+/// `emit` in slab order as soon as each is the next, then their buffers serve later slabs.
+/// Returns
 /// (samples before merging, alpha-dropped samples), or the first error of `emit`.
 pub(super) fn sample_slabs<E: Send>(
     pp: &[Prepared],
@@ -113,112 +115,75 @@ pub(super) fn sample_slabs<E: Send>(
         items: Vec<u64>,
         tmp: Vec<u64>,
     }
-    // Slab buffers outlive rayon's jobs in a pool, so batches reuse them.
-    let pool: std::sync::Mutex<Vec<Bufs>> = std::sync::Mutex::new(Vec::new());
-    struct Pooled<'p> {
-        bufs: Bufs,
-        pool: &'p std::sync::Mutex<Vec<Bufs>>,
-    }
-    impl Drop for Pooled<'_> {
-        fn drop(&mut self) {
-            let b = std::mem::take(&mut self.bufs);
-            if let Ok(mut p) = self.pool.lock() {
-                p.push(b);
-            }
-        }
-    }
-    // Slabs run in batches of 4 per thread (enough to balance the threads). A batch's
-    // outputs are emitted in slab order while the threads make the next batch (the sink's
-    // work, a file write, overlaps sampling), then their buffers serve a later batch: the
-    // outputs of two batches exist at a time, whatever the scene's size, and no fresh pages
-    // are faulted in and zeroed after the first two.
+    // Output buffers of emitted slabs serve later slabs: no fresh pages are faulted in and
+    // zeroed once the first few exist.
     let outs: std::sync::Mutex<Vec<Vec<Node>>> = std::sync::Mutex::new(Vec::new());
-    let batch = 4 * rayon::current_num_threads();
-    let make_batch = |lists: &[Vec<u32>], slab_x: &[(i64, i64)]| -> Vec<(Vec<Node>, u64, u64)> {
-        lists
-            .par_iter()
-            .zip(slab_x.par_iter())
-            .map_init(
-                || Pooled {
-                    bufs: pool.lock().ok().and_then(|mut p| p.pop()).unwrap_or_default(),
-                    pool: &pool,
-                },
-                |pooled, (list, &(x0, x1))| {
-                    let bufs = &mut pooled.bufs;
-                    bufs.parts.reset(kp, (x0, x1), per_slab);
-                    let mut dropped = 0u64;
-                    for &gi in list {
-                        let gi = gi as usize;
-                        // The primitive holding triangle `gi`: the last to start at or before it.
-                        let pi = first.partition_point(|&f| f <= gi) - 1;
-                        let p = &pp[pi];
-                        let t = p.tri(gi - first[pi]);
-                        let mat = p.mat.view();
-                        if opts.method == Method::Scanline {
-                            // Per-triangle areas (EQ 17) need the whole triangle's sample count:
-                            // counted row by row, while only this slab's voxels are shaded and
-                            // kept (each voxel, hence each alpha drop, belongs to one slab).
-                            // Straight into the parts: nothing rescales its records afterwards.
-                            dropped += scanline::scanline_triangle(&t, &mat, kp, (x0, x1), &mut bufs.parts);
-                            continue;
-                        }
-                        // The voxel method rescales a triangle's EQ 17 areas once it has them
-                        // all, so its records (few, in L1) pass through `recs` to the parts.
-                        bufs.recs.clear();
-                        dropped += if (opts.method, opts.area) == (Method::Voxel, AreaMode::Exact) {
-                            voxel_triangle(&t, &mat, AreaMode::Exact, kp, (x0, x1), ALL_X, &mut bufs.recs)
-                        } else {
-                            voxel_triangle(&t, &mat, opts.area, kp, ALL_X, (x0, x1), &mut bufs.recs)
-                        };
-                        bufs.parts.extend(&bufs.recs);
-                    }
-                    // Progress counts a triangle once, in its first slab.
-                    let first_cell = cell_of(x0) as u32;
-                    progress(list.iter().filter(|&&gi| cells[gi as usize].0 >= first_cell).count() as u64);
-                    let before = bufs.parts.len();
-                    let mut out = outs.lock().ok().and_then(|mut o| o.pop()).unwrap_or_default();
-                    out.clear();
-                    out.reserve(if opts.merge { before * 4 / 5 } else { before });
-                    for (i, part) in bufs.parts.parts.iter().enumerate() {
-                        let idx_mask = sort_order(part, bufs.parts.key_range(i), &mut bufs.items, &mut bufs.tmp);
-                        merge_sorted(&bufs.items, idx_mask, part, &shape, opts.merge, &mut out);
-                    }
-                    let before = before as u64;
-                    (out, before, dropped)
-                },
-            )
-            .collect()
-    };
-    let mut emit_batch = |parts: Vec<(Vec<Node>, u64, u64)>| -> Result<(u64, u64), E> {
-        let (mut before, mut dropped) = (0u64, 0u64);
-        for (mut p, b, d) in parts {
-            emit(&p)?;
-            before += b;
-            dropped += d;
-            p.clear();
-            if let Ok(mut o) = outs.lock() {
-                o.push(p);
+    let make = |bufs: &mut Bufs, slab: usize| -> (Vec<Node>, u64, u64) {
+        let (list, (x0, x1)) = (&lists[slab], slab_x[slab]);
+        bufs.parts.reset(kp, (x0, x1), per_slab);
+        let mut dropped = 0u64;
+        for &gi in list {
+            let gi = gi as usize;
+            // The primitive holding triangle `gi`: the last to start at or before it.
+            let pi = first.partition_point(|&f| f <= gi) - 1;
+            let p = &pp[pi];
+            let t = p.tri(gi - first[pi]);
+            let mat = p.mat.view();
+            if opts.method == Method::Scanline {
+                // Per-triangle areas (EQ 17) need the whole triangle's sample count:
+                // counted row by row, while only this slab's voxels are shaded and
+                // kept (each voxel, hence each alpha drop, belongs to one slab).
+                // Straight into the parts: nothing rescales its records afterwards.
+                dropped += scanline::scanline_triangle(&t, &mat, kp, (x0, x1), &mut bufs.parts);
+                continue;
             }
+            // The voxel method rescales a triangle's EQ 17 areas once it has them
+            // all, so its records (few, in L1) pass through `recs` to the parts.
+            bufs.recs.clear();
+            dropped += if (opts.method, opts.area) == (Method::Voxel, AreaMode::Exact) {
+                voxel_triangle(&t, &mat, AreaMode::Exact, kp, (x0, x1), ALL_X, &mut bufs.recs)
+            } else {
+                voxel_triangle(&t, &mat, opts.area, kp, ALL_X, (x0, x1), &mut bufs.recs)
+            };
+            bufs.parts.extend(&bufs.recs);
         }
-        Ok((before, dropped))
+        // Progress counts a triangle once, in its first slab.
+        let first_cell = cell_of(x0) as u32;
+        progress(list.iter().filter(|&&gi| cells[gi as usize].0 >= first_cell).count() as u64);
+        let before = bufs.parts.len();
+        let mut out = outs.lock().ok().and_then(|mut o| o.pop()).unwrap_or_default();
+        out.clear();
+        out.reserve(if opts.merge { before * 4 / 5 } else { before });
+        for (i, part) in bufs.parts.parts.iter().enumerate() {
+            let idx_mask = sort_order(part, bufs.parts.key_range(i), &mut bufs.items, &mut bufs.tmp);
+            merge_sorted(&bufs.items, idx_mask, part, &shape, opts.merge, &mut out);
+        }
+        (out, before as u64, dropped)
     };
+    // Slabs are made on every thread and emitted in slab order as soon as each is the next
+    // (the sink's work, a file write, overlaps the making of later slabs; see
+    // `in_order`). At most 8 slabs per thread are made ahead of the next to emit: enough
+    // that one slow slab does not stop the others, few enough to bound the memory held.
     let (mut before, mut dropped) = (0u64, 0u64);
-    let mut made = Vec::new();
-    for (lists, slab_x) in lists.chunks(batch).zip(slab_x.chunks(batch)) {
-        let last = std::mem::take(&mut made);
-        let (emitted, next) = rayon::join(|| emit_batch(last), || make_batch(lists, slab_x));
-        let (b, d) = emitted?;
-        (before, dropped, made) = (before + b, dropped + d, next);
-    }
-    let (b, d) = emit_batch(made)?;
-    Ok((before + b, dropped + d))
+    let mut emit_slab = |(mut out, b, d): (Vec<Node>, u64, u64)| -> Result<(), E> {
+        emit(&out)?;
+        before += b;
+        dropped += d;
+        out.clear();
+        if let Ok(mut o) = outs.lock() {
+            o.push(out);
+        }
+        Ok(())
+    };
+    make_in_order(slab_x.len(), 8 * rayon::current_num_threads(), &Bufs::default, &make, &mut emit_slab)?;
+    Ok((before, dropped))
 }
 
 /// Triangles planned per parallel call (their cells and estimates: 512 KiB).
 const PLAN_BLOCK: usize = 1 << 15;
 
-/// Expected samples per slab (unit tests lower it to get many slabs and batches from small
-/// meshes).
+/// Expected samples per slab (unit tests lower it to get many slabs, more than the window of
+/// slabs made ahead, from small meshes).
 #[cfg(not(test))]
 pub(super) fn slab_target() -> f64 {
     131_072.0
