@@ -19,6 +19,20 @@ fn voxelize(model: &Path, out: &Path) -> voxelize::Summary {
     voxelize::run(&opts, &|_, _| {}).expect("voxelize")
 }
 
+/// A temporary folder, the shared model at `rel` (under `../shared/models`) and its samples
+/// made there by `sct-voxelize`; `None` (the test skips) when the model is not there.
+fn shared_model_samples(rel: &str) -> Option<(tempfile::TempDir, PathBuf, PathBuf)> {
+    let model = repo().join("../shared/models").join(rel);
+    if !model.exists() {
+        eprintln!("skipping: {} not found", model.display());
+        return None;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let samples = dir.path().join("model.samples");
+    voxelize(&model, &samples);
+    Some((dir, model, samples))
+}
+
 fn build(samples: &Path, out: &Path, profile: Profile) -> build_tree::pipeline::Report {
     build_refined(samples, out, profile, Default::default())
 }
@@ -134,14 +148,7 @@ fn two_sided_quad_is_drawn_from_behind_closed_box_is_culled_from_inside() {
 /// wall, mirrored, through the holes. Sample normals now lean at most 5° from their faces.
 #[test]
 fn leaning_file_normals_do_not_hide_the_outline() {
-    let capsule = repo().join("../shared/models/textured-obj/capsule/capsule.obj");
-    if !capsule.exists() {
-        eprintln!("skipping: {} not found", capsule.display());
-        return;
-    }
-    let dir = tempfile::tempdir().expect("tempdir");
-    let samples = dir.path().join("capsule.samples");
-    voxelize(&capsule, &samples);
+    let Some((dir, capsule, samples)) = shared_model_samples("textured-obj/capsule/capsule.obj") else { return };
     let sct = dir.path().join("capsule.sct");
     build(&samples, &sct, Profile::Default);
     let opts = render_preview::RenderOptions { width: 640, height: 360, view: render_preview::ViewPreset::Iso, ..Default::default() };
@@ -155,14 +162,7 @@ fn leaning_file_normals_do_not_hide_the_outline() {
 /// over the foreground); nodes that may hold an outline now refine to half the threshold.
 #[test]
 fn outlines_of_many_small_objects_are_refined() {
-    let model = repo().join("../shared/models/gltf/SimpleInstancing/glTF-Binary/SimpleInstancing.glb");
-    if !model.exists() {
-        eprintln!("skipping: {} not found", model.display());
-        return;
-    }
-    let dir = tempfile::tempdir().expect("tempdir");
-    let samples = dir.path().join("inst.samples");
-    voxelize(&model, &samples);
+    let Some((dir, model, samples)) = shared_model_samples("gltf/SimpleInstancing/glTF-Binary/SimpleInstancing.glb") else { return };
     let sct = dir.path().join("inst.sct");
     build(&samples, &sct, Profile::Default);
     let opts = render_preview::RenderOptions::default();
@@ -178,14 +178,7 @@ fn outlines_of_many_small_objects_are_refined() {
 /// renderer draws its leaf; what is left is what the tree and its codec change.
 #[test]
 fn a_lossless_point_cloud_tree_matches_its_reference() {
-    let pond = repo().join("../shared/models/ply/pond-pointcloud-colours/pond.0.ply");
-    if !pond.exists() {
-        eprintln!("skipping: {} not found", pond.display());
-        return;
-    }
-    let dir = tempfile::tempdir().expect("tempdir");
-    let samples = dir.path().join("pond.samples");
-    voxelize(&pond, &samples);
+    let Some((dir, pond, samples)) = shared_model_samples("ply/pond-pointcloud-colours/pond.0.ply") else { return };
     let sct = dir.path().join("pond.sct");
     build(&samples, &sct, Profile::Raw);
     // At the default 1280 × 720 most points are wider than a pixel: leaves are drawn.
@@ -201,14 +194,7 @@ fn a_lossless_point_cloud_tree_matches_its_reference() {
 #[test]
 fn a_point_cloud_keeps_its_points_by_default() {
     use build_tree::pipeline::Refinement;
-    let pond = repo().join("../shared/models/ply/pond-pointcloud-colours/pond.0.ply");
-    if !pond.exists() {
-        eprintln!("skipping: {} not found", pond.display());
-        return;
-    }
-    let dir = tempfile::tempdir().expect("tempdir");
-    let samples = dir.path().join("pond.samples");
-    voxelize(&pond, &samples);
+    let Some((dir, pond, samples)) = shared_model_samples("ply/pond-pointcloud-colours/pond.0.ply") else { return };
     let mesh = render_preview::reference::WorldMesh::load(&pond).expect("load");
     let score = |refinement: Refinement| {
         let sct = dir.path().join(format!("pond-{refinement:?}.sct"));

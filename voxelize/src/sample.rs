@@ -564,6 +564,26 @@ mod tests {
         }
     }
 
+    /// The unit quad in the z = 0 plane, its UVs its x and y, textured with `image` (clamped,
+    /// base colour white) under `alpha_mode`.
+    fn textured_unit_quad(image: Image, alpha_mode: AlphaMode) -> LoadedScene {
+        let quad = Primitive {
+            positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
+            uvs: vec![vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]],
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            material: Some(0),
+            ..Default::default()
+        };
+        let tex = TextureRef { image: 0, tex_coord: 0, transform: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], wrap_s: Wrap::ClampToEdge, wrap_t: Wrap::ClampToEdge };
+        LoadedScene {
+            meshes: vec![Mesh { name: "quad".into(), primitives: vec![quad] }],
+            instances: vec![Instance { mesh: 0, transform: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]] }],
+            materials: vec![Material { base_color: [1.0; 4], texture: Some(tex), alpha_mode, ..Default::default() }],
+            images: vec![image],
+            ..Default::default()
+        }
+    }
+
     /// A texture with lines one texel wide, a quarter of a voxel: the voxels the lines cross
     /// are sampled at half the voxel (up to four samples each, whose colours keep the lines'
     /// contrast), the voxels of plain black keep one sample; every sample stays on the
@@ -573,21 +593,7 @@ mod tests {
         // 64 × 64 texels, black with a white column every 16 texels (texels 5, 21, 37, 53).
         let (w, h) = (64u32, 64u32);
         let rgba: Vec<[u8; 4]> = (0..w * h).map(|i| if (i % w) % 16 == 5 { [255; 4] } else { [0, 0, 0, 255] }).collect();
-        let quad = Primitive {
-            positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
-            uvs: vec![vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]],
-            triangles: vec![[0, 1, 2], [0, 2, 3]],
-            material: Some(0),
-            ..Default::default()
-        };
-        let tex = TextureRef { image: 0, tex_coord: 0, transform: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], wrap_s: Wrap::ClampToEdge, wrap_t: Wrap::ClampToEdge };
-        let scene = LoadedScene {
-            meshes: vec![Mesh { name: "quad".into(), primitives: vec![quad] }],
-            instances: vec![Instance { mesh: 0, transform: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]] }],
-            materials: vec![Material { base_color: [1.0; 4], texture: Some(tex), ..Default::default() }],
-            images: vec![Image { width: w, height: h, rgba, source: "lines".into() }],
-            ..Default::default()
-        };
+        let scene = textured_unit_quad(Image { width: w, height: h, rgba, source: "lines".into() }, AlphaMode::Opaque);
         // Voxels of 4 texels: 16 × 16 voxels over the quad, 4 columns of them crossed by a line.
         let voxel = 1.0 / 16.0;
         let opts = SampleOptions { density: Density::VoxelSize(voxel), ..Default::default() };
@@ -637,21 +643,7 @@ mod tests {
     fn a_decal_line_off_the_voxel_centroid_is_kept() {
         let (w, h) = (64u32, 64u32);
         let rgba: Vec<[u8; 4]> = (0..w * h).map(|i| if (i % w) % 16 == 4 { [0, 0, 0, 255] } else { [255, 255, 255, 0] }).collect();
-        let quad = Primitive {
-            positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
-            uvs: vec![vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]],
-            triangles: vec![[0, 1, 2], [0, 2, 3]],
-            material: Some(0),
-            ..Default::default()
-        };
-        let tex = TextureRef { image: 0, tex_coord: 0, transform: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], wrap_s: Wrap::ClampToEdge, wrap_t: Wrap::ClampToEdge };
-        let scene = LoadedScene {
-            meshes: vec![Mesh { name: "decal".into(), primitives: vec![quad] }],
-            instances: vec![Instance { mesh: 0, transform: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]] }],
-            materials: vec![Material { base_color: [1.0; 4], texture: Some(tex), alpha_mode: AlphaMode::Blend, ..Default::default() }],
-            images: vec![Image { width: w, height: h, rgba, source: "decal".into() }],
-            ..Default::default()
-        };
+        let scene = textured_unit_quad(Image { width: w, height: h, rgba, source: "decal".into() }, AlphaMode::Blend);
         let voxel = 1.0 / 16.0;
         let opts = SampleOptions { density: Density::VoxelSize(voxel), ..Default::default() };
         let s = sample_scene(&scene, &opts, &|_, _| {}).expect("samples");
