@@ -156,7 +156,7 @@ pub struct RenderOptions {
     /// Follow inlines whose target lies outside the scene file's directory.
     pub allow_outside_inlines: bool,
     /// Most tree nodes one render examines, summed over every use of every tree; each may
-    /// become a splat (40 bytes), so this bounds memory and time for any scene
+    /// become a splat (44 bytes), so this bounds memory and time for any scene
     /// ([`DEFAULT_MAX_NODES`]).
     pub max_nodes: u64,
     /// Most pixels under the splats of one render, each splat counted by its bounding box
@@ -176,13 +176,13 @@ pub struct RenderOptions {
 /// the default build's voxel at the default view. The default build samples pieces whose
 /// colour varies at half the voxel (texture lines, text, a decal's border); at 1 px the cut
 /// merged those quarters back in pairs, and the detail they hold was lost (AlphaBlendModeTest,
-/// front: 24.9 dB at 1 px, 25.5 dB at 0.75 px), for 2–6 % more splats at the default view.
+/// front: 24.9 dB at 1 px, 25.7 dB at 0.75 px), for 2–6 % more splats at the default view.
 pub const DEFAULT_PIXEL_ERROR: f32 = 0.75;
 
 /// Default [`RenderOptions::supersample`]: 3 × 3. Opaque splats of about a pixel draw a
 /// texture's line of 1.4 px as two black pixels where the reference shows 131, 0, 121:
 /// AlphaBlendModeTest (thin frames and labels) scores 21.3 dB with one sample a pixel and
-/// 24.9 dB with 3 × 3, for 0.04 → 0.27 s of rasterizing at 1280 × 720 (BENCHMARKS.md,
+/// 24.9 dB with 3 × 3, for 0.03–0.05 → 0.27–0.38 s of rasterizing at 1280 × 720 (BENCHMARKS.md,
 /// "Accuracy at default settings").
 pub const DEFAULT_SUPERSAMPLE: u32 = 3;
 
@@ -202,7 +202,7 @@ pub fn supersample_used(opts: &RenderOptions) -> u32 {
     }
 }
 
-/// Default [`RenderOptions::max_nodes`]: 10^7 nodes, at most 0.4 GB of splats. Default
+/// Default [`RenderOptions::max_nodes`]: 10^7 nodes, at most 0.44 GB of splats. Default
 /// 1280 × 720 previews examine 0.2–1.4 M (BENCHMARKS.md: a 3.7 M-leaf bunny, 600 × 600
 /// instances); a finer `--pixel-error` or larger image may ask for more with `--max-nodes`.
 pub const DEFAULT_MAX_NODES: u64 = 10_000_000;
