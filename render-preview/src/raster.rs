@@ -34,7 +34,9 @@ pub struct Splat {
     /// sRGB colour, straight alpha (alpha < 255 is drawn with an ordered-dither screen door).
     pub color: [u8; 4],
     /// Depth added at the rim of the splat, growing with the square of the normalised
-    /// distance from its centre: a paraboloid instead of a flat disc.
+    /// distance from its centre: a paraboloid instead of a flat disc (0 for a flat disc;
+    /// `zbuffer` sets it to one radius in the world). The depth test and the frame's depth
+    /// take it in.
     pub rim: f32,
 }
 
@@ -77,9 +79,7 @@ impl Splat {
             }
         }
     }
-}
 
-impl Splat {
     /// How many pixel centres of a `w × h` frame lie in the splat: [`Splat::for_each_pixel`]'s
     /// count (up to rounding at the rim), from each row's span where the ellipse's
     /// quadratic is at most 1 rather than a test per pixel. A work counter for splats of
