@@ -4,7 +4,8 @@
 //! the root with screen-space thresholds on the projected size of each node's sphere (the
 //! conic section of its view cone, EQ 43–47), view-frustum and normal-cone back-face
 //! culling, lazy block decoding (only the blocks the view needs are read), and
-//! depth-tested elliptical splats rasterized in parallel screen tiles.
+//! depth-tested elliptical splats rasterized in parallel screen tiles, drawn 3 × 3 subpixels
+//! a pixel and resolved as the reference is ([`zbuffer`](mod@zbuffer)).
 //!
 //! [`method`] lists the preview methods behind [`RenderOptions::method`]: `zbuffer` (the
 //! above, the default), [`gauss`] (Coconu & Hege's elliptical Gaussian splats blended back
@@ -49,6 +50,7 @@ pub mod sweep;
 pub mod synth;
 pub mod wald;
 pub mod wand;
+pub mod zbuffer;
 
 use std::path::Path;
 use std::time::Instant;
@@ -601,32 +603,16 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     let mut frame = Frame::new(fine.width as usize, fine.height as usize, [r, g, b, 255]);
     let mut sort = 0.0;
     let fragments = match opts.method {
-        // `Parilov`, `Wald` and `Wand` returned above.
-        Method::Zbuffer | Method::Canopy | Method::Parilov | Method::Wald | Method::Wand => {
-            if opts.method == Method::Zbuffer {
-                raster::rasterize_blended(&mut frame, &splats);
-            } else {
-                raster::rasterize(&mut frame, &splats);
-            }
-            raster::fill_holes(&mut frame);
-            if ss > 1 {
-                frame = reference::resolve(&frame, ss as usize, [r, g, b, 255]);
-                // A crack a pixel wide is three subpixels wide, past what the fill above
-                // closes: 0.05 % of spot's pixels stayed background, costing it 2 dB.
-                raster::fill_holes(&mut frame);
-            }
-            // Cracks of a near surface over a farther one (BENCHMARKS.md, "Where every method
-            // fails"): covered, so `fill_holes` leaves them.
-            if opts.method == Method::Zbuffer {
-                raster::fill_depth_pits(&mut frame);
-            }
-            None
-        }
         Method::Gauss => {
             let ts = Instant::now();
             let order = gauss::depth_order(&splats);
             sort = ts.elapsed().as_secs_f64();
             Some(gauss::composite(&mut frame, &splats, &order, &opts.gauss, view.focal).fragments)
+        }
+        // `Canopy`, `Parilov`, `Wald` and `Wand` returned above.
+        _ => {
+            frame = zbuffer::zbuffer_frame(frame, &splats, ss as usize, [r, g, b, 255]);
+            None
         }
     };
     let t2 = Instant::now();

@@ -494,16 +494,8 @@ pub(crate) fn decide(n: &Node, leaf: bool, group: bool, pl: &Placement, view: &V
         // AREA_COVER × equal-area radius) is the kernel's half-opacity contour.
         return Decision::Draw(k.splat(c, nrm, r * shrink, cone, view.focal, x, y, color));
     }
-    if p.ellipses {
-        if p.matrix_splats && pl.affine && n.cone < std::f32::consts::FRAC_PI_2 {
-            if let Some(sp) = affine_splat(n, pl, view, c, p.max_radius, p.area_cover, [x, y], color) {
-                return Decision::Draw(if p.rims { with_rim(sp, view.focal) } else { sp });
-            }
-        }
-        let sp = surface_splat(c, nrm, cone, s, [x, y], color);
-        return Decision::Draw(if p.rims { with_rim(sp, view.focal) } else { sp });
-    }
-    let sp = Splat::disc(x, y, c[2], s, color);
+    let affine = || (p.matrix_splats && pl.affine && n.cone < std::f32::consts::FRAC_PI_2).then(|| affine_splat(n, pl, view, c, p.max_radius, p.area_cover, [x, y], color)).flatten();
+    let sp = if p.ellipses { affine().unwrap_or_else(|| surface_splat(c, nrm, cone, s, [x, y], color)) } else { Splat::disc(x, y, c[2], s, color) };
     Decision::Draw(if p.rims { with_rim(sp, view.focal) } else { sp })
 }
 

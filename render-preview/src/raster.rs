@@ -98,7 +98,8 @@ impl Splat {
         // enough to agree with the f32 test but at the rim.
         let (ux, uy, ia, ib) = (f64::from(self.ux), f64::from(self.uy), f64::from(self.inv_a2), f64::from(self.inv_b2));
         let a = ux * ux * ia + uy * uy * ib;
-        if !(a > 0.0) {
+        // A NaN or non-positive leading coefficient: no span.
+        if a.is_nan() || a <= 0.0 {
             return 0;
         }
         let mut n = 0u64;
@@ -404,7 +405,8 @@ pub fn rasterize_blended(frame: &mut Frame, splats: &[Splat]) {
     let lin = crate::shade::srgb_to_linear_lut();
     for (i, (t, &tz)) in top.color.iter().zip(&top.depth).enumerate() {
         let (Some(c), Some(z)) = (frame.color.get_mut(i), frame.depth.get_mut(i)) else { break };
-        if !(tz < *z) || t[3] == 0 {
+        // Behind the opaque surface, at a NaN depth, or fully transparent: nothing to blend.
+        if tz.is_nan() || tz >= *z || t[3] == 0 {
             continue;
         }
         if z.is_finite() {
