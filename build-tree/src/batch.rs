@@ -36,7 +36,7 @@ pub const REPORT_SCHEMA: &str = "sct-build-tree-batch/1";
 
 /// Bump when the sampler, tree builder or encoders change their output for the same
 /// inputs and flags without a crate version change, so batch runs redo old outputs.
-pub const ENCODER_REVISION: u32 = 7;
+pub const ENCODER_REVISION: u32 = 8;
 
 /// Temporary files of other processes younger than this are left alone: they may belong
 /// to a run still in progress (a retried shard, another host on shared storage).

@@ -238,7 +238,7 @@ pub fn run_samples(
     let leaf_refinement = match cfg.leaf_refinement {
         Refinement::On => sct_format::LeafRefinement::All,
         Refinement::Off => sct_format::LeafRefinement::None,
-        Refinement::Auto => sct_format::LeafRefinement::Trees(point_cloud_trees),
+        Refinement::Auto => sct_format::LeafRefinement::OffSurface(point_cloud_trees),
     };
     let wopts = WriteOptions { profile: cfg.profile, compression_level: cfg.compression_level, centre_offsets: cfg.centre_offsets, leaf_refinement, ..Default::default() };
     // Consumed: the trees' nodes are freed as their blocks are written.

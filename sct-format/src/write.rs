@@ -66,8 +66,8 @@ pub struct WriteOptions {
     /// surface along its normal (spec 1.2, tree flag bit 2; about 0.5 bytes a leaf). Files
     /// written without them stay readable by 1.0/1.1 readers.
     pub centre_offsets: bool,
-    /// Default profile only: which trees store a centre step and radius cut for every leaf
-    /// (spec 1.4, tree flag bit 3; about 2–3 bytes a leaf). A refined tree needs no centre
+    /// Default profile only: which leaves store a centre step and radius cut (spec 1.4, tree
+    /// flag bit 3; about 2–3 bytes a refined leaf). A tree refined whole needs no centre
     /// offsets and stores none.
     pub leaf_refinement: LeafRefinement,
 }
@@ -78,19 +78,23 @@ pub enum LeafRefinement {
     /// No tree (files stay readable by 1.3 readers).
     #[default]
     None,
-    /// Every tree.
+    /// Every leaf of every tree.
     All,
-    /// The trees whose indices (into the scene's trees) are listed.
+    /// Every leaf of the trees whose indices (into the scene's trees) are listed; no other.
     Trees(Vec<u32>),
+    /// Every leaf of the listed trees; in every other tree (when it has centre offsets) the
+    /// leaves that the position code moves off their piece of surface (spec/SCT-profiles.md
+    /// §3, "leaf refinement where it is needed").
+    OffSurface(Vec<u32>),
 }
 
 impl LeafRefinement {
-    /// Whether tree `i` is refined.
+    /// Whether every leaf of tree `i` is refined.
     pub fn refines(&self, i: usize) -> bool {
         match self {
             LeafRefinement::None => false,
             LeafRefinement::All => true,
-            LeafRefinement::Trees(t) => t.iter().any(|&k| k as usize == i),
+            LeafRefinement::Trees(t) | LeafRefinement::OffSurface(t) => t.iter().any(|&k| k as usize == i),
         }
     }
 }
@@ -105,8 +109,11 @@ impl WriteOptions {
     /// The codec parameters of tree `i`, with (`alpha`) or without translucent nodes.
     fn codec_params(&self, i: usize, alpha: bool) -> CodecParams {
         let default = self.profile == Profile::Default;
-        let refine = default && self.leaf_refinement.refines(i);
-        CodecParams { alpha, centre_offsets: self.centre_offsets && default && !refine, leaf_refinement: refine }
+        let whole = default && self.leaf_refinement.refines(i);
+        let offsets = self.centre_offsets && default && !whole;
+        // With offsets, the codec refines only the leaves that need it.
+        let where_needed = offsets && matches!(self.leaf_refinement, LeafRefinement::OffSurface(_));
+        CodecParams { alpha, centre_offsets: offsets, leaf_refinement: whole || where_needed }
     }
 
     fn zstd_level(&self) -> Option<i32> {

@@ -160,18 +160,17 @@ proptest! {
         }
     }
 
-    /// Leaf refinement (1.4) keeps every bound, with or without centre offsets, and puts a
-    /// refined child within 1/256 of its decoded radius of the original's centre on every
-    /// axis and within 2 % (plus that step) of its radius, unless the child had to stay as
-    /// decoded; a refined sphere never grows.
+    /// Leaf refinement (1.4) keeps every bound and puts a refined child within 1/256 of its
+    /// decoded radius of the original's centre on every axis and within 2 % (plus that step)
+    /// of its radius, unless the child had to stay as decoded; a refined sphere never grows.
     #[test]
-    fn default_leaf_refinement_props((ps, kids) in pairs(false), alpha in any::<bool>(), offsets in any::<bool>()) {
-        let with = CodecParams { alpha, centre_offsets: offsets, leaf_refinement: true };
+    fn default_leaf_refinement_props((ps, kids) in pairs(false), alpha in any::<bool>()) {
+        let with = CodecParams { alpha, centre_offsets: false, leaf_refinement: true };
         check_with(Profile::Default, with, &ps, &kids)?;
         let children: Vec<Node> = kids.iter().map(|k| k.0).collect();
         let (mut a, mut b) = (Vec::new(), Vec::new());
         if let (Ok(plain), Ok(refined)) = (
-            encode_children(Profile::Default, CodecParams { alpha, centre_offsets: offsets, ..Default::default() }, &ps, &children, &mut a),
+            encode_children(Profile::Default, CodecParams { alpha, ..Default::default() }, &ps, &children, &mut a),
             encode_children(Profile::Default, with, &ps, &children, &mut b),
         ) {
             let mut tight = 0;
@@ -193,6 +192,43 @@ proptest! {
             // Most children of random pairs are refined fully (the property would hold
             // vacuously if the encoder never moved anything).
             prop_assert!(tight * 2 >= children.len() || children.len() < 4, "only {tight} of {} children refined", children.len());
+        }
+    }
+
+    /// Leaf refinement with centre offsets (refinement where it is needed) keeps every bound,
+    /// leaves a child untouched when the offset left it within its allowance (area / 6 radius,
+    /// plus radius / 128) of its original centre along the original's tangent plane, and
+    /// otherwise moves it back within that allowance or, failing that, refines it fully (every
+    /// axis within a step); a sphere never grows.
+    #[test]
+    fn default_refinement_where_needed_props((ps, kids) in pairs(false), alpha in any::<bool>()) {
+        let with = CodecParams { alpha, centre_offsets: true, leaf_refinement: true };
+        check_with(Profile::Default, with, &ps, &kids)?;
+        let children: Vec<Node> = kids.iter().map(|k| k.0).collect();
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        if let (Ok(plain), Ok(refined)) = (
+            encode_children(Profile::Default, CodecParams { alpha, centre_offsets: true, ..Default::default() }, &ps, &children, &mut a),
+            encode_children(Profile::Default, with, &ps, &children, &mut b),
+        ) {
+            for (i, ((c, d0), d1)) in children.iter().zip(&plain).zip(&refined).enumerate() {
+                prop_assert!(d1.radius <= d0.radius, "child {i}: refinement grew the radius");
+                let n = c.normal.map(f64::from);
+                let nn: f64 = n.iter().map(|v| v * v).sum();
+                let tangential = |d: &Node| {
+                    let v: [f64; 3] = std::array::from_fn(|k| d.center[k] as f64 - c.center[k] as f64);
+                    let along = if nn > 1e-30 { (0..3).map(|k| v[k] * n[k]).sum::<f64>().powi(2) / nn } else { 0.0 };
+                    (v.iter().map(|x| x * x).sum::<f64>() - along).max(0.0).sqrt()
+                };
+                let ulps = 8.0 * f32::EPSILON as f64 * c.center.iter().chain(&d0.center).fold(0f32, |m, v| m.max(v.abs())) as f64;
+                let allowed = c.area as f64 / (6.0 * c.radius as f64) + c.radius as f64 / 128.0;
+                if tangential(d0) + ulps < allowed {
+                    prop_assert_eq!(d1, d0, "child {}: moved though within its allowance", i);
+                } else if d1 != d0 {
+                    let step = d0.radius as f64 / 256.0 * 1.0001;
+                    let full = (0..3).all(|k| (d1.center[k] as f64 - c.center[k] as f64).abs() <= step + ulps);
+                    prop_assert!(tangential(d1) <= allowed + ulps || full || d1.center == d0.center, "child {i}: left {} off its piece (allowed {allowed})", tangential(d1));
+                }
+            }
         }
     }
 

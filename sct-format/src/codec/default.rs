@@ -72,6 +72,17 @@
 //! centre offsets, keeps the child inside the stick-out slack of its parent and encodable
 //! under it; so every bound below holds as written.
 //!
+//! # Leaf refinement where it is needed (1.2 and 1.4 together)
+//!
+//! Refining every leaf of a mesh costs 1.36–1.75× the file, and most leaves gain little: a
+//! centre moved along its own flat piece of surface still lies on the surface. What hurts is
+//! a centre moved past the piece's edge, e.g. past a face's convex edge, where it reads as
+//! distance from the mesh. A tree with both flags stores centre offsets for every leaf and
+//! a nonzero refinement only for the leaves whose centre lies off their piece
+//! ([`tangential_error`]), moved just back onto it ([`pick_nudge`]); the others store zeros,
+//! which zstd packs to almost nothing. A decoder needs no rule for this: it applies the
+//! offset, then the refinement, as stored.
+//!
 //! `zzb(d)`: the difference taken modulo `2^b`, read as a signed value in `[-2^(b-1),
 //! 2^(b-1))`, zigzag-mapped (`0,-1,1,-2,… → 0,1,2,3,…`). A byte ≥ `2^b` is malformed.
 //!
@@ -395,6 +406,77 @@ fn pick_refinement(p: &Node, orig: &Node, dec: &Node) -> ([i8; 3], u8, Node) {
     ([0; 3], 0, *dec)
 }
 
+/// How far `dec`, the decoded leaf, lies from `orig`'s centre along `orig`'s tangent plane,
+/// as the vector from the original centre, with how far it may lie while surely staying on
+/// the piece of surface `orig` stands for: `a / (6r)` (`a` and `r` the original's area and
+/// radius). Why that is safe for a flat convex piece with its centroid at the original
+/// centre: the piece lies inside the sphere, so in any direction it is at most `2r` long and,
+/// holding area `a`, at least `a / 2r` wide across it; the centroid lies at least a third of
+/// the width from either supporting line, so the disc of radius `a / 6r` about it lies on the
+/// piece. A piece cut by a face's edge is narrow and allows little; a whole voxel's square of
+/// surface allows 0.24 voxel. `None` when either length is not finite.
+fn tangential_error(orig: &Node, dec: &Node) -> Option<([f64; 3], f64)> {
+    let n = orig.normal.map(f64::from);
+    let nn = n.iter().map(|v| v * v).sum::<f64>();
+    let d: [f64; 3] = std::array::from_fn(|a| dec.center[a] as f64 - orig.center[a] as f64);
+    let along = if nn > 1e-30 { (0..3).map(|a| d[a] * n[a]).sum::<f64>() / nn } else { 0.0 };
+    let t: [f64; 3] = std::array::from_fn(|a| d[a] - along * n[a]);
+    let allowed = orig.area as f64 / (6.0 * orig.radius as f64);
+    (t.iter().all(|v| v.is_finite()) && allowed.is_finite()).then_some((t, allowed.max(0.0)))
+}
+
+/// A nudge's steps are multiples of this many `r_C / 128` units where that suffices: fewer
+/// distinct values pack into fewer bits.
+const NUDGE_GRAIN: f64 = 8.0;
+
+/// The refinement of a leaf that the position code left off its piece of surface
+/// ([`tangential_error`] past its allowance), with the child it decodes to: `None` when it
+/// lies on its piece. The centre moves back along the tangent plane just far enough to lie
+/// within 0.9 of the allowance (small steps, which zstd packs in few bits; the radius is
+/// kept), or, when such a nudge is not [`acceptable`], as [`pick_refinement`] moves it.
+fn pick_nudge(p: &Node, orig: &Node, dec: &Node) -> Option<([i8; 3], u8, Node)> {
+    let Some((t, allowed)) = tangential_error(orig, dec) else {
+        return Some(pick_refinement(p, orig, dec));
+    };
+    let len = t.iter().map(|v| v * v).sum::<f64>().sqrt();
+    // Past a crease or an open edge, a centre at most `r / 128` past its allowance lies at
+    // most that far from the surface: the tolerance the plane is held to.
+    if len <= allowed + orig.radius as f64 / PLANE_STEPS {
+        return None;
+    }
+    let unit = dec.radius as f64 / REFINE_STEPS as f64;
+    let back = 1.0 - 0.75 * allowed / len;
+    let n = unit64(orig.normal);
+    let plane_before = n.map(|n| plane_error(orig, n, dec.center).abs().max(orig.radius as f64 / PLANE_STEPS));
+    for grain in [NUDGE_GRAIN, 1.0] {
+        let want = t.map(|v| -v * back / unit / grain);
+        if !(unit > 0.0 && want.iter().all(|v| v.is_finite() && v.abs() * grain <= 126.0)) {
+            break;
+        }
+        // Each axis rounded down or up: of the moves that land on the piece, the one nearest
+        // the plane (rounding per axis moves the centre along the normal too).
+        let mut best: Option<(f64, [i8; 3], Node)> = None;
+        for corner in 0..8 {
+            let steps: [i8; 3] = std::array::from_fn(|a| {
+                let v = if corner >> a & 1 == 0 { want[a].floor() } else { want[a].ceil() };
+                (v * grain) as i8
+            });
+            let mut moved = *dec;
+            apply_refinement(&mut moved, steps, 0);
+            let on_piece = tangential_error(orig, &moved).is_some_and(|(t2, _)| t2.iter().map(|v| v * v).sum::<f64>().sqrt() <= allowed);
+            let (Some(n), Some(before)) = (n, plane_before) else { break };
+            let e = plane_error(orig, n, moved.center).abs();
+            if on_piece && e <= before && best.as_ref().is_none_or(|b| e < b.0) && acceptable(p, orig, &moved) {
+                best = Some((e, steps, moved));
+            }
+        }
+        if let Some((_, steps, moved)) = best {
+            return Some((steps, 0, moved));
+        }
+    }
+    Some(pick_refinement(p, orig, dec))
+}
+
 /// Denominator of a centre offset: one step is `r_P / 128`.
 const OFFSET_STEPS: f32 = 128.0;
 
@@ -677,12 +759,16 @@ pub fn encode_with_leaves(params: CodecParams, parents: &[Node], children: &[Nod
                     offsets[i] = zz(o as u8, 0, 8);
                 }
                 if params.leaf_refinement && !has_children.is_some_and(|f| f[i]) {
-                    let (d, k, refined) = pick_refinement(p, c, &node);
-                    node = refined;
-                    for a in 0..3 {
-                        refine[a * m + i] = zz(d[a] as u8, 0, 8);
+                    // With centre offsets too, only the leaves the position code left off
+                    // their piece of surface (see "Leaf refinement where it is needed").
+                    let pick = if params.centre_offsets { pick_nudge(p, c, &node) } else { Some(pick_refinement(p, c, &node)) };
+                    if let Some((d, k, refined)) = pick {
+                        node = refined;
+                        for a in 0..3 {
+                            refine[a * m + i] = zz(d[a] as u8, 0, 8);
+                        }
+                        refine[3 * m + i] = k;
                     }
-                    refine[3 * m + i] = k;
                 }
                 dec.push(node);
                 dec_a = Some(node);
