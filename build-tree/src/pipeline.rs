@@ -33,16 +33,18 @@ pub struct Config {
     pub build: BuildOptions,
 }
 
-/// Which trees store leaf refinement (spec 1.4: every leaf's centre and radius to within 1/256
+/// Which leaves store leaf refinement (spec 1.4: a leaf's centre and radius to within 1/256
 /// of its own radius, about 2–3 bytes a leaf more).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Refinement {
-    /// Trees of point clouds: each point is a measurement with its own colour, so a leaf
-    /// drawn a fifth of its parent's radius away from its point moves that colour.
+    /// Every leaf of point clouds: each point is a measurement with its own colour, so a leaf
+    /// drawn a fifth of its parent's radius away from its point moves that colour. In other
+    /// trees the leaves the position grid moves off their piece of surface, which past a
+    /// face's edge would lie off the mesh.
     #[default]
     Auto,
-    /// Every tree.
+    /// Every leaf of every tree.
     On,
     /// No tree (the file stays readable by 1.3 readers).
     Off,
