@@ -246,6 +246,10 @@ pub type Sink<'a, E> = dyn FnMut(&[Node]) -> Result<(), E> + Send + 'a;
 /// A [`Sink`] told which mesh (index into [`Streamed::meshes`]) each run belongs to.
 pub type MeshSink<'a, E> = dyn FnMut(usize, &[Node]) -> Result<(), E> + Send + 'a;
 
+/// How far past its sample budget a scene may end before a warning says so: the estimate
+/// itself lands within a few per cent (BENCHMARKS.md, "Sample budget").
+const BUDGET_OVERSHOOT: f64 = 1.1;
+
 /// Samples a loaded scene into memory: [`sample_scene_into`] collecting each mesh's samples.
 pub fn sample_scene(scene: &LoadedScene, opts: &SampleOptions, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<Sampled, String> {
     let mut samples: Vec<Vec<Node>> = Vec::new();
@@ -349,6 +353,18 @@ pub fn sample_scene_into<E: Send>(
         out.push(StreamedMesh { name: u.name.clone(), count: tally.count, instances: u.instances.clone(), affine: u.affine.clone(), two_sided });
     }
     stats.mesh_area = mesh_area;
+    // The budget's estimate is made before sampling and counts no colour quarters (pieces
+    // whose colour varies are sampled at half the voxel, up to 4 samples each): say so when
+    // they took the count past it.
+    if let (Some(budget), false) = (opts.budget, opts.method == Method::Vertex) {
+        if stats.samples as f64 > budget as f64 * BUDGET_OVERSHOOT {
+            stats.warnings.push(format!(
+                "{} samples, {:.2}× the sample budget of {budget}: pieces whose colour varies were sampled by quarters, which the budget's estimate does not count (a smaller --sample-budget or a larger --voxel-size makes fewer)",
+                stats.samples,
+                stats.samples as f64 / budget as f64
+            ));
+        }
+    }
     Ok(Streamed { meshes: out, voxel, stats })
 }
 
