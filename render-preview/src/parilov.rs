@@ -92,7 +92,8 @@ pub struct ParilovStats {
     /// `cells_resorted / cells`.
     pub resort_fraction: f64,
     /// Cells whose kept axis was still valid but whose samples changed (close-ups replicate
-    /// samples per view), sorted again along that axis.
+    /// samples per view; a cell's fitting level changes with its distance), sorted again
+    /// along that axis.
     pub cells_recut: u64,
     /// Samples streamed (one pixel each), virtual ones included.
     pub samples: u64,
@@ -411,7 +412,24 @@ fn sort_far_first(files: &SceneFiles, view: &View, items: &mut [Item]) {
 
 #[cfg(test)]
 mod tests {
-    use super::counting_sort_far_first;
+    use super::{counting_sort_far_first, sample_levels, CELL_LEVELS};
+
+    #[test]
+    fn sample_levels_go_up_while_samples_fit_the_footprint() {
+        // Samples CELL_LEVELS down at the footprint or wider: all the levels.
+        assert_eq!(sample_levels(0.5, 0.5), CELL_LEVELS);
+        assert_eq!(sample_levels(2.0, 0.5), CELL_LEVELS);
+        // Half the footprint: a quarter of its area, two levels up still fit; just over
+        // half: one.
+        assert_eq!(sample_levels(0.25, 0.5), CELL_LEVELS - 2);
+        assert_eq!(sample_levels(0.26, 0.5), CELL_LEVELS - 1);
+        // A far subtree: its root alone.
+        assert_eq!(sample_levels(1e-4, 0.5), 0);
+        // No area or no footprint: the fixed depth.
+        assert_eq!(sample_levels(0.0, 0.5), CELL_LEVELS);
+        assert_eq!(sample_levels(f32::NAN, 0.5), CELL_LEVELS);
+        assert_eq!(sample_levels(0.1, f32::INFINITY), 0);
+    }
 
     #[test]
     fn counting_sort_orders_far_first_and_keeps_ties_in_index_order() {
