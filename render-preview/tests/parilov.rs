@@ -183,3 +183,35 @@ fn instances_and_empty_trees() {
     assert_eq!(e.frame.covered(), 0);
 }
 
+
+/// A far instance is drawn from its tree's coarse levels: a 60 × 60 grid of tinted spheres
+/// (leaves 1/40 of the radius apart) seen iso at 320 × 240, each instance about 7 covered pixels. Each
+/// instance is a cell from its root; its samples are taken the fewest levels down at which
+/// they are at most the footprint wide (not a fixed 8 levels, 2^8 samples of a small
+/// fraction of a pixel each). Measured when set: 5.1 samples streamed per covered pixel
+/// (fixed 8 levels: 23.0), 20.2 dB / IoU 0.990 against zbuffer's one-sample frame (fixed 8
+/// levels: 17.9 dB / 0.981; the tiny instances alias in both); every cell sorted on this
+/// first frame (before instance keys were fully mixed, the instances at (x, z) and
+/// (−x, −z) shared one kept order: 1,709 cells found another instance's). Bounds: at most
+/// 10 samples per covered pixel, 19 dB and IoU 0.98 against the depth buffer, every cell
+/// sorted.
+#[test]
+fn far_instances_stream_few_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = synth::uv_sphere([0.0; 3], 1.0, 24, [0.8, 0.8, 0.8, 1.0]);
+    let tree = synth::build_tree(synth::sample_mesh(&mesh, 0.05)).unwrap();
+    let scene = synth::instance_grid(tree, 60, 60, 2.5, |i| Some([255, 200 + (i * 7 % 56) as u8, 150 + (i * 13 % 60) as u8, 255])).unwrap();
+    let sct = dir.path().join("grid60.sct");
+    write_scene_file(&sct, &scene, &WriteOptions::default()).unwrap();
+    let o = parilov(RenderOptions { width: 320, height: 240, view: render_preview::ViewPreset::Iso, ..RenderOptions::default() });
+    let out = render_file(&sct, &o).unwrap();
+    let z = render_file(&sct, &RenderOptions { method: Method::Zbuffer, supersample: 1, ..o.clone() }).unwrap();
+    let vs = metrics::compare(&out.frame, &z.frame);
+    let ps = out.stats.parilov.unwrap();
+    let per_pixel = ps.samples as f64 / out.stats.work.covered_pixels.max(1) as f64;
+    eprintln!("grid 60: {per_pixel:.2} samples per covered pixel, {ps:?}\nvs zbuffer {vs:?}");
+    assert!(ps.cells >= 3000, "{ps:?}");
+    assert!(per_pixel <= 10.0, "{per_pixel} samples per covered pixel");
+    assert!(vs.silhouette_iou >= 0.98 && vs.fg_psnr_db.unwrap() >= 19.0, "{vs:?}");
+    assert_eq!(ps.cells_resorted, ps.cells, "a first frame sorts every cell");
+}
