@@ -600,20 +600,18 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     let (splats, lod) = files.collect(&fine, &fine_params)?;
     let t1 = Instant::now();
     let [r, g, b] = opts.background;
-    let mut frame = Frame::new(fine.width as usize, fine.height as usize, [r, g, b, 255]);
     let mut sort = 0.0;
-    let fragments = match opts.method {
+    let (frame, fragments) = match opts.method {
         Method::Gauss => {
+            let mut frame = Frame::new(fine.width as usize, fine.height as usize, [r, g, b, 255]);
             let ts = Instant::now();
             let order = gauss::depth_order(&splats);
             sort = ts.elapsed().as_secs_f64();
-            Some(gauss::composite(&mut frame, &splats, &order, &opts.gauss, view.focal).fragments)
+            let fragments = gauss::composite(&mut frame, &splats, &order, &opts.gauss, view.focal).fragments;
+            (frame, Some(fragments))
         }
         // `Canopy`, `Parilov`, `Wald` and `Wand` returned above.
-        _ => {
-            frame = zbuffer::zbuffer_frame(frame, &splats, ss as usize, [r, g, b, 255]);
-            None
-        }
+        _ => (zbuffer::zbuffer_tiled(fine.width as usize, fine.height as usize, &splats, ss as usize, [r, g, b, 255]), None),
     };
     let t2 = Instant::now();
     // The depth buffer's fragments are counted after the clock stops (the tuned

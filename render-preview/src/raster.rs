@@ -222,7 +222,7 @@ const CHUNK: usize = 16384;
 /// Per-pixel candidate of a worker's layer: `!(depth key << 32 | splat index)`, 0 for none.
 /// Inverted so that the nearest (then earliest) splat is the *largest* value and an empty
 /// layer is all zeros: a fresh layer is a zeroed allocation the kernel maps lazily.
-type Cand = u64;
+pub(crate) type Cand = u64;
 
 /// A worker's private full-frame layer of candidates, plus which bands it wrote.
 #[derive(Default)]
@@ -254,7 +254,7 @@ fn depth_key(z: f32) -> u32 {
 }
 
 #[inline(always)]
-fn key_depth(k: u32) -> f32 {
+pub(crate) fn key_depth(k: u32) -> f32 {
     f32::from_bits(if k >> 31 == 1 { k & 0x7fff_ffff } else { !k })
 }
 
@@ -454,7 +454,7 @@ fn draw_chunk(splats: &[Splat], base: u32, cand: &mut [Cand], touched: &mut [boo
 
 /// The candidate of splat `index` at depth `z`.
 #[inline(always)]
-fn key(z: f32, index: u32) -> Cand {
+pub(crate) fn key(z: f32, index: u32) -> Cand {
     !(((depth_key(z) as u64) << 32) | index as u64)
 }
 
