@@ -443,6 +443,14 @@ fn setup(files: &SceneFiles, opts: &RenderOptions) -> Result<(Camera, f64, View,
     Ok((camera, near, view, params, up, t0.elapsed().as_secs_f64()))
 }
 
+/// The subpixels per side a render of `opts` draws ([`supersample_used`]), and the view and
+/// refinement parameters on its subframe (the cut kept in output pixels).
+fn supersampled(opts: &RenderOptions, view: &View, params: lod::LodParams) -> (u32, View, lod::LodParams) {
+    let ss = supersample_used(opts);
+    let fine_params = lod::LodParams { pixel_error: params.pixel_error * ss as f32, max_radius: params.max_radius * ss as f32, ..params };
+    (ss, view.supersampled(ss), fine_params)
+}
+
 /// Renders an open scene.
 pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> {
     let t0 = Instant::now();
@@ -593,10 +601,8 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     }
     // `zbuffer` draws `ss × ss` subpixels a pixel, the cut and the pixel limit kept in
     // output pixels.
-    let ss = supersample_used(opts);
-    let fine = view.supersampled(ss);
+    let (ss, fine, fine_params) = supersampled(opts, &view, params);
     let area = u64::from(ss * ss);
-    let fine_params = lod::LodParams { pixel_error: params.pixel_error * ss as f32, max_radius: params.max_radius * ss as f32, ..params };
     let (splats, lod) = files.collect(&fine, &fine_params)?;
     let t1 = Instant::now();
     let [r, g, b] = opts.background;
@@ -666,6 +672,15 @@ pub fn write_rgb_png(path: &Path, img: &image::RgbImage) -> Result<()> {
 pub fn collect_splats(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Vec<Splat>> {
     let (_, _, view, params, _, _) = setup(files, opts)?;
     Ok(files.collect(&view, &params)?.0)
+}
+
+/// The splats a `zbuffer` render of `opts` draws on its subframe, the subframe's size and
+/// its subpixels per pixel side: what [`zbuffer::zbuffer_tiled`] takes (for benchmarks and
+/// tests).
+pub fn collect_zbuffer_splats(files: &mut SceneFiles, opts: &RenderOptions) -> Result<(Vec<Splat>, [usize; 2], u32)> {
+    let (_, _, view, params, _, _) = setup(files, opts)?;
+    let (ss, fine, fine_params) = supersampled(opts, &view, params);
+    Ok((files.collect(&fine, &fine_params)?.0, [fine.width as usize, fine.height as usize], ss))
 }
 
 #[cfg(test)]

@@ -222,7 +222,7 @@ const CHUNK: usize = 16384;
 /// Per-pixel candidate of a worker's layer: `!(depth key << 32 | splat index)`, 0 for none.
 /// Inverted so that the nearest (then earliest) splat is the *largest* value and an empty
 /// layer is all zeros: a fresh layer is a zeroed allocation the kernel maps lazily.
-pub(crate) type Cand = u64;
+type Cand = u64;
 
 /// A worker's private full-frame layer of candidates, plus which bands it wrote.
 #[derive(Default)]
@@ -246,7 +246,7 @@ const KEEP_BYTES: usize = 256 << 20;
 /// Order-preserving map of a depth to `u32` (`a < b` ⇔ `key(a) < key(b)` for non-NaN
 /// depths, with −0 and +0 equal like the float comparison).
 #[inline(always)]
-fn depth_key(z: f32) -> u32 {
+pub(crate) fn depth_key(z: f32) -> u32 {
     // `+ 0.0` turns −0 into +0 (and is not folded away for that reason).
     // Negative depths flip all bits, others the sign bit (branch-free).
     let b = (z + 0.0).to_bits();
@@ -454,7 +454,7 @@ fn draw_chunk(splats: &[Splat], base: u32, cand: &mut [Cand], touched: &mut [boo
 
 /// The candidate of splat `index` at depth `z`.
 #[inline(always)]
-pub(crate) fn key(z: f32, index: u32) -> Cand {
+fn key(z: f32, index: u32) -> Cand {
     !(((depth_key(z) as u64) << 32) | index as u64)
 }
 

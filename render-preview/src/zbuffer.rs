@@ -5,7 +5,7 @@
 
 use rayon::prelude::*;
 
-use crate::raster::{alpha_passes, fill_depth_pits, fill_holes, key, key_depth, rasterize_blended, Cand, Frame, Splat};
+use crate::raster::{alpha_passes, depth_key, fill_depth_pits, fill_holes, key_depth, rasterize_blended, Frame, Splat};
 use crate::shade;
 
 /// Draws `splats` into `sub` (`s × s` subpixels a pixel, already holding what was drawn
@@ -65,8 +65,9 @@ pub fn resolve(sub: &Frame, s: usize, bg: [u8; 4]) -> Frame {
 }
 
 /// Output pixels per side of a screen tile of [`zbuffer_tiled`]: at 3 × 3 a tile is 96 × 96
-/// subpixels, whose candidates (8 bytes each, with a one-subpixel apron) take 75 KiB and
-/// stay in a core's cache while the tile's splats are drawn, blended, filled and resolved.
+/// subpixels, whose depth keys and splat indices (8 bytes each, with a one-subpixel apron)
+/// take 75 KiB and stay in a core's cache while the tile's splats are drawn, blended, filled
+/// and resolved.
 pub const TILE: usize = 32;
 
 /// Splats binned by one worker at a time.
@@ -83,8 +84,11 @@ const BIN_CHUNK: usize = 1 << 16;
 /// one-subpixel apron, what the subpixel hole fill reads) are drawn, blended, filled and
 /// resolved in a small buffer before the next tile; tiles no splat reaches stay background
 /// untouched. The steps are those of [`rasterize_blended`], [`fill_holes`] and [`resolve`]
-/// with the same arithmetic: a subpixel keeps the largest candidate (depth, then splat index)
-/// as the whole-frame rasterizer does, whatever the order in which the tile draws its splats.
+/// with the same arithmetic. A subpixel keeps the nearest splat and, on a tie, the earliest,
+/// as the whole-frame rasterizer does: a tile draws its splats in input order, so a strict
+/// depth test keeps the earliest (a 32-bit key compared, where the whole-frame rasterizer's
+/// workers, each drawing some chunk, compare depth and index packed in 64 bits; the baseline
+/// x86-64 target has no 64-bit vector compare, and that loop took 4–5 ns a subpixel).
 pub fn zbuffer_tiled(sub_w: usize, sub_h: usize, splats: &[Splat], s: usize, bg: [u8; 4]) -> Frame {
     let s = s.max(1);
     let (w, h) = (sub_w / s, sub_h / s);
@@ -153,6 +157,7 @@ struct Bins {
 }
 
 impl Bins {
+    #[inline(never)]
     fn new(chunk: &[Splat], base: u32, g: &Geometry) -> Bins {
         let n = g.tiles_x * g.tiles_y;
         let mut start = vec![0u32; n + 1];
@@ -196,16 +201,57 @@ impl Bins {
 /// A worker's tile buffers, reused from tile to tile.
 #[derive(Default)]
 struct Scratch {
-    /// Candidates of the opaque splats and of the translucent ones.
-    opaque: Vec<Cand>,
-    clear: Vec<Cand>,
+    /// The opaque splats and the translucent ones.
+    opaque: Layer,
+    clear: Layer,
     depth: Vec<f32>,
     color: Vec<[u8; 4]>,
+}
+
+/// A tile's nearest splat per subpixel so far: its depth key and index.
+#[derive(Default)]
+struct Layer {
+    /// [`depth_key`] of the depth at the subpixel with its top bit flipped, so that keys
+    /// compare as signed integers (the one 32-bit vector compare of SSE2); `i32::MAX` for
+    /// none.
+    key: Vec<i32>,
+    index: Vec<u32>,
+}
+
+/// The signed form of [`depth_key`] that [`Layer::key`] holds.
+#[inline(always)]
+fn signed_key(z: f32) -> i32 {
+    (depth_key(z) ^ 0x8000_0000) as i32
+}
+
+impl Layer {
+    fn reset(&mut self, n: usize) {
+        self.key.clear();
+        self.key.resize(n, i32::MAX);
+        self.index.clear();
+        self.index.resize(n, 0);
+    }
+
+    /// The depth and colour of the splat kept at subpixel `i`, as the whole-frame
+    /// rasterizer writes it over the background: none where no splat, or one at a NaN
+    /// depth, won. (The largest key is a NaN depth too, so a splat there drawing nothing is
+    /// no loss.)
+    #[inline(always)]
+    fn winner(&self, i: usize, splats: &[Splat]) -> Option<(f32, [u8; 4])> {
+        let k = *self.key.get(i)?;
+        if k == i32::MAX {
+            return None;
+        }
+        let z = key_depth(k as u32 ^ 0x8000_0000);
+        let col = splats.get(*self.index.get(i)? as usize)?.color;
+        (z < f32::INFINITY).then_some((z, col))
+    }
 }
 
 /// Draws, blends, fills and resolves tile `(tx, ty)` into its pixels of a band of output
 /// rows (`out`: colour, depth and the output width).
 #[allow(clippy::too_many_arguments)]
+#[inline(never)]
 fn draw_tile(g: &Geometry, splats: &[Splat], bins: &[Bins], (tx, ty): (usize, usize), scr: &mut Scratch, lin: &[f32; 256], bg: [u8; 4], out: (&mut [[u8; 4]], &mut [f32], usize)) {
     let tile = ty * g.tiles_x + tx;
     if bins.iter().all(|b| b.of(tile).is_empty()) {
@@ -217,11 +263,11 @@ fn draw_tile(g: &Geometry, splats: &[Splat], bins: &[Bins], (tx, ty): (usize, us
     let (cy0, cy1) = (ty * g.ts, ((ty + 1) * g.ts).min(h * g.s));
     let (ex0, ex1) = (cx0.saturating_sub(1), (cx1 + 1).min(g.sub_w));
     let (ey0, ey1) = (cy0.saturating_sub(1), (cy1 + 1).min(g.sub_h));
-    let ew = ex1 - ex0;
+    // Rows padded for `draw`'s last run of lanes.
+    let ew = ex1 - ex0 + LANES - 1;
     let n = ew * (ey1 - ey0);
     let area = Area { x0: ex0 as i32, x1: ex1 as i32 - 1, y0: ey0 as i32, y1: ey1 as i32 - 1, w: ew };
-    scr.opaque.clear();
-    scr.opaque.resize(n, 0);
+    scr.opaque.reset(n);
     let mut any_clear = false;
     for b in bins {
         for &i in b.of(tile) {
@@ -231,35 +277,24 @@ fn draw_tile(g: &Geometry, splats: &[Splat], bins: &[Bins], (tx, ty): (usize, us
                 draw(sp, i, clip, &mut scr.opaque, &area);
             } else {
                 if !any_clear {
-                    scr.clear.clear();
-                    scr.clear.resize(n, 0);
+                    scr.clear.reset(n);
                     any_clear = true;
                 }
                 draw(sp, i, clip, &mut scr.clear, &area);
             }
         }
     }
-    // Each subpixel's winner, as `rasterize` keeps it over a background frame.
-    let winner = |c: Cand| -> Option<(f32, [u8; 4])> {
-        if c == 0 {
-            return None;
-        }
-        let c = !c;
-        let z = key_depth((c >> 32) as u32);
-        let col = splats.get(c as u32 as usize)?.color;
-        (z < f32::INFINITY).then_some((z, col))
-    };
     scr.depth.clear();
     scr.color.clear();
-    for &c in &scr.opaque[..n] {
-        let (z, col) = winner(c).unwrap_or((f32::INFINITY, bg));
+    for i in 0..n {
+        let (z, col) = scr.opaque.winner(i, splats).unwrap_or((f32::INFINITY, bg));
         scr.depth.push(z);
         scr.color.push(col);
     }
     if any_clear {
         // `rasterize_blended`: the nearest translucent splat over the opaque surface.
-        for (i, &t) in scr.clear[..n].iter().enumerate() {
-            let Some((tz, t)) = winner(t) else { continue };
+        for i in 0..n {
+            let Some((tz, t)) = scr.clear.winner(i, splats) else { continue };
             let (Some(c), Some(z)) = (scr.color.get_mut(i), scr.depth.get_mut(i)) else { break };
             if tz.is_nan() || tz >= *z || t[3] == 0 {
                 continue;
@@ -325,30 +360,80 @@ struct Area {
     w: usize,
 }
 
-/// Draws a splat (`clip`: its box clipped to the subframe) into a tile's candidates with the
-/// arithmetic of the whole-frame rasterizer: offsets from the clipped box's first pixel, so
-/// that a subpixel's test and depth do not depend on the tile.
+/// Draws a splat (`clip`: its box clipped to the subframe) into a tile's layer, where it
+/// replaces strictly farther splats, with the arithmetic of the whole-frame rasterizer:
+/// offsets from the clipped box's first pixel, so that a subpixel's test and depth do not
+/// depend on the tile. Drawn in strips of up to [`STRIP`] columns (a subpixel's test does
+/// not depend on its neighbours').
 #[inline(always)]
-fn draw(sp: &Splat, index: u32, [xa, xb, ya, yb]: [i32; 4], cand: &mut [Cand], a: &Area) {
+fn draw(sp: &Splat, index: u32, [xa, xb, ya, yb]: [i32; 4], layer: &mut Layer, a: &Area) {
     let (x0, x1, y0, y1) = (xa.max(a.x0), xb.min(a.x1), ya.max(a.y0), yb.min(a.y1));
     if x0 > x1 || y0 > y1 {
         return;
     }
+    let mut x = x0;
+    while x <= x1 {
+        let last = x1.min(x + STRIP as i32 - 1);
+        let strip = [xa, x, last, y0, y1];
+        match (last - x) as usize / LANES {
+            0 => draw_strip::<1>(sp, index, strip, layer, a),
+            1 => draw_strip::<2>(sp, index, strip, layer, a),
+            2 => draw_strip::<3>(sp, index, strip, layer, a),
+            _ => draw_strip::<4>(sp, index, strip, layer, a),
+        }
+        x += STRIP as i32;
+    }
+}
+
+/// Subpixels of a row tested at a time (an SSE2 vector).
+const LANES: usize = 4;
+/// Columns of a strip: four runs of lanes.
+const STRIP: usize = 4 * LANES;
+
+/// Draws columns `x0..=x1` (at most `N` runs of [`LANES`]) of rows `y0..=y1` of a splat whose
+/// clipped box starts at column `xa`. What does not change down a column (the offset from
+/// the centre times the axis, the lanes past `x1`) is computed once; each row then takes a
+/// few vector operations a run, and both arrays are stored whether or not the splat wins
+/// (selects by mask: whether a subpixel lies in the splat is a coin toss at its rim, and
+/// the compiler otherwise branches per lane).
+#[inline(always)]
+fn draw_strip<const N: usize>(sp: &Splat, index: u32, [xa, x0, x1, y0, y1]: [i32; 5], layer: &mut Layer, a: &Area) {
     let x0f = xa as f32 + 0.5 - sp.x;
-    let skip = x0 - xa;
+    let (mut pux, mut puy, mut live) = ([[0f32; LANES]; N], [[0f32; LANES]; N], [[0i32; LANES]; N]);
+    for r in 0..N {
+        for l in 0..LANES {
+            let k = x0 - xa + (r * LANES + l) as i32;
+            let dx = x0f + k as f32;
+            pux[r][l] = dx * sp.ux;
+            puy[r][l] = dx * sp.uy;
+            live[r][l] = -((xa + k <= x1) as i32);
+        }
+    }
+    let (ia, ib, z, rim) = (sp.inv_a2, sp.inv_b2, sp.z, sp.rim);
     for py in y0..=y1 {
         let dy = py as f32 + 0.5 - sp.y;
         let (ay, by) = (dy * sp.uy, dy * sp.ux);
-        let row = (py - a.y0) as usize * a.w;
-        let Some(crow) = cand.get_mut(row + (x0 - a.x0) as usize..=row + (x1 - a.x0) as usize) else { continue };
-        // Without a branch per subpixel: whether one lies in the splat is a coin toss at its
-        // rim.
-        for (k, c) in crow.iter_mut().enumerate() {
-            let dx = x0f + (skip + k as i32) as f32;
-            let (a, b) = (dx * sp.ux + ay, by - dx * sp.uy);
-            let q = a * a * sp.inv_a2 + b * b * sp.inv_b2;
-            let m = 0u64.wrapping_sub((q <= 1.0) as u64);
-            *c = (*c).max(key(sp.z + sp.rim * q, index) & m);
+        let at = (py - a.y0) as usize * a.w + (x0 - a.x0) as usize;
+        let (Some(keys), Some(idx)) = (layer.key.get_mut(at..at + N * LANES), layer.index.get_mut(at..at + N * LANES)) else { return };
+        for r in 0..N {
+            let (Some(keys), Some(idx)) = (keys.get_mut(r * LANES..(r + 1) * LANES), idx.get_mut(r * LANES..(r + 1) * LANES)) else { return };
+            let (Ok(keys), Ok(idx)) = (<&mut [i32; LANES]>::try_from(keys), <&mut [u32; LANES]>::try_from(idx)) else { return };
+            // In steps over all lanes, each of which the compiler vectorises.
+            let mut q = [0f32; LANES];
+            for l in 0..LANES {
+                let (a, b) = (pux[r][l] + ay, by - puy[r][l]);
+                q[l] = a * a * ia + b * b * ib;
+            }
+            let mut m = [0i32; LANES];
+            for l in 0..LANES {
+                let d = signed_key(z + rim * q[l]);
+                let old = keys[l];
+                m[l] = -((q[l] <= 1.0) as i32) & -((d < old) as i32) & live[r][l];
+                keys[l] = old ^ ((old ^ d) & m[l]);
+            }
+            for l in 0..LANES {
+                idx[l] ^= (idx[l] ^ index) & m[l] as u32;
+            }
         }
     }
 }
