@@ -481,3 +481,97 @@ impl Fill<'_> {
         None
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A small deterministic generator of floats in [0, 1] (xorshift32).
+    fn xorshift(mut s: u32) -> impl FnMut() -> f32 {
+        move || {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            s as f32 / u32::MAX as f32
+        }
+    }
+
+    /// Splats of every kind the tiled path must draw as the whole-frame steps do, over a
+    /// `w × h` subframe: mostly a few subpixels across with rims, some large or thin, across
+    /// tile borders and the frame's edges, translucent (some fully transparent), tied in
+    /// depth, and at NaN, infinite, negative and signed-zero depths.
+    fn splats(n: u32, w: f32, h: f32, seed: u32) -> Vec<Splat> {
+        let mut rnd = xorshift(seed);
+        (0..n)
+            .map(|i| {
+                let (x, y) = (rnd() * (w + 20.0) - 10.0, rnd() * (h + 20.0) - 10.0);
+                let z = match i % 101 {
+                    0 => f32::NAN,
+                    1 => f32::INFINITY,
+                    2 => -0.0,
+                    3 => -1.0,
+                    4 => f32::NEG_INFINITY,
+                    _ => 1.0 + (rnd() * 8.0).floor() * 0.25,
+                };
+                let r = if i % 40 == 0 { rnd() * 30.0 } else { rnd() * 3.5 };
+                let a = match i % 9 {
+                    0 => (rnd() * 255.0) as u8,
+                    1 => 0,
+                    _ => 255,
+                };
+                let c = [(i % 251) as u8, (i / 251 % 251) as u8, (i % 13) as u8 * 19, a];
+                let t = rnd() * 6.3;
+                let mut s = if i % 3 == 0 { Splat::ellipse(x, y, z, r, r * rnd(), t.cos(), t.sin(), c) } else { Splat::disc(x, y, z, r, c) };
+                s.rim = if i % 5 == 0 { 0.0 } else { rnd() * 0.3 };
+                s
+            })
+            .collect()
+    }
+
+    /// The tiled frame is the whole-frame steps' frame, byte for byte, at one, three and five
+    /// subpixels a side, on frames that are no whole number of tiles (with leftover
+    /// subpixel columns and rows past the last whole pixel), with opaque splats alone and with
+    /// translucent ones, on one thread or several.
+    #[test]
+    fn tiled_frame_matches_the_whole_frame_steps() {
+        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let bg = [10, 20, 30, 255];
+        for (s, sub_w, sub_h, seed) in [(3, 3 * 75, 3 * 41, 1), (3, 3 * 70 + 2, 3 * 33 + 1, 2), (1, 101, 67, 3), (5, 5 * 37, 5 * 35, 4), (3, 3 * 32, 3 * 32, 5)] {
+            let all = splats(40_000, sub_w as f32, sub_h as f32, seed);
+            let opaque: Vec<Splat> = all.iter().map(|sp| Splat { color: [sp.color[0], sp.color[1], sp.color[2], 255], ..*sp }).collect();
+            for set in [&all, &opaque] {
+                let want = zbuffer_frame(Frame::new(sub_w, sub_h, bg), set, s, bg);
+                assert!(want.covered() > want.width * want.height / 4, "a frame worth comparing");
+                let got = zbuffer_tiled(sub_w, sub_h, set, s, bg);
+                assert_eq!(got, want, "{s}×{s}, {sub_w}×{sub_h}");
+                let single = one.install(|| zbuffer_tiled(sub_w, sub_h, set, s, bg));
+                assert_eq!(single, want, "one thread, {s}×{s}, {sub_w}×{sub_h}");
+            }
+        }
+    }
+
+    /// Coplanar splats tied everywhere (equal depth, no rim): the earliest in the input keeps
+    /// every subpixel it covers, as in the whole-frame rasterizer, though the tile draws
+    /// them after binning.
+    #[test]
+    fn ties_go_to_the_earliest_splat() {
+        let bg = [0, 0, 0, 255];
+        let mut rnd = xorshift(9);
+        let set: Vec<Splat> = (0..5000).map(|i| Splat::disc(rnd() * 300.0, rnd() * 200.0, 1.0, 2.0 + rnd() * 6.0, [(i % 256) as u8, (i / 256) as u8, 7, 255])).collect();
+        let want = zbuffer_frame(Frame::new(300, 201, bg), &set, 3, bg);
+        assert_eq!(zbuffer_tiled(300, 201, &set, 3, bg), want);
+        let mut reversed = set.clone();
+        reversed.reverse();
+        assert_ne!(zbuffer_tiled(300, 201, &reversed, 3, bg), want, "the order decides ties");
+    }
+
+    /// No splats, or none on screen: the background, as the whole-frame steps leave it.
+    #[test]
+    fn empty_frames_stay_background() {
+        let bg = [1, 2, 3, 255];
+        let off = [Splat::disc(-50.0, -50.0, 1.0, 3.0, [9, 9, 9, 255])];
+        for set in [&[][..], &off[..]] {
+            assert_eq!(zbuffer_tiled(99, 60, set, 3, bg), zbuffer_frame(Frame::new(99, 60, bg), set, 3, bg));
+        }
+    }
+}
