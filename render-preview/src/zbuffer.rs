@@ -419,10 +419,15 @@ fn draw_strip<const N: usize>(sp: &Splat, index: u32, [xa, x0, x1, y0, y1]: [i32
             let (Some(keys), Some(idx)) = (keys.get_mut(r * LANES..(r + 1) * LANES), idx.get_mut(r * LANES..(r + 1) * LANES)) else { return };
             let (Ok(keys), Ok(idx)) = (<&mut [i32; LANES]>::try_from(keys), <&mut [u32; LANES]>::try_from(idx)) else { return };
             // In steps over all lanes, each of which the compiler vectorises.
-            let mut q = [0f32; LANES];
+            let (mut a, mut b, mut q) = ([0f32; LANES], [0f32; LANES], [0f32; LANES]);
             for l in 0..LANES {
-                let (a, b) = (pux[r][l] + ay, by - puy[r][l]);
-                q[l] = a * a * ia + b * b * ib;
+                a[l] = pux[r][l] + ay;
+            }
+            for l in 0..LANES {
+                b[l] = by - puy[r][l];
+            }
+            for l in 0..LANES {
+                q[l] = a[l] * a[l] * ia + b[l] * b[l] * ib;
             }
             let mut m = [0i32; LANES];
             for l in 0..LANES {
