@@ -161,22 +161,28 @@ impl Bins {
     fn new(chunk: &[Splat], base: u32, g: &Geometry) -> Bins {
         let n = g.tiles_x * g.tiles_y;
         let mut start = vec![0u32; n + 1];
+        // Each splat's tiles, found once for both passes (none: `u32::MAX` first).
+        let mut rects = Vec::with_capacity(chunk.len());
         for sp in chunk {
-            if let Some([x0, x1, y0, y1]) = g.clip(sp).and_then(|b| g.tiles(b)) {
+            let rect = g.clip(sp).and_then(|b| g.tiles(b)).map_or([u32::MAX; 4], |r| r.map(|v| v as u32));
+            if rect[0] != u32::MAX {
+                let [x0, x1, y0, y1] = rect.map(|v| v as usize);
                 for ty in y0..=y1 {
                     for c in &mut start[ty * g.tiles_x + x0 + 1..=ty * g.tiles_x + x1 + 1] {
                         *c += 1;
                     }
                 }
             }
+            rects.push(rect);
         }
         for i in 0..n {
             start[i + 1] += start[i];
         }
         let mut next = start.clone();
         let mut index = vec![0u32; start[n] as usize];
-        for (k, sp) in chunk.iter().enumerate() {
-            if let Some([x0, x1, y0, y1]) = g.clip(sp).and_then(|b| g.tiles(b)) {
+        for (k, rect) in rects.iter().enumerate() {
+            if rect[0] != u32::MAX {
+                let [x0, x1, y0, y1] = rect.map(|v| v as usize);
                 for ty in y0..=y1 {
                     for t in ty * g.tiles_x + x0..=ty * g.tiles_x + x1 {
                         if let Some(slot) = index.get_mut(next[t] as usize) {
