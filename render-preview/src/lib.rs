@@ -184,12 +184,15 @@ pub const DEFAULT_PIXEL_ERROR: f32 = 0.75;
 /// Default [`RenderOptions::supersample`]: 3 × 3. Opaque splats of about a pixel draw a
 /// texture's line of 1.4 px as two black pixels where the reference shows 131, 0, 121:
 /// AlphaBlendModeTest (thin frames and labels) scores 21.3 dB with one sample a pixel and
-/// 24.9 dB with 3 × 3, for 0.03–0.05 → 0.27–0.38 s of rasterizing at 1280 × 720 (BENCHMARKS.md,
-/// "Accuracy at default settings").
+/// 24.9 dB with 3 × 3. The frame is drawn in screen tiles ([`zbuffer::zbuffer_tiled`]), so
+/// that 9× the samples cost 1.7–2.0× the raster time of one sample a pixel at 1280 × 720
+/// (0.10–0.16 s against 0.06–0.08 s, 2 shared cores under load; drawn whole-frame they took
+/// 0.46–0.58 s; BENCHMARKS.md, "Accuracy at default settings").
 pub const DEFAULT_SUPERSAMPLE: u32 = 3;
 
-/// Most subpixels of a supersampled frame: 2^25 (a 1920 × 1080 frame at 3 × 3 is 18.7 M;
-/// each costs 8 bytes of frame and 8 bytes per raster worker).
+/// Most subpixels of a supersampled frame: 2^25 (a 1920 × 1080 frame at 3 × 3 is 18.7 M).
+/// The preview keeps only a tile's subpixels at a time, but the mesh reference draws its
+/// whole subframe (8 bytes a subpixel, and 8 more per raster worker for point clouds).
 pub const MAX_SUPERSAMPLED_PIXELS: u64 = 1 << 25;
 
 /// The subpixels per side a render of `opts` draws: [`RenderOptions::supersample`] for
