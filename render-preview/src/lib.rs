@@ -186,7 +186,7 @@ pub const DEFAULT_PIXEL_ERROR: f32 = 0.75;
 /// AlphaBlendModeTest (thin frames and labels) scores 21.3 dB with one sample a pixel and
 /// 24.9 dB with 3 × 3. The frame is drawn in screen tiles ([`zbuffer::zbuffer_tiled`]), so
 /// that 9× the samples cost 1.7–2.0× the raster time of one sample a pixel at 1280 × 720
-/// (0.10–0.16 s against 0.06–0.08 s, 2 shared cores under load; drawn whole-frame they took
+/// (0.10–0.16 s against 0.055–0.079 s, 2 shared cores under load; drawn whole-frame they took
 /// 0.46–0.58 s; BENCHMARKS.md, "Accuracy at default settings").
 pub const DEFAULT_SUPERSAMPLE: u32 = 3;
 
