@@ -1,4 +1,5 @@
-//! Benchmarks: `cargo run --release -p render-preview --example bench -- FILE.sct [WIDTH HEIGHT]`.
+//! Benchmarks: `cargo run --release -p render-preview --example bench -- FILE.sct [WIDTH HEIGHT]`
+//! (`RP_ZBUFFER=1`: only the default method's 3 × 3 frame, tiled against whole-frame).
 //! Prints full-decode time, end-to-end preview time (open + refine + raster, best of 5)
 //! and rasterizer throughput (splats/s) on the splats of that view, replicated.
 
