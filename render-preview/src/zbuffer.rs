@@ -136,7 +136,7 @@ impl Geometry {
     /// depth, which never passes a depth test).
     #[inline(always)]
     fn clip(&self, sp: &Splat) -> Option<[i32; 4]> {
-        if !(sp.z < f32::INFINITY) {
+        if sp.z.is_nan() || sp.z == f32::INFINITY {
             return None;
         }
         let [x0, x1, y0, y1] = sp.bounds.map(i32::from);
@@ -191,11 +191,11 @@ impl Bins {
             if rect[0] != u32::MAX {
                 let [x0, x1, y0, y1] = rect.map(|v| v as usize);
                 for ty in y0..=y1 {
-                    for t in ty * g.tiles_x + x0..=ty * g.tiles_x + x1 {
-                        if let Some(slot) = index.get_mut(next[t] as usize) {
+                    for at in &mut next[ty * g.tiles_x + x0..=ty * g.tiles_x + x1] {
+                        if let Some(slot) = index.get_mut(*at as usize) {
                             *slot = base + k as u32;
                         }
-                        next[t] += 1;
+                        *at += 1;
                     }
                 }
             }
