@@ -1,11 +1,12 @@
-//! Benchmarks: `cargo run --release -p render-preview --example bench -- FILE.sct [WIDTH HEIGHT]`.
+//! Benchmarks: `cargo run --release -p render-preview --example bench -- FILE.sct [WIDTH HEIGHT]`
+//! (`RP_ZBUFFER=1`: only the default method's 3 × 3 frame, tiled against whole-frame).
 //! Prints full-decode time, end-to-end preview time (open + refine + raster, best of 5)
 //! and rasterizer throughput (splats/s) on the splats of that view, replicated.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
-use render_preview::{raster, render_file, Frame, RenderOptions};
+use render_preview::{raster, render_file, zbuffer, Frame, RenderOptions};
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
@@ -14,6 +15,10 @@ fn main() -> anyhow::Result<()> {
     let h: u32 = args.get(3).map_or(Ok(720), |s| s.parse())?;
     let threads = rayon::current_num_threads();
     let opts = RenderOptions { width: w, height: h, ..Default::default() };
+    // RP_ZBUFFER=1: only the default method's supersampled frame, tiled against whole-frame.
+    if std::env::var_os("RP_ZBUFFER").is_some() {
+        return zbuffer_frames(&path, &opts);
+    }
     // RP_RASTER_ONLY=1: only the rasterizer figure (for profiling).
     if std::env::var_os("RP_RASTER_ONLY").is_none() {
         previews(&path, &opts, threads)?;
@@ -88,6 +93,45 @@ fn raster_throughput(path: &std::path::Path, opts: &RenderOptions) -> anyhow::Re
     println!("raster cpu/wall ratio {:.2}, threads {}", (cpu_seconds() - cpu0) / total, rayon::current_num_threads());
     let n = all.len() as f64;
     println!("raster: {} splats, median {median:.4} s = {:.1} M splats/s (best {best:.4} s = {:.1} M/s)", all.len(), n / median / 1e6, n / best / 1e6);
+    Ok(())
+}
+
+/// The `zbuffer` frame of the view's splats (drawn, blended, hole-filled, resolved) by the
+/// tiled path and by the whole-frame steps, alternately (`RP_REPS` each, default 7;
+/// `RP_TILED_ONLY=1` skips the whole-frame one, for profiling).
+fn zbuffer_frames(path: &std::path::Path, opts: &RenderOptions) -> anyhow::Result<()> {
+    let mut files = render_preview::SceneFiles::open(path, &opts.limits)?;
+    let (splats, [sw, sh], s) = render_preview::collect_zbuffer_splats(&mut files, opts)?;
+    let s = s as usize;
+    let reps: usize = std::env::var("RP_REPS").ok().and_then(|v| v.parse().ok()).unwrap_or(7).max(1);
+    let tiled_only = std::env::var_os("RP_TILED_ONLY").is_some();
+    let bg = [0, 0, 0, 255];
+    let (mut tiled, mut whole) = (Vec::new(), Vec::new());
+    let mut tiled_cpu = 0.0;
+    for _ in 0..reps {
+        let (t, c) = (Instant::now(), cpu_seconds());
+        let a = zbuffer::zbuffer_tiled(sw, sh, &splats, s, bg);
+        tiled.push(t.elapsed().as_secs_f64());
+        tiled_cpu += cpu_seconds() - c;
+        if !tiled_only {
+            let t = Instant::now();
+            let b = zbuffer::zbuffer_frame(Frame::new(sw, sh, bg), &splats, s, bg);
+            whole.push(t.elapsed().as_secs_f64());
+            anyhow::ensure!(a == b, "the tiled frame differs from the whole-frame one");
+        }
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f64::NAN) * 1e3
+    };
+    println!(
+        "zbuffer frame {sw}x{sh} ({s}x{s} a pixel), {} splats: tiled median {:.1} ms (CPU {:.1} ms a frame), whole-frame median {:.1} ms, threads {}",
+        splats.len(),
+        median(&mut tiled),
+        tiled_cpu / reps as f64 * 1e3,
+        median(&mut whole),
+        rayon::current_num_threads()
+    );
     Ok(())
 }
 

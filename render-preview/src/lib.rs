@@ -184,12 +184,15 @@ pub const DEFAULT_PIXEL_ERROR: f32 = 0.75;
 /// Default [`RenderOptions::supersample`]: 3 × 3. Opaque splats of about a pixel draw a
 /// texture's line of 1.4 px as two black pixels where the reference shows 131, 0, 121:
 /// AlphaBlendModeTest (thin frames and labels) scores 21.3 dB with one sample a pixel and
-/// 24.9 dB with 3 × 3, for 0.03–0.05 → 0.27–0.38 s of rasterizing at 1280 × 720 (BENCHMARKS.md,
-/// "Accuracy at default settings").
+/// 24.9 dB with 3 × 3. The frame is drawn in screen tiles ([`zbuffer::zbuffer_tiled`]), so
+/// that 9× the samples cost 1.7–2.0× the raster time of one sample a pixel at 1280 × 720
+/// (0.10–0.16 s against 0.055–0.079 s, 2 shared cores under load; drawn whole-frame they took
+/// 0.46–0.58 s; BENCHMARKS.md, "Accuracy at default settings").
 pub const DEFAULT_SUPERSAMPLE: u32 = 3;
 
-/// Most subpixels of a supersampled frame: 2^25 (a 1920 × 1080 frame at 3 × 3 is 18.7 M;
-/// each costs 8 bytes of frame and 8 bytes per raster worker).
+/// Most subpixels of a supersampled frame: 2^25 (a 1920 × 1080 frame at 3 × 3 is 18.7 M).
+/// The preview keeps only a tile's subpixels at a time, but the mesh reference draws its
+/// whole subframe (8 bytes a subpixel, and 8 more per raster worker for point clouds).
 pub const MAX_SUPERSAMPLED_PIXELS: u64 = 1 << 25;
 
 /// The subpixels per side a render of `opts` draws: [`RenderOptions::supersample`] for
@@ -443,6 +446,14 @@ fn setup(files: &SceneFiles, opts: &RenderOptions) -> Result<(Camera, f64, View,
     Ok((camera, near, view, params, up, t0.elapsed().as_secs_f64()))
 }
 
+/// The subpixels per side a render of `opts` draws ([`supersample_used`]), and the view and
+/// refinement parameters on its subframe (the cut kept in output pixels).
+fn supersampled(opts: &RenderOptions, view: &View, params: lod::LodParams) -> (u32, View, lod::LodParams) {
+    let ss = supersample_used(opts);
+    let fine_params = lod::LodParams { pixel_error: params.pixel_error * ss as f32, max_radius: params.max_radius * ss as f32, ..params };
+    (ss, view.supersampled(ss), fine_params)
+}
+
 /// Renders an open scene.
 pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> {
     let t0 = Instant::now();
@@ -593,27 +604,23 @@ pub fn render(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Rendered> 
     }
     // `zbuffer` draws `ss × ss` subpixels a pixel, the cut and the pixel limit kept in
     // output pixels.
-    let ss = supersample_used(opts);
-    let fine = view.supersampled(ss);
+    let (ss, fine, fine_params) = supersampled(opts, &view, params);
     let area = u64::from(ss * ss);
-    let fine_params = lod::LodParams { pixel_error: params.pixel_error * ss as f32, max_radius: params.max_radius * ss as f32, ..params };
     let (splats, lod) = files.collect(&fine, &fine_params)?;
     let t1 = Instant::now();
     let [r, g, b] = opts.background;
-    let mut frame = Frame::new(fine.width as usize, fine.height as usize, [r, g, b, 255]);
     let mut sort = 0.0;
-    let fragments = match opts.method {
+    let (frame, fragments) = match opts.method {
         Method::Gauss => {
+            let mut frame = Frame::new(fine.width as usize, fine.height as usize, [r, g, b, 255]);
             let ts = Instant::now();
             let order = gauss::depth_order(&splats);
             sort = ts.elapsed().as_secs_f64();
-            Some(gauss::composite(&mut frame, &splats, &order, &opts.gauss, view.focal).fragments)
+            let fragments = gauss::composite(&mut frame, &splats, &order, &opts.gauss, view.focal).fragments;
+            (frame, Some(fragments))
         }
         // `Canopy`, `Parilov`, `Wald` and `Wand` returned above.
-        _ => {
-            frame = zbuffer::zbuffer_frame(frame, &splats, ss as usize, [r, g, b, 255]);
-            None
-        }
+        _ => (zbuffer::zbuffer_tiled(fine.width as usize, fine.height as usize, &splats, ss as usize, [r, g, b, 255]), None),
     };
     let t2 = Instant::now();
     // The depth buffer's fragments are counted after the clock stops (the tuned
@@ -668,6 +675,15 @@ pub fn write_rgb_png(path: &Path, img: &image::RgbImage) -> Result<()> {
 pub fn collect_splats(files: &mut SceneFiles, opts: &RenderOptions) -> Result<Vec<Splat>> {
     let (_, _, view, params, _, _) = setup(files, opts)?;
     Ok(files.collect(&view, &params)?.0)
+}
+
+/// The splats a `zbuffer` render of `opts` draws on its subframe, the subframe's size and
+/// its subpixels per pixel side: what [`zbuffer::zbuffer_tiled`] takes (for benchmarks and
+/// tests).
+pub fn collect_zbuffer_splats(files: &mut SceneFiles, opts: &RenderOptions) -> Result<(Vec<Splat>, [usize; 2], u32)> {
+    let (_, _, view, params, _, _) = setup(files, opts)?;
+    let (ss, fine, fine_params) = supersampled(opts, &view, params);
+    Ok((files.collect(&fine, &fine_params)?.0, [fine.width as usize, fine.height as usize], ss))
 }
 
 #[cfg(test)]
