@@ -787,7 +787,7 @@ mod tests {
         let (mut exact, mut off, mut total) = (0, 0u64, 0u64);
         for i in 0..2000 {
             let (x, y, r) = (rnd() * 60.0 - 5.0, rnd() * 50.0 - 5.0, rnd() * 6.0 + 0.05);
-            let t = rnd() * 6.28;
+            let t = rnd() * std::f32::consts::TAU;
             let s = if i % 2 == 0 { Splat::ellipse(x, y, 1.0, r, r * rnd(), t.cos(), t.sin(), [1; 4]) } else { Splat::disc(x, y, 1.0, r, [1; 4]) };
             let mut n = 0u64;
             s.for_each_pixel(50, 40, |_| n += 1);

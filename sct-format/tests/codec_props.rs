@@ -173,7 +173,9 @@ proptest! {
             encode_children(Profile::Default, CodecParams { alpha, ..Default::default() }, &ps, &children, &mut a),
             encode_children(Profile::Default, with, &ps, &children, &mut b),
         ) {
-            let mut tight = 0;
+            // (That the encoder moves anything at all is checked on a fixed tree by the
+            // round-trip test `leaf_refinement_puts_leaves_at_their_place_and_size…`: a
+            // handful of random pairs can all have to stay as decoded.)
             for (i, ((c, d0), d1)) in children.iter().zip(&plain).zip(&refined).enumerate() {
                 prop_assert!(d1.radius <= d0.radius, "child {i}: refinement grew the radius");
                 if d1 != d0 {
@@ -185,13 +187,9 @@ proptest! {
                     }
                     if d1.center != d0.center {
                         prop_assert!(d1.radius as f64 <= c.radius as f64 * 1.02 + 3.0 * step + 1e-6, "child {i}: radius {} for {}", d1.radius, c.radius);
-                        tight += 1;
                     }
                 }
             }
-            // Most children of random pairs are refined fully (the property would hold
-            // vacuously if the encoder never moved anything).
-            prop_assert!(tight * 2 >= children.len() || children.len() < 4, "only {tight} of {} children refined", children.len());
         }
     }
 

@@ -429,21 +429,41 @@ fn tangential_error(orig: &Node, dec: &Node) -> Option<([f64; 3], f64)> {
 /// distinct values pack into fewer bits.
 const NUDGE_GRAIN: f64 = 8.0;
 
+/// Writes child `i`'s refinement `(d, k)` into the four refinement streams of `m` children.
+fn put_refinement(refine: &mut [u8], m: usize, i: usize, d: [i8; 3], k: u8) {
+    for a in 0..3 {
+        refine[a * m + i] = zz(d[a] as u8, 0, 8);
+    }
+    refine[3 * m + i] = k;
+}
+
+/// Whether `dec` lies farther from `orig`'s centre along `orig`'s tangent plane than its
+/// allowance ([`tangential_error`]) plus `r / 128`: past a crease or an open edge a centre
+/// that much past its allowance lies at most that far from the surface, the tolerance the
+/// plane is held to. Lengths that are not finite count as off.
+fn off_its_piece(orig: &Node, dec: &Node) -> bool {
+    match tangential_error(orig, dec) {
+        Some((t, allowed)) => t.iter().map(|v| v * v).sum::<f64>().sqrt() > allowed + orig.radius as f64 / PLANE_STEPS,
+        None => true,
+    }
+}
+
 /// The refinement of a leaf that the position code left off its piece of surface
 /// ([`tangential_error`] past its allowance), with the child it decodes to: `None` when it
 /// lies on its piece. The centre moves back along the tangent plane just far enough to lie
-/// within 0.9 of the allowance (small steps, which zstd packs in few bits; the radius is
-/// kept), or, when such a nudge is not [`acceptable`], as [`pick_refinement`] moves it.
+/// within 0.75 of the allowance, the radius kept: steps that are multiples of
+/// [`NUDGE_GRAIN`], else of 1 (small, few distinct values, which zstd packs in few bits),
+/// each axis rounded down or up so that the centre lands on the piece and no farther from
+/// the plane than before (or `r / 128`); when no such nudge is [`acceptable`], the leaf is
+/// refined as [`pick_refinement`] refines it.
 fn pick_nudge(p: &Node, orig: &Node, dec: &Node) -> Option<([i8; 3], u8, Node)> {
+    if !off_its_piece(orig, dec) {
+        return None;
+    }
     let Some((t, allowed)) = tangential_error(orig, dec) else {
         return Some(pick_refinement(p, orig, dec));
     };
     let len = t.iter().map(|v| v * v).sum::<f64>().sqrt();
-    // Past a crease or an open edge, a centre at most `r / 128` past its allowance lies at
-    // most that far from the surface: the tolerance the plane is held to.
-    if len <= allowed + orig.radius as f64 / PLANE_STEPS {
-        return None;
-    }
     let unit = dec.radius as f64 / REFINE_STEPS as f64;
     let back = 1.0 - 0.75 * allowed / len;
     let n = unit64(orig.normal);
@@ -758,16 +778,16 @@ pub fn encode_with_leaves(params: CodecParams, parents: &[Node], children: &[Nod
                     node = moved;
                     offsets[i] = zz(o as u8, 0, 8);
                 }
-                if params.leaf_refinement && !has_children.is_some_and(|f| f[i]) {
-                    // With centre offsets too, only the leaves the position code left off
-                    // their piece of surface (see "Leaf refinement where it is needed").
-                    let pick = if params.centre_offsets { pick_nudge(p, c, &node) } else { Some(pick_refinement(p, c, &node)) };
-                    if let Some((d, k, refined)) = pick {
+                let leaf = !has_children.is_some_and(|f| f[i]);
+                if params.leaf_refinement && leaf {
+                    if !params.centre_offsets {
+                        let (d, k, refined) = pick_refinement(p, c, &node);
                         node = refined;
-                        for a in 0..3 {
-                            refine[a * m + i] = zz(d[a] as u8, 0, 8);
-                        }
-                        refine[3 * m + i] = k;
+                        put_refinement(refine, m, i, d, k);
+                    } else if let Some((d, k, refined)) = pick_nudge(p, c, &node) {
+                        // Refinement where it is needed: only leaves off their piece.
+                        node = refined;
+                        put_refinement(refine, m, i, d, k);
                     }
                 }
                 dec.push(node);
