@@ -79,8 +79,10 @@
 //! a centre moved past the piece's edge, e.g. past a face's convex edge, where it reads as
 //! distance from the mesh. A tree with both flags stores centre offsets for every leaf and
 //! a nonzero refinement only for the leaves whose centre lies off their piece
-//! ([`tangential_error`]), moved just back onto it ([`pick_nudge`]); the others store zeros,
-//! which zstd packs to almost nothing. A decoder needs no rule for this: it applies the
+//! ([`tangential_error`]) and whose parent does not show a smoothly curved surface, where
+//! the neighbouring pieces continue the surface ([`lands_on_its_neighbours`]); those are
+//! moved just back onto their piece ([`pick_nudge`]). The others store zeros, which zstd
+//! packs to almost nothing. A decoder needs no rule for this: it applies the
 //! offset, then the refinement, as stored.
 //!
 //! `zzb(d)`: the difference taken modulo `2^b`, read as a signed value in `[-2^(b-1),
@@ -448,16 +450,35 @@ fn off_its_piece(orig: &Node, dec: &Node) -> bool {
     }
 }
 
+/// Whether a leaf moved off its piece lands on its neighbours' surface, judged by its
+/// decoded parent `p`: under a smoothly curved parent (normal cone wider than a flat face's,
+/// whose decoded cone holds the normal code's 0.64°, and narrower than [`CREASE_CONE`]) the
+/// surface next to the piece continues it, leaning by at most twice the cone; a centre moved
+/// off the piece lies on or near it. Under a flat parent the piece's edge may be a face's
+/// edge with the next face beyond the parent, and a wide cone holds a crease: no such claim.
+fn lands_on_its_neighbours(p: &Node) -> bool {
+    let theta = p.cone as f64;
+    theta > FLAT_CONE && theta < CREASE_CONE
+}
+
+/// Normal-cone semi-angle (radians) up to which a decoded parent counts as flat: a flat
+/// face's normal decoded and its cone widened to hold it (0.64°), with a margin.
+const FLAT_CONE: f64 = 0.02;
+
+/// Normal-cone semi-angle (radians, 10°) from which a decoded parent counts as holding a
+/// crease.
+const CREASE_CONE: f64 = 0.1745;
+
 /// The refinement of a leaf that the position code left off its piece of surface
 /// ([`tangential_error`] past its allowance), with the child it decodes to: `None` when it
-/// lies on its piece. The centre moves back along the tangent plane just far enough to lie
+/// lies on its piece, or lands on its neighbours' ([`lands_on_its_neighbours`]). The centre moves back along the tangent plane just far enough to lie
 /// within 0.75 of the allowance, the radius kept: steps that are multiples of
 /// [`NUDGE_GRAIN`], else of 1 (small, few distinct values, which zstd packs in few bits),
 /// each axis rounded down or up so that the centre lands on the piece and no farther from
 /// the plane than before (or `r / 128`); when no such nudge is [`acceptable`], the leaf is
 /// refined as [`pick_refinement`] refines it.
 fn pick_nudge(p: &Node, orig: &Node, dec: &Node) -> Option<([i8; 3], u8, Node)> {
-    if !off_its_piece(orig, dec) {
+    if !off_its_piece(orig, dec) || lands_on_its_neighbours(p) {
         return None;
     }
     let Some((t, allowed)) = tangential_error(orig, dec) else {
