@@ -63,8 +63,8 @@ struct Cli {
     /// about 2–3 bytes a leaf more): `auto` every leaf of point clouds, whose points each
     /// carry their own colour, and in meshes the leaves the position grid moves off their
     /// piece of surface past a face's edge or a crease (+1.4–1.9 % bytes on planar models,
-    /// +1–17 % on the others, median 10 %); `on`
-    /// every leaf (meshes gain 0.2–0.5 dB for 1.36–1.75× the bytes); `off` none.
+    /// +1–17 % on the others, median 10 %); `on` every leaf (meshes gain 0.2–0.5 dB for
+    /// 1.36–1.75× the bytes); `off` none.
     #[arg(long, value_enum, default_value_t = Refinement::Auto)]
     leaf_refinement: Refinement,
     /// Weld samples whose centres' bounding box is at most this wide (absolute units;

@@ -40,8 +40,8 @@ pub struct Config {
 pub enum Refinement {
     /// Every leaf of point clouds: each point is a measurement with its own colour, so a leaf
     /// drawn a fifth of its parent's radius away from its point moves that colour. In other
-    /// trees the leaves the position grid moves off their piece of surface, which past a
-    /// face's edge would lie off the mesh.
+    /// trees the leaves the position grid moves off their piece of surface where that may
+    /// leave the surface (past a face's edge or a crease).
     #[default]
     Auto,
     /// Every leaf of every tree.

@@ -83,8 +83,8 @@ pub enum LeafRefinement {
     /// Every leaf of the trees whose indices (into the scene's trees) are listed; no other.
     Trees(Vec<u32>),
     /// Every leaf of the listed trees; in every other tree (when it has centre offsets) the
-    /// leaves that the position code moves off their piece of surface (spec/SCT-profiles.md
-    /// §3, "leaf refinement where it is needed").
+    /// leaves that the position code moves off their piece of surface where that may leave
+    /// the surface (spec/SCT-profiles.md §3, "leaf refinement where it is needed").
     OffSurface(Vec<u32>),
 }
 

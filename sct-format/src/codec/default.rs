@@ -82,8 +82,8 @@
 //! ([`tangential_error`]) and whose parent does not show a smoothly curved surface, where
 //! the neighbouring pieces continue the surface ([`lands_on_its_neighbours`]); those are
 //! moved just back onto their piece ([`pick_nudge`]). The others store zeros, which zstd
-//! packs to almost nothing. A decoder needs no rule for this: it applies the
-//! offset, then the refinement, as stored.
+//! packs to almost nothing. A decoder needs no rule for this: it applies the offset, then
+//! the refinement, as stored.
 //!
 //! `zzb(d)`: the difference taken modulo `2^b`, read as a signed value in `[-2^(b-1),
 //! 2^(b-1))`, zigzag-mapped (`0,-1,1,-2,… → 0,1,2,3,…`). A byte ≥ `2^b` is malformed.
@@ -471,8 +471,9 @@ const CREASE_CONE: f64 = 0.1745;
 
 /// The refinement of a leaf that the position code left off its piece of surface
 /// ([`tangential_error`] past its allowance), with the child it decodes to: `None` when it
-/// lies on its piece, or lands on its neighbours' ([`lands_on_its_neighbours`]). The centre moves back along the tangent plane just far enough to lie
-/// within 0.75 of the allowance, the radius kept: steps that are multiples of
+/// lies on its piece, or lands on its neighbours' ([`lands_on_its_neighbours`]). The centre
+/// moves back along the tangent plane just far enough to lie within 0.75 of the allowance,
+/// the radius kept: steps that are multiples of
 /// [`NUDGE_GRAIN`], else of 1 (small, few distinct values, which zstd packs in few bits),
 /// each axis rounded down or up so that the centre lands on the piece and no farther from
 /// the plane than before (or `r / 128`); when no such nudge is [`acceptable`], the leaf is
