@@ -295,8 +295,9 @@ enum Command {
         /// N×N instances) or block:MESH:N[:S] (dense N×N×N instances, S model radii apart, default 2); repeat per scene.
         #[arg(long = "scene", required = true)]
         scenes: Vec<render_preview::scenes::SceneSpec>,
-        /// Methods to compare: zbuffer, gauss, canopy, parilov, wald, wand (zbuffer is always
-        /// rendered: it is the ordering baseline of gauss, parilov and wand).
+        /// Methods to compare: zbuffer, gauss, canopy, parilov, wald, wand (the ordering error
+        /// of gauss, parilov and wand is measured against zbuffer drawn with one sample a
+        /// pixel, rendered for that whether or not zbuffer is listed).
         #[arg(long, value_delimiter = ',', default_values_t = Method::ALL)]
         methods: Vec<Method>,
         /// Knob values (--pixel-error for zbuffer, gauss and parilov, --canopy-t3 for canopy,
