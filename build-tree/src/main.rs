@@ -79,7 +79,7 @@ struct Cli {
     depth_slack: u32,
     /// Bake non-similarity (non-uniformly scaled, sheared, mirrored) placements into their
     /// own trees instead of writing them as affine instances (format 1.3), so that readers
-    /// of format 1.2 can open the file.
+    /// of format 1.2 can open the file (with `--leaf-refinement off`: refinement is 1.4).
     #[arg(long)]
     bake_affine: bool,
     /// Scene description (spec/scene-json.md); inline paths are relative to the output.

@@ -122,7 +122,7 @@ fn two_sided_quad_is_drawn_from_behind_closed_box_is_culled_from_inside() {
     build(&samples, &sct, Profile::Default);
     let r = SctReader::open(&sct, &Limits::default()).expect("open");
     assert!(r.trees()[0].two_sided());
-    assert_eq!(r.header().minor, 2);
+    assert_eq!(r.header().minor, 4, "centre offsets with refinement where it is needed (1.4)");
     let behind = render_preview::RenderOptions { width: 200, height: 200, eye: Some([0.0, 0.0, -4.0]), target: Some([0.0; 3]), ..Default::default() };
     let mesh = render_preview::reference::WorldMesh::load(&quad).expect("load quad");
     let (m, out) = against_mesh(&sct, &mesh, &behind);
@@ -136,7 +136,7 @@ fn two_sided_quad_is_drawn_from_behind_closed_box_is_culled_from_inside() {
     let sct = dir.path().join("box.sct");
     build(&samples, &sct, Profile::Default);
     let r = SctReader::open(&sct, &Limits::default()).expect("open");
-    assert!(!r.trees()[0].two_sided() && r.header().minor == 2, "a closed single-sided box is one-sided (1.2 for the centre offsets)");
+    assert!(!r.trees()[0].two_sided() && r.header().minor == 4, "a closed single-sided box is one-sided (1.4 for refinement where it is needed)");
     let inside = render_preview::RenderOptions { width: 64, height: 64, eye: Some([0.0; 3]), target: Some([0.0, 0.0, -1.0]), ..Default::default() };
     let out = render_preview::render_file(&sct, &inside).expect("render from inside");
     assert!(out.stats.lod.backface_culled > 0, "back faces are culled");
@@ -210,9 +210,14 @@ fn a_point_cloud_keeps_its_points_by_default() {
     assert!(minor < 4);
     assert!(db_off + 3.0 < db && iou_off < iou, "without refinement: {db_off:.2} dB, IoU {iou_off:.4}");
 
+    // A mesh is refined only where a leaf may lie off its surface, not whole.
     let samples = dir.path().join("fuze.samples");
     voxelize(&repo().join("assets/fuze/fuze.obj"), &samples);
-    let sct = dir.path().join("fuze.sct");
-    build(&samples, &sct, Profile::Default);
-    assert!(SctReader::open(&sct, &Limits::default()).expect("open").header().minor < 4, "a mesh is not refined by default");
+    let size = |refinement: Refinement| {
+        let sct = dir.path().join(format!("fuze-{refinement:?}.sct"));
+        build_refined(&samples, &sct, Profile::Default, refinement);
+        std::fs::metadata(&sct).expect("stat").len()
+    };
+    let (auto, whole) = (size(Refinement::Auto), size(Refinement::On));
+    assert!(auto * 10 < whole * 9, "a mesh is not refined whole by default: {auto} bytes against {whole} refined whole");
 }
