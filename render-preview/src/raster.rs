@@ -421,22 +421,31 @@ pub fn rasterize_blended(frame: &mut Frame, splats: &[Splat]) {
     let lin = crate::shade::srgb_to_linear_lut();
     for (i, (t, &tz)) in top.color.iter().zip(&top.depth).enumerate() {
         let (Some(c), Some(z)) = (frame.color.get_mut(i), frame.depth.get_mut(i)) else { break };
-        // Behind the opaque surface, at a NaN depth, or fully transparent: nothing to blend.
-        if tz.is_nan() || tz >= *z || t[3] == 0 {
-            continue;
-        }
-        if z.is_finite() {
-            let a = f32::from(t[3]) / 255.0;
-            for k in 0..3 {
-                c[k] = crate::shade::linear_to_srgb8(a * lin[t[k] as usize] + (1.0 - a) * lin[c[k] as usize]);
-            }
-        } else if alpha_passes(t[3], i % w, i / w) {
-            *c = [t[0], t[1], t[2], 255];
-        } else {
-            continue;
-        }
-        *z = tz;
+        blend_over(c, z, *t, tz, lin, (i % w, i / w));
     }
+}
+
+/// The nearest translucent splat's colour `t` at depth `tz` over the opaque pixel `c` at
+/// depth `z` (pixel `(x, y)` of the screen door): blended in linear light over an opaque
+/// surface; where nothing opaque lies behind, it covers through the screen door, unblended,
+/// as the mesh reference does. Behind the opaque surface, at a NaN depth or fully
+/// transparent, nothing changes. `lin` is [`crate::shade::srgb_to_linear_lut`].
+#[inline]
+pub(crate) fn blend_over(c: &mut [u8; 4], z: &mut f32, t: [u8; 4], tz: f32, lin: &[f32; 256], (x, y): (usize, usize)) {
+    if tz.is_nan() || tz >= *z || t[3] == 0 {
+        return;
+    }
+    if z.is_finite() {
+        let a = f32::from(t[3]) / 255.0;
+        for k in 0..3 {
+            c[k] = crate::shade::linear_to_srgb8(a * lin[t[k] as usize] + (1.0 - a) * lin[c[k] as usize]);
+        }
+    } else if alpha_passes(t[3], x, y) {
+        *c = [t[0], t[1], t[2], 255];
+    } else {
+        return;
+    }
+    *z = tz;
 }
 
 /// Splats drawn as one batch by [`draw_batch`].

@@ -7,7 +7,7 @@
 
 use rayon::prelude::*;
 
-use crate::raster::{alpha_passes, depth_key, fill_depth_pits, fill_holes, key_depth, rasterize_blended, Frame, Splat};
+use crate::raster::{blend_over, depth_key, fill_depth_pits, fill_holes, key_depth, rasterize_blended, Frame, Splat};
 use crate::shade;
 
 /// Draws `splats` into `sub` (`s × s` subpixels a pixel, already holding what was drawn
@@ -309,20 +309,7 @@ fn draw_tile(g: &Geometry, splats: &[Splat], bins: &[Bins], (tx, ty): (usize, us
         for i in 0..n {
             let Some((tz, t)) = scr.clear.winner(i, splats) else { continue };
             let (Some(c), Some(z)) = (scr.color.get_mut(i), scr.depth.get_mut(i)) else { break };
-            if tz.is_nan() || tz >= *z || t[3] == 0 {
-                continue;
-            }
-            if z.is_finite() {
-                let a = f32::from(t[3]) / 255.0;
-                for k in 0..3 {
-                    c[k] = shade::linear_to_srgb8(a * lin[t[k] as usize] + (1.0 - a) * lin[c[k] as usize]);
-                }
-            } else if alpha_passes(t[3], ex0 + i % ew, ey0 + i / ew) {
-                *c = [t[0], t[1], t[2], 255];
-            } else {
-                continue;
-            }
-            *z = tz;
+            blend_over(c, z, t, tz, lin, (ex0 + i % ew, ey0 + i / ew));
         }
     }
     // `fill_holes` on the subframe, then `resolve`, for the tile's pixels.
