@@ -79,17 +79,6 @@ pub(super) fn put_refinement(refine: &mut [u8], m: usize, i: usize, d: [i8; 3], 
     refine[3 * m + i] = k;
 }
 
-/// Whether `dec` lies farther from `orig`'s centre along `orig`'s tangent plane than its
-/// allowance ([`tangential_error`]) plus `r / 128`: past a crease or an open edge a centre
-/// that much past its allowance lies at most that far from the surface, the tolerance the
-/// plane is held to. Lengths that are not finite count as off.
-fn off_its_piece(orig: &Node, dec: &Node) -> bool {
-    match tangential_error(orig, dec) {
-        Some((t, allowed)) => t.iter().map(|v| v * v).sum::<f64>().sqrt() > allowed + orig.radius as f64 / PLANE_STEPS,
-        None => true,
-    }
-}
-
 /// Whether a leaf moved off its piece lands on its neighbours' surface, judged by its
 /// decoded parent `p`: under a smoothly curved parent (normal cone wider than a flat face's,
 /// whose decoded cone holds the normal code's 0.64°, and narrower than [`CREASE_CONE`]) the
@@ -110,22 +99,27 @@ const FLAT_CONE: f64 = 0.02;
 const CREASE_CONE: f64 = 0.1745;
 
 /// The refinement of a leaf that the position code left off its piece of surface
-/// ([`tangential_error`] past its allowance), with the child it decodes to: `None` when it
-/// lies on its piece, or lands on its neighbours' ([`lands_on_its_neighbours`]). The centre
+/// ([`tangential_error`] past its allowance plus `r / 128`), with the child it decodes to:
+/// `None` when it lies on its piece, or lands on its neighbours' ([`lands_on_its_neighbours`]). The centre
 /// moves back along the tangent plane just far enough to lie within 0.75 of the allowance,
-/// the radius kept: steps that are multiples of
-/// [`NUDGE_GRAIN`], else of 1 (small, few distinct values, which zstd packs in few bits),
+/// the radius kept: steps that are multiples of [`NUDGE_GRAIN`], else of 1 (small, few distinct values, which zstd packs in few bits),
 /// each axis rounded down or up so that the centre lands on the piece and no farther from
 /// the plane than before (or `r / 128`); when no such nudge is [`acceptable`], the leaf is
 /// refined as [`pick_refinement`] refines it.
 pub(super) fn pick_nudge(p: &Node, orig: &Node, dec: &Node) -> Option<([i8; 3], u8, Node)> {
-    if !off_its_piece(orig, dec) || lands_on_its_neighbours(p) {
+    if lands_on_its_neighbours(p) {
         return None;
     }
+    // Lengths that are not finite count as off the piece.
     let Some((t, allowed)) = tangential_error(orig, dec) else {
         return Some(pick_refinement(p, orig, dec));
     };
     let len = t.iter().map(|v| v * v).sum::<f64>().sqrt();
+    // Past a crease or an open edge, a centre at most `r / 128` past its allowance lies at
+    // most that far from the surface: the tolerance the plane is held to.
+    if len <= allowed + orig.radius as f64 / PLANE_STEPS {
+        return None;
+    }
     let unit = dec.radius as f64 / REFINE_STEPS as f64;
     let back = 1.0 - 0.75 * allowed / len;
     let n = unit64(orig.normal);
