@@ -47,16 +47,32 @@ fn cube(c: [f32; 3], e: [[f32; 3]; 3], side: usize) -> (Vec<Node>, Vec<Face>) {
     (samples, faces)
 }
 
-/// Largest distance, in voxels, of a decoded leaf centre from the plane of its face (the
-/// face whose normal is nearest the leaf's decoded normal), and the number of leaves.
-fn worst_leaf_offset(samples: &[Node], faces: &[Face]) -> (f64, usize) {
+/// The tree `sct-build-tree` builds from `samples`, written with `opts` and read back, with
+/// the file's minor version.
+fn built_and_decoded(samples: &[Node], opts: &WriteOptions) -> (sct_format::SceneTree, u16) {
     let (tree, _) = build_tree(samples, &BuildOptions::default()).expect("build");
     let scene = Scene::single_tree(Generator { tool: "test".into(), version: "0".into(), ..Default::default() }, tree);
     let mut bytes = Vec::new();
-    write_scene(&scene, &WriteOptions::default(), &mut bytes).expect("write");
-    assert_eq!(u16::from_le_bytes([bytes[10], bytes[11]]), 2, "the default options write centre offsets (1.2)");
+    write_scene(&scene, opts, &mut bytes).expect("write");
     let r = SctReader::from_bytes(bytes, &Limits::default()).expect("read");
-    let t = r.read_tree(0).expect("decode");
+    (r.read_tree(0).expect("decode"), r.header().minor)
+}
+
+/// The two frames the box tests use: the axes, and one turned so that no face is
+/// axis-aligned ((0.6, -0.48, 0) is normal to (0.48, 0.6, 0.64); its length is √0.5904).
+fn frames() -> [[[f32; 3]; 3]; 2] {
+    let axes = [[1.0f32, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    let l = 0.5904f32.sqrt();
+    let (a, b) = ([0.6 / l, -0.48 / l, 0.0], [0.48f32, 0.6, 0.64]);
+    let turned = [a, [b[1] * a[2] - b[2] * a[1], b[2] * a[0] - b[0] * a[2], b[0] * a[1] - b[1] * a[0]], b];
+    [axes, turned]
+}
+
+/// Largest distance, in voxels, of a decoded leaf centre from the plane of its face (the
+/// face whose normal is nearest the leaf's decoded normal), and the number of leaves.
+fn worst_leaf_offset(samples: &[Node], faces: &[Face]) -> (f64, usize) {
+    let (t, minor) = built_and_decoded(samples, &WriteOptions::default());
+    assert_eq!(minor, 2, "the default options write centre offsets (1.2)");
     let dot = |a: [f32; 3], b: [f32; 3]| (0..3).map(|k| a[k] as f64 * b[k] as f64).sum::<f64>();
     let mut worst = 0f64;
     let mut leaves = 0;
@@ -77,12 +93,7 @@ fn worst_leaf_offset(samples: &[Node], faces: &[Face]) -> (f64, usize) {
 /// every leaf under 1 % of the voxel.
 #[test]
 fn leaf_centres_lie_within_one_percent_of_the_voxel_of_their_plane() {
-    let axes = [[1.0f32, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    // (0.6, -0.48, 0) is normal to (0.48, 0.6, 0.64); its length is √0.5904.
-    let l = 0.5904f32.sqrt();
-    let (a, b) = ([0.6 / l, -0.48 / l, 0.0], [0.48f32, 0.6, 0.64]);
-    let turned = [a, [b[1] * a[2] - b[2] * a[1], b[2] * a[0] - b[0] * a[2], b[0] * a[1] - b[1] * a[0]], b];
-    for e in [axes, turned] {
+    for e in frames() {
         let (samples, faces) = cube([0.1371, -0.2093, 0.3712], e, 120);
         let (worst, leaves) = worst_leaf_offset(&samples, &faces);
         assert!(leaves > 80_000, "{leaves} leaves");
@@ -123,12 +134,7 @@ fn cut_box(c: [f32; 3], e: [[f32; 3]; 3], extent: f32) -> Vec<Node> {
 /// Largest distance, in voxels, of a decoded leaf centre from the surface of the box
 /// `cut_box(c, e, extent)` samples, the tree written with `opts`.
 fn worst_leaf_distance_to_box(samples: &[Node], c: [f32; 3], e: [[f32; 3]; 3], extent: f32, opts: &WriteOptions) -> f64 {
-    let (tree, _) = build_tree(samples, &BuildOptions::default()).expect("build");
-    let scene = Scene::single_tree(Generator { tool: "test".into(), version: "0".into(), ..Default::default() }, tree);
-    let mut bytes = Vec::new();
-    write_scene(&scene, opts, &mut bytes).expect("write");
-    let r = SctReader::from_bytes(bytes, &Limits::default()).expect("read");
-    let t = r.read_tree(0).expect("decode");
+    let (t, _) = built_and_decoded(samples, opts);
     let side = extent as f64 * VOXEL as f64;
     let mut worst = 0f64;
     for i in t.leaves() {
@@ -149,13 +155,9 @@ fn worst_leaf_distance_to_box(samples: &[Node], c: [f32; 3], e: [[f32; 3]; 3], e
 /// without it some lie farther (so the check can fail).
 #[test]
 fn leaves_past_a_face_edge_are_moved_back_onto_the_surface() {
-    let axes = [[1.0f32, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    let l = 0.5904f32.sqrt();
-    let (a, b) = ([0.6 / l, -0.48 / l, 0.0], [0.48f32, 0.6, 0.64]);
-    let turned = [a, [b[1] * a[2] - b[2] * a[1], b[2] * a[0] - b[0] * a[2], b[0] * a[1] - b[1] * a[0]], b];
     let c = [0.1371, -0.2093, 0.3712];
     let mut unrefined_worst = 0f64;
-    for e in [axes, turned] {
+    for e in frames() {
         let samples = cut_box(c, e, 80.3);
         let needed = WriteOptions { leaf_refinement: LeafRefinement::OffSurface(Vec::new()), ..Default::default() };
         let worst = worst_leaf_distance_to_box(&samples, c, e, 80.3, &needed);

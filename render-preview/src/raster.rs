@@ -712,7 +712,7 @@ pub fn fill_depth_pits(frame: &mut Frame) -> usize {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     #[test]
@@ -952,8 +952,9 @@ mod tests {
         }
     }
 
-    /// A small deterministic generator of floats in [0, 1] (xorshift32).
-    fn xorshift(mut s: u32) -> impl FnMut() -> f32 {
+    /// A small deterministic generator of floats in [0, 1] (xorshift32), for the raster
+    /// and the tiled frame's tests.
+    pub(crate) fn xorshift(mut s: u32) -> impl FnMut() -> f32 {
         move || {
             s ^= s << 13;
             s ^= s >> 17;

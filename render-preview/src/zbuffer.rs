@@ -490,16 +490,7 @@ impl Fill<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A small deterministic generator of floats in [0, 1] (xorshift32).
-    fn xorshift(mut s: u32) -> impl FnMut() -> f32 {
-        move || {
-            s ^= s << 13;
-            s ^= s >> 17;
-            s ^= s << 5;
-            s as f32 / u32::MAX as f32
-        }
-    }
+    use crate::raster::tests::xorshift;
 
     /// Splats of every kind the tiled path must draw as the whole-frame steps do, over a
     /// `w × h` subframe: mostly a few subpixels across with rims, some large or thin, across
