@@ -38,16 +38,11 @@ impl Item {
     /// instance state's translation, scale and rotation, or matrix (one tree drawn under two
     /// instances is two items).
     pub(crate) fn key(&self) -> [u64; 5] {
-        // Each word is folded in through a full-avalanche mix (SplitMix64's finalizer): a
+        // Each word is folded in through a full-avalanche mix (one SplitMix64 step): a
         // multiply alone carries a bit only upwards, so the sign bits of two coordinates
         // cancelled and the instances at (x, z) and (−x, −z) of a centred grid shared a key.
         let mut h = 0xcbf2_9ce4_8422_2325u64;
-        let mut mix = |v: f64| {
-            let mut x = (h ^ v.to_bits()).wrapping_add(0x9e37_79b9_7f4a_7c15);
-            x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-            x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-            h = x ^ (x >> 31);
-        };
+        let mut mix = |v: f64| h = sct_format::rng::SplitMix64(h ^ v.to_bits()).next_u64();
         match &self.state.transform {
             Transform::Similarity(t) => t.translation.iter().chain(t.rotation.iter()).chain(std::iter::once(&t.scale)).for_each(|v| mix(*v)),
             Transform::Affine(a) => a.affine.matrix.iter().flatten().for_each(|v| mix(*v)),
