@@ -361,14 +361,15 @@ fn apply_refinement(node: &mut Node, d: [i8; 3], k: u8) {
 
 /// Whether `moved` may replace the decoded child of `p` for original `orig`: it contains
 /// the original, is finite, lies within the stick-out bound of `p` and is itself encodable
-/// under `p` (a decoded tree written again must encode).
-fn acceptable(p: &Node, orig: &Node, moved: &Node) -> bool {
+/// under `p` (a decoded tree written again must encode). `near` is the state `moved` was
+/// moved from (where its encodability is tried first).
+fn acceptable(p: &Node, orig: &Node, moved: &Node, near: u16) -> bool {
     let bound = posrad::stick_out_bound() as f32;
     moved.center.iter().all(|c| c.is_finite())
         && moved.radius.is_finite()
         && crate::geometry::sphere_contains(moved, orig, 0.0)
         && crate::geometry::sphere_contains(p, moved, bound)
-        && posrad::encode_sphere(p.center, p.radius, moved.center, moved.radius).is_some()
+        && posrad::encodable_near(near, p.center, p.radius, moved.center, moved.radius)
 }
 
 /// Denominator of a centre offset: one step is `r_P / 128`.
@@ -387,13 +388,13 @@ fn apply_offset(node: &mut Node, s: i8, parent_radius: f32) {
     }
 }
 
-/// The centre offset for decoded child `dec` of original `orig` under parent `p`, with the
-/// child it decodes to: the step
+/// The centre offset for decoded child `dec` (of state `state`) of original `orig` under
+/// parent `p`, with the child it decodes to: the step
 /// count nearest to the centre error along the decoded normal, walked back toward 0 until the
 /// moved child still contains the original, stays within the stick-out bound of `p` and is
 /// itself encodable under `p` (0 always qualifies: it is the child as decoded without
 /// offsets).
-fn pick_offset(p: &Node, orig: &Node, dec: &Node) -> (i8, Node) {
+fn pick_offset(p: &Node, orig: &Node, dec: &Node, state: u16) -> (i8, Node) {
     let step = p.radius as f64 / OFFSET_STEPS as f64;
     if step.is_nan() || step <= 0.0 || !step.is_finite() {
         return (0, *dec);
@@ -415,7 +416,7 @@ fn pick_offset(p: &Node, orig: &Node, dec: &Node) -> (i8, Node) {
         if contains_original
             && moved.center.iter().all(|c| c.is_finite())
             && crate::geometry::sphere_contains(p, &moved, bound)
-            && posrad::encode_sphere(p.center, p.radius, moved.center, moved.radius).is_some()
+            && posrad::encodable_near(state, p.center, p.radius, moved.center, moved.radius)
         {
             return (s, moved);
         }
@@ -534,7 +535,7 @@ fn pick_state_near_plane(
     // frequent state bytes). Then the others, nearest the plane first.
     let key = |c: &(f64, u16, i8, Node)| if c.0 <= tol { (false, tangential(&c.3, c.0) > t0, u64::MAX - weight(c.1)) } else { (true, false, 0) };
     cands.sort_by(|a, b| key(a).cmp(&key(b)).then(a.0.total_cmp(&b.0)));
-    cands.iter().find(|c| acceptable(p, orig, &c.3)).map_or(keep, |c| (c.1, c.2, c.3))
+    cands.iter().find(|c| acceptable(p, orig, &c.3, c.1)).map_or(keep, |c| (c.1, c.2, c.3))
 }
 
 /// The decoded child with codes `c` (`ch` colour channels), `axis = oct_decode(c.normal)` and
@@ -639,15 +640,18 @@ pub fn encode_with_leaves(params: CodecParams, parents: &[Node], children: &[Nod
                 for j in 0..ch {
                     cols[j * m + i] = zz(q[j], pc[j], color::BITS[j]);
                 }
+                // The state the decoded child stands on (the near-plane choice may change it).
+                let mut state = s;
                 let mut node = child_node(t, p, Codes { state: s, cone, color: q }, axis, ch, if h == 0 { area_a } else { area_b })
                     .ok_or_else(|| Error::Misuse(format!("default encoder: state {s} of child {i} is not decodable (bug)")))?;
                 if params.centre_offsets && !has_children.is_some_and(|f| f[i]) {
-                    let first = pick_offset(p, c, &node);
+                    let first = pick_offset(p, c, &node, s);
                     let tol = c.radius as f64 / PLANE_STEPS;
                     let (s2, o, moved) = pick_state_near_plane(t, p, c, s, &node, first, tol, |s2| hist.weight(s2));
                     if s2 != s {
                         states[i] = s2 as u8;
                         states[m + i] = (s2 >> 8) as u8;
+                        state = s2;
                     }
                     node = moved;
                     offsets[i] = zz(o as u8, 0, 8);
@@ -655,10 +659,10 @@ pub fn encode_with_leaves(params: CodecParams, parents: &[Node], children: &[Nod
                 let leaf = !has_children.is_some_and(|f| f[i]);
                 if params.leaf_refinement && leaf {
                     if !params.centre_offsets {
-                        let (d, k, refined) = pick_refinement(p, c, &node);
+                        let (d, k, refined) = pick_refinement(p, c, &node, state);
                         node = refined;
                         put_refinement(refine, m, i, d, k);
-                    } else if let Some((d, k, refined)) = pick_nudge(p, c, &node) {
+                    } else if let Some((d, k, refined)) = pick_nudge(p, c, &node, state) {
                         // Refinement where it is needed: only leaves off their piece.
                         node = refined;
                         put_refinement(refine, m, i, d, k);

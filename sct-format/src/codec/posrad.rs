@@ -274,6 +274,24 @@ pub fn encode_sphere(pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> Option<u16
     search(pc, pr, cc, cr, false).map(|t| t.states[0])
 }
 
+/// Whether some legal state contains the child `(cc, cr)` in decoded parent `(pc, pr)`:
+/// exactly `encode_sphere(pc, pr, cc, cr).is_some()`, tried first at the grid point of state
+/// `near`. A child moved a little from the sphere of state `near` (a centre offset, a leaf
+/// refinement) is mostly contained by a larger radius code there, which costs one distance
+/// instead of a search. That test is one of the exhaustive search's own (the same f32 centre
+/// and f64 comparison), so a pass there means the search finds a state too.
+pub fn encodable_near(near: u16, pc: [f32; 3], pr: f32, cc: [f32; 3], cr: f32) -> bool {
+    let t = tables();
+    if let Some(&(g, _)) = t.state.get(near as usize) {
+        let g = g.map(i32::from);
+        let need = dist64(grid_center(g, pc, pr), cc) + cr as f64;
+        if smallest_containing_code(t.cell(cell_index(g)), pr, need).is_some() {
+            return true;
+        }
+    }
+    search(pc, pr, cc, cr, false).is_some()
+}
+
 /// Most equally tight states [`encode_sphere_ties`] reports.
 pub const MAX_TIES: usize = 8;
 
@@ -733,6 +751,34 @@ mod tests {
     }
 
     /// The search finds exactly the states of the reference one.
+    /// `encodable_near` answers as `encode_sphere` does, from the state a child was moved from:
+    /// children moved from a state's sphere by up to a few radius steps, near the parent's
+    /// boundary too, where some are not encodable at all.
+    #[test]
+    fn encodable_near_matches_search() {
+        let t = tables();
+        let mut rng = crate::rng::SplitMix64(0x5EED_0E4C_0DAB_1E00);
+        let mut rnd = || rng.next_f64();
+        let (mut shortcut, mut refused) = (0, 0);
+        for n in 0..200_000 {
+            let pr = (0.001 + rnd() * if n % 3 == 0 { 1e3 } else { 1.0 }) as f32;
+            let pc = [0, 1, 2].map(|_| ((rnd() - 0.5) * if n % 5 == 0 { 1e4 } else { 2.0 }) as f32);
+            let s = (rnd() * t.state.len() as f64) as u16;
+            let Some((c, r)) = decode_state(t, s as usize, pc, pr) else { continue };
+            let shift = pr as f64 * 0.3 * rnd();
+            let cc = [0, 1, 2].map(|a| (c[a] as f64 + shift * (2.0 * rnd() - 1.0)) as f32);
+            let cr = (r as f64 * (0.8 + 0.3 * rnd())) as f32;
+            let want = encode_sphere(pc, pr, cc, cr).is_some();
+            assert_eq!(encodable_near(s, pc, pr, cc, cr), want, "{s} {pc:?} {pr} {cc:?} {cr}");
+            let g = t.state[s as usize].0.map(i32::from);
+            let at_g = smallest_containing_code(t.cell(cell_index(g)), pr, dist64(grid_center(g, pc, pr), cc) + cr as f64).is_some();
+            shortcut += at_g as u32;
+            refused += !want as u32;
+        }
+        // Both branches are taken: the shortcut, and the search (which refuses some).
+        assert!(shortcut > 50_000 && refused > 5_000, "{shortcut} {refused}");
+    }
+
     #[test]
     fn ties_match_reference() {
         let mut rng = crate::rng::SplitMix64(0x9E37_79B9_7F4A_7C15);

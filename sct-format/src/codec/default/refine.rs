@@ -11,8 +11,8 @@ use crate::node::Node;
 /// child it decodes to: on each axis the step nearest to the centre error, then the largest
 /// radius cut `k` whose sphere still passes [`acceptable`]; when no cut does, the centre
 /// steps are dropped and only the radius is cut; `([0; 3], 0)` (the child as decoded) always
-/// qualifies.
-pub(super) fn pick_refinement(p: &Node, orig: &Node, dec: &Node) -> ([i8; 3], u8, Node) {
+/// qualifies. `state` is `dec`'s position/radius state.
+pub(super) fn pick_refinement(p: &Node, orig: &Node, dec: &Node, state: u16) -> ([i8; 3], u8, Node) {
     let unit = dec.radius as f64 / REFINE_STEPS as f64;
     if unit.is_nan() || unit <= 0.0 || !unit.is_finite() {
         return ([0; 3], 0, *dec);
@@ -36,7 +36,7 @@ pub(super) fn pick_refinement(p: &Node, orig: &Node, dec: &Node) -> ([i8; 3], u8
         loop {
             let mut r = *dec;
             apply_refinement(&mut r, steps, k);
-            if acceptable(p, orig, &r) {
+            if acceptable(p, orig, &r, state) {
                 return (steps, k, r);
             }
             if k == 0 {
@@ -105,14 +105,14 @@ const CREASE_CONE: f64 = 0.1745;
 /// the radius kept: steps that are multiples of [`NUDGE_GRAIN`], else of 1 (small, few distinct values, which zstd packs in few bits),
 /// each axis rounded down or up so that the centre lands on the piece and no farther from
 /// the plane than before (or `r / 128`); when no such nudge is [`acceptable`], the leaf is
-/// refined as [`pick_refinement`] refines it.
-pub(super) fn pick_nudge(p: &Node, orig: &Node, dec: &Node) -> Option<([i8; 3], u8, Node)> {
+/// refined as [`pick_refinement`] refines it. `state` is `dec`'s position/radius state.
+pub(super) fn pick_nudge(p: &Node, orig: &Node, dec: &Node, state: u16) -> Option<([i8; 3], u8, Node)> {
     if lands_on_its_neighbours(p) {
         return None;
     }
     // Lengths that are not finite count as off the piece.
     let Some((t, allowed)) = tangential_error(orig, dec) else {
-        return Some(pick_refinement(p, orig, dec));
+        return Some(pick_refinement(p, orig, dec, state));
     };
     let len = t.iter().map(|v| v * v).sum::<f64>().sqrt();
     // Past a crease or an open edge, a centre at most `r / 128` past its allowance lies at
@@ -142,7 +142,7 @@ pub(super) fn pick_nudge(p: &Node, orig: &Node, dec: &Node) -> Option<([i8; 3], 
             let on_piece = tangential_error(orig, &moved).is_some_and(|(t2, _)| t2.iter().map(|v| v * v).sum::<f64>().sqrt() <= allowed);
             let (Some(n), Some(before)) = (n, plane_before) else { break };
             let e = plane_error(orig, n, moved.center).abs();
-            if on_piece && e <= before && best.as_ref().is_none_or(|b| e < b.0) && acceptable(p, orig, &moved) {
+            if on_piece && e <= before && best.as_ref().is_none_or(|b| e < b.0) && acceptable(p, orig, &moved, state) {
                 best = Some((e, steps, moved));
             }
         }
@@ -150,5 +150,5 @@ pub(super) fn pick_nudge(p: &Node, orig: &Node, dec: &Node) -> Option<([i8; 3], 
             return Some((steps, 0, moved));
         }
     }
-    Some(pick_refinement(p, orig, dec))
+    Some(pick_refinement(p, orig, dec, state))
 }
