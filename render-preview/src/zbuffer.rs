@@ -15,7 +15,7 @@ use crate::shade;
 /// at the subpixel level, a pixel wide after resolving (three subpixels wide, past what the
 /// first fill closes: 0.05 % of spot's pixels stayed background, costing it 2 dB), and depth
 /// pits, where a farther surface shows through a crack of a nearer one (BENCHMARKS.md,
-/// "Where every method fails"; covered, so the hole fill leaves them).
+/// "Failure regions of every method"; covered, so the hole fill leaves them).
 pub fn zbuffer_frame(mut sub: Frame, splats: &[Splat], s: usize, bg: [u8; 4]) -> Frame {
     rasterize_blended(&mut sub, splats);
     fill_holes(&mut sub);
