@@ -1,10 +1,11 @@
-//! Mesh loaders: OBJ/MTL (tobj), glTF/GLB (gltf), PLY (ply-rs-bw). Entry point [`load`].
+//! Mesh loaders: OBJ (our own parser; MTL by tobj), glTF/GLB (gltf), PLY (ply-rs-bw). Entry point [`load`].
 //! Every file is read through [`sct_format::fsio`]: regular files only (a FIFO would block
 //! `open` forever, a device such as `/dev/zero` reports length 0 and never ends), opened
 //! without blocking, read up to the size they had when opened and at most the limit.
 
 mod gltf_load;
 mod obj;
+mod obj_text;
 mod ply;
 pub mod sniff;
 

@@ -1,13 +1,13 @@
-//! OBJ/MTL via tobj, with the preprocessing tobj lacks: UTF-16/UTF-8-BOM decoding,
-//! backslash line continuations, texture paths with backslashes/spaces/options, and CDT
-//! triangulation of n-gons (tobj's own triangulation is a fan).
+//! OBJ files: the text decoded (UTF-8 with or without a BOM, UTF-16 with one), backslash
+//! line continuations joined, its statements parsed on every thread ([`obj_text`]), MTL
+//! libraries read with tobj (texture paths with backslashes, spaces or options found), and
+//! n-gons triangulated by CDT ([`crate::polygon`]).
 
 use std::borrow::Cow;
-use std::cell::RefCell;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use super::{decode_image, finish_primitive, read_file, LoadOptions};
+use super::{decode_image, finish_primitive, obj_text, read_file, LoadOptions};
 use crate::error::LoadError;
 use crate::mesh::*;
 
@@ -15,54 +15,71 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
     let text = decode_text(path, bytes)?;
     let text = join_continuations(&text);
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-    let warnings = RefCell::new(Vec::<String>::new());
-    let files = RefCell::new(Vec::<PathBuf>::new());
-    let missing = RefCell::new(Vec::<PathBuf>::new());
+    let mut scene = LoadedScene::default();
+    let mut mats: Vec<tobj::Material> = Vec::new();
     // Material name -> directory of the MTL that defined it (texture paths are relative to
     // the MTL, not the OBJ).
-    let mtl_dirs = RefCell::new(HashMap::<String, PathBuf>::new());
-    let load_opts = tobj::LoadOptions { single_index: false, triangulate: false, ignore_points: true, ignore_lines: true };
-    let mut reader = std::io::Cursor::new(text.as_bytes());
-    let result = tobj::load_obj_buf(&mut reader, &load_opts, |mtl: &Path| {
-        let Some(found) = resolve(&dir, &mtl.to_string_lossy()) else {
-            missing.borrow_mut().extend(candidates(&dir, &mtl.to_string_lossy()));
-            warnings.borrow_mut().push(format!("{}: material library {} not found; using default colour", path.display(), mtl.display()));
-            return Err(tobj::LoadError::OpenFileFailed);
-        };
-        let bytes = match read_file(&found, opts.max_file_bytes) {
-            Ok(b) => b,
-            Err(e) => {
-                warnings.borrow_mut().push(format!("{e}; using default colour"));
-                return Err(tobj::LoadError::OpenFileFailed);
-            }
-        };
-        let text = match decode_text(&found, &bytes) {
-            Ok(t) => join_continuations(&t).into_owned(),
-            Err(e) => {
-                warnings.borrow_mut().push(format!("{e}; using default colour"));
-                return Err(tobj::LoadError::ReadError);
-            }
-        };
-        let r = tobj::load_mtl_buf(&mut std::io::Cursor::new(text.as_bytes()));
-        match &r {
-            Ok((mats, _)) => {
-                let mdir = found.parent().map(Path::to_path_buf).unwrap_or_default();
-                for m in mats {
-                    mtl_dirs.borrow_mut().insert(m.name.clone(), mdir.clone());
-                }
-                files.borrow_mut().push(found.clone());
-            }
-            Err(e) => warnings.borrow_mut().push(format!("{}: {e}; using default colour", found.display())),
+    let mut mtl_dirs = HashMap::<String, PathBuf>::new();
+    let parsed = obj_text::parse(&text, |mtl| {
+        let loaded = load_mtl(path, &dir, mtl, opts, &mut scene);
+        let names = loaded.iter().map(|(m, _)| m.name.clone()).collect();
+        for (m, mdir) in loaded {
+            mtl_dirs.insert(m.name.clone(), mdir);
+            mats.push(m);
         }
-        r
-    });
-    let (models, mats) = result.map_err(|e| LoadError::parse(path, "OBJ", "face or vertex line", e.to_string()))?;
-    let mut scene = LoadedScene { warnings: warnings.into_inner(), files: files.into_inner(), missing: missing.into_inner(), ..Default::default() };
-    let mtl_dirs = mtl_dirs.into_inner();
-    let mats = mats.unwrap_or_default();
+        names
+    })
+    .map_err(|e| LoadError::parse(path, "OBJ", format!("line {}", e.line), e.message))?;
+    add_materials(path, &dir, &mats, &mtl_dirs, opts, &mut scene)?;
+    let mut first = vec![u32::MAX; parsed.positions.len()];
+    for model in &parsed.models {
+        let what = format!("object {:?}", model.name);
+        let mut prim = model_primitive(path, &what, &parsed, model, opts, &mut first, &mut scene.stats)?;
+        prim.material = model.material.filter(|&m| m < scene.materials.len());
+        finish_primitive(path, &what, &mut prim, &mut scene.stats)?;
+        scene.meshes.push(Mesh { name: model.name.clone(), primitives: vec![prim] });
+        scene.instances.push(Instance { mesh: scene.meshes.len() - 1, transform: IDENTITY });
+    }
+    if scene.meshes.iter().all(|m| m.triangle_count() == 0) && scene.stats.triangles_read == 0 {
+        return Err(LoadError::parse(path, "OBJ", "file", "no faces"));
+    }
+    Ok(scene)
+}
+
+/// The materials of the library named by `mtllib` line text `mtl`, each with the directory
+/// its texture paths are relative to; none (and a warning) when it cannot be found, read or
+/// parsed: the model then loads with the default colour.
+fn load_mtl(path: &Path, dir: &Path, mtl: &str, opts: &LoadOptions, scene: &mut LoadedScene) -> Vec<(tobj::Material, PathBuf)> {
+    let Some(found) = resolve(dir, mtl) else {
+        scene.missing.extend(candidates(dir, mtl));
+        scene.warnings.push(format!("{}: material library {mtl} not found; using default colour", path.display()));
+        return Vec::new();
+    };
+    let text = match read_file(&found, opts.max_file_bytes).and_then(|b| decode_text(&found, &b).map(|t| join_continuations(&t).into_owned())) {
+        Ok(t) => t,
+        Err(e) => {
+            scene.warnings.push(format!("{e}; using default colour"));
+            return Vec::new();
+        }
+    };
+    match tobj::load_mtl_buf(&mut std::io::Cursor::new(text.as_bytes())) {
+        Ok((mats, _)) => {
+            scene.files.push(found.clone());
+            let mdir = found.parent().map(Path::to_path_buf).unwrap_or_default();
+            mats.into_iter().map(|m| (m, mdir.clone())).collect()
+        }
+        Err(e) => {
+            scene.warnings.push(format!("{}: {e}; using default colour", found.display()));
+            Vec::new()
+        }
+    }
+}
+
+/// Appends the MTL materials to the scene, with their textures.
+fn add_materials(path: &Path, dir: &Path, mats: &[tobj::Material], mtl_dirs: &HashMap<String, PathBuf>, opts: &LoadOptions, scene: &mut LoadedScene) -> Result<(), LoadError> {
     let mut image_cache: HashMap<PathBuf, Option<usize>> = HashMap::new();
-    for m in &mats {
-        let mdir = mtl_dirs.get(&m.name).cloned().unwrap_or_else(|| dir.clone());
+    for m in mats {
+        let mdir = mtl_dirs.get(&m.name).cloned().unwrap_or_else(|| dir.to_path_buf());
         let kd = m.diffuse.unwrap_or([0.8, 0.8, 0.8]);
         let d = m.dissolve.unwrap_or(1.0);
         let mut mat = Material {
@@ -98,134 +115,150 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
             });
             idx.map(|image| TextureRef { image, tex_coord: 0, transform: UV_IDENTITY, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat })
         };
-        mat.texture = tex(&m.diffuse_texture, "map_Kd", &mut scene);
-        mat.alpha_texture = tex(&m.dissolve_texture, "map_d", &mut scene);
+        mat.texture = tex(&m.diffuse_texture, "map_Kd", scene);
+        mat.alpha_texture = tex(&m.dissolve_texture, "map_d", scene);
         if d < 1.0 || mat.alpha_texture.is_some() {
             mat.alpha_mode = AlphaMode::Blend;
         }
         scene.materials.push(mat);
     }
-    for (mi, model) in models.iter().enumerate() {
-        let mesh = &model.mesh;
-        let what = format!("object {:?}", model.name);
-        let mut prim = Primitive { material: mesh.material_id.filter(|&m| m < scene.materials.len()), ..Default::default() };
-        let npos = mesh.positions.len() / 3;
-        let nuv = mesh.texcoords.len() / 2;
-        let nn = mesh.normals.len() / 3;
-        let has_vc = mesh.vertex_color.len() == mesh.positions.len() && !mesh.vertex_color.is_empty();
-        let has_uv = !mesh.texcoord_indices.is_empty() && mesh.texcoord_indices.len() == mesh.indices.len();
-        let has_n = !mesh.normal_indices.is_empty() && mesh.normal_indices.len() == mesh.indices.len();
-        let mut uvs = Vec::new();
-        let mut normals = Vec::new();
-        let mut colors = Vec::new();
-        // Corner (position, uv, normal) triple -> vertex: OBJ indexes attributes separately.
-        // The vertices of one position form a chain (first per position, next per vertex)
-        // holding their (uv, normal) pair: positions rarely have more than a few, and a
-        // hash map of triples cost more than the OBJ parse.
-        let mut first = vec![u32::MAX; npos];
-        let mut next: Vec<u32> = Vec::new();
-        let mut tn: Vec<(u32, u32)> = Vec::new();
-        let mut corner_vertex = |c: usize, prim: &mut Primitive| -> Result<u32, LoadError> {
-            let p = mesh.indices[c];
-            let t = if has_uv { mesh.texcoord_indices[c] } else { u32::MAX };
-            let n = if has_n { mesh.normal_indices[c] } else { u32::MAX };
-            let oor = |what_idx: &str, value: u32, count: usize| LoadError::IndexOutOfRange {
-                path: path.to_path_buf(),
-                element: format!("{what_idx} of {what}"),
-                index: c as u64,
-                value: value.into(),
-                count: count as u64,
-            };
-            if p as usize >= npos {
-                return Err(oor("face vertex index", p, npos));
-            }
-            if has_uv && t as usize >= nuv {
-                return Err(oor("face texcoord index", t, nuv));
-            }
-            if has_n && n as usize >= nn {
-                return Err(oor("face normal index", n, nn));
-            }
-            let pi = p as usize;
-            let mut v = first[pi];
-            while v != u32::MAX {
-                if tn[v as usize] == (t, n) {
-                    return Ok(v);
-                }
-                v = next[v as usize];
-            }
-            let v = prim.positions.len() as u32;
-            next.push(first[pi]);
-            first[pi] = v;
-            tn.push((t, n));
-            prim.positions.push([mesh.positions[3 * pi], mesh.positions[3 * pi + 1], mesh.positions[3 * pi + 2]]);
-            if has_uv {
-                let ti = t as usize;
-                // OBJ's v axis points up; images are stored top row first.
-                uvs.push([mesh.texcoords[2 * ti], 1.0 - mesh.texcoords[2 * ti + 1]]);
-            }
-            if has_n {
-                let ni = n as usize;
-                normals.push([mesh.normals[3 * ni], mesh.normals[3 * ni + 1], mesh.normals[3 * ni + 2]]);
-            }
-            if has_vc {
-                colors.push([
-                    srgb_to_linear(mesh.vertex_color[3 * pi]),
-                    srgb_to_linear(mesh.vertex_color[3 * pi + 1]),
-                    srgb_to_linear(mesh.vertex_color[3 * pi + 2]),
-                    1.0,
-                ]);
-            }
-            Ok(v)
-        };
-        let arities: Vec<u32> = if mesh.face_arities.is_empty() {
-            vec![3; mesh.indices.len() / 3]
-        } else {
-            mesh.face_arities.clone()
-        };
-        let mut start = 0usize;
-        for (fi, &ar) in arities.iter().enumerate() {
-            let ar = ar as usize;
-            // Checked before the face's corners are gathered or triangulated.
-            if ar > opts.max_face_corners {
-                return Err(LoadError::Limit {
-                    path: path.to_path_buf(),
-                    what: format!("{what}: face {fi} has {ar} corners, more than the limit of {}", opts.max_face_corners),
-                });
-            }
-            let end = start + ar;
-            if end > mesh.indices.len() {
-                return Err(LoadError::parse(path, "OBJ", what.clone(), "face arity runs past the index list"));
-            }
-            let verts: Vec<u32> = (start..end).map(|c| corner_vertex(c, &mut prim)).collect::<Result<_, _>>()?;
-            if ar == 3 {
-                prim.triangles.push([verts[0], verts[1], verts[2]]);
-            } else if ar > 3 {
-                let corners: Vec<[f32; 3]> = verts.iter().map(|&v| prim.positions[v as usize]).collect();
-                for t in crate::polygon::triangulate(&corners) {
-                    prim.triangles.push(t.map(|k| verts[k as usize]));
-                }
-                scene.stats.polygons_triangulated += 1;
-            }
-            start = end;
+    Ok(())
+}
+
+/// The vertices and triangles of one model. OBJ indexes positions, texture coordinates and
+/// normals separately; a vertex is one distinct (position, uv, normal) triple, numbered in
+/// the order the faces first use it. `first` (one entry per position of the file, all
+/// `u32::MAX`) is scratch space, left as it was found.
+fn model_primitive(
+    path: &Path,
+    what: &str,
+    parsed: &obj_text::Parsed,
+    model: &obj_text::ObjModel,
+    opts: &LoadOptions,
+    first: &mut [u32],
+    stats: &mut LoadStats,
+) -> Result<Primitive, LoadError> {
+    let corners = &parsed.corners[model.corners.clone()];
+    let has_uv = model.texcoords > 0 && !corners.is_empty();
+    let has_n = model.normals > 0 && !corners.is_empty();
+    let has_vc = model.colors > 0 && !corners.is_empty();
+    let mut prim = Primitive::default();
+    let mut uvs = Vec::new();
+    let mut normals = Vec::new();
+    let mut colors = Vec::new();
+    // The vertices of one position form a chain (first per position, next per vertex)
+    // holding their (uv, normal) pair: positions rarely have more than a few, and a hash
+    // map of triples costs more than the parse.
+    let mut next: Vec<u32> = Vec::new();
+    let mut tn: Vec<(u32, u32)> = Vec::new();
+    let mut vertex_position: Vec<u32> = Vec::new();
+    // A corner without a uv (normal) takes the previous corner's; the model's first one the
+    // file's first.
+    let (mut prev_t, mut prev_n) = (0u32, 0u32);
+    let oor = |element: &str, c: usize, value: u32, count: usize| LoadError::IndexOutOfRange {
+        path: path.to_path_buf(),
+        element: format!("{element} of {what}"),
+        index: c as u64,
+        value: value.into(),
+        count: count as u64,
+    };
+    let mut corner_vertex = |c: usize, prim: &mut Primitive| -> Result<u32, LoadError> {
+        let [p, t, n] = corners[c];
+        let t = if !has_uv { u32::MAX } else if t == obj_text::MISSING { prev_t } else { t };
+        let n = if !has_n { u32::MAX } else if n == obj_text::MISSING { prev_n } else { n };
+        if p as usize >= model.positions {
+            return Err(oor("face vertex index", c, p, model.positions));
         }
+        if has_uv && t as usize >= model.texcoords {
+            return Err(oor("face texcoord index", c, t, model.texcoords));
+        }
+        if has_n && n as usize >= model.normals {
+            return Err(oor("face normal index", c, n, model.normals));
+        }
+        if has_vc && p as usize >= model.colors {
+            return Err(oor("vertex colour of face vertex index", c, p, model.colors));
+        }
+        (prev_t, prev_n) = (t, n);
+        let pi = p as usize;
+        let mut v = first[pi];
+        while v != u32::MAX {
+            if tn[v as usize] == (t, n) {
+                return Ok(v);
+            }
+            v = next[v as usize];
+        }
+        let v = prim.positions.len() as u32;
+        next.push(first[pi]);
+        first[pi] = v;
+        tn.push((t, n));
+        vertex_position.push(p);
+        prim.positions.push(parsed.positions[pi]);
         if has_uv {
-            prim.uvs.push(uvs);
+            let uv = parsed.texcoords[t as usize];
+            // OBJ's v axis points up; images are stored top row first.
+            uvs.push([uv[0], 1.0 - uv[1]]);
         }
         if has_n {
-            prim.normals = Some(normals);
+            normals.push(parsed.normals[n as usize]);
         }
         if has_vc {
-            prim.colors = Some(colors);
+            let c = parsed.colors[pi];
+            colors.push([srgb_to_linear(c[0]), srgb_to_linear(c[1]), srgb_to_linear(c[2]), 1.0]);
         }
-        finish_primitive(path, &what, &mut prim, &mut scene.stats)?;
-        let name = if model.name.is_empty() { format!("{}#{mi}", file_stem(path)) } else { model.name.clone() };
-        scene.meshes.push(Mesh { name, primitives: vec![prim] });
-        scene.instances.push(Instance { mesh: scene.meshes.len() - 1, transform: IDENTITY });
+        Ok(v)
+    };
+    let mut start = 0usize;
+    let mut verts = Vec::new();
+    let mut result = Ok(());
+    for (fi, &ar) in parsed.arities[model.faces.clone()].iter().enumerate() {
+        let ar = ar as usize;
+        // Checked before the face's corners are gathered or triangulated.
+        if ar > opts.max_face_corners {
+            result = Err(LoadError::Limit {
+                path: path.to_path_buf(),
+                what: format!("{what}: face {fi} has {ar} corners, more than the limit of {}", opts.max_face_corners),
+            });
+            break;
+        }
+        let end = start + ar;
+        verts.clear();
+        for c in start..end {
+            match corner_vertex(c, &mut prim) {
+                Ok(v) => verts.push(v),
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
+        }
+        if result.is_err() {
+            break;
+        }
+        if ar == 3 {
+            prim.triangles.push([verts[0], verts[1], verts[2]]);
+        } else {
+            let corners: Vec<[f32; 3]> = verts.iter().map(|&v| prim.positions[v as usize]).collect();
+            for t in crate::polygon::triangulate(&corners) {
+                prim.triangles.push(t.map(|k| verts[k as usize]));
+            }
+            stats.polygons_triangulated += 1;
+        }
+        start = end;
     }
-    if scene.meshes.iter().all(|m| m.triangle_count() == 0) && scene.stats.triangles_read == 0 {
-        return Err(LoadError::parse(path, "OBJ", "file", "no faces"));
+    for &p in &vertex_position {
+        first[p as usize] = u32::MAX;
     }
-    Ok(scene)
+    result?;
+    if has_uv {
+        prim.uvs.push(uvs);
+    }
+    if has_n {
+        prim.normals = Some(normals);
+    }
+    if has_vc {
+        prim.colors = Some(colors);
+    }
+    Ok(prim)
 }
 
 pub(super) fn file_stem(path: &Path) -> String {
@@ -233,18 +266,21 @@ pub(super) fn file_stem(path: &Path) -> String {
 }
 
 /// UTF-8 (with or without BOM) or UTF-16 with a BOM; anything else is refused with the
-/// byte offset of the first invalid sequence.
-pub(super) fn decode_text(path: &Path, bytes: &[u8]) -> Result<String, LoadError> {
+/// byte offset of the first invalid sequence. UTF-8 is borrowed, not copied.
+pub(super) fn decode_text<'a>(path: &Path, bytes: &'a [u8]) -> Result<Cow<'a, str>, LoadError> {
     let enc = |message: String| LoadError::Encoding { path: path.to_path_buf(), message };
     if let Some(rest) = bytes.strip_prefix(&[0xEF, 0xBB, 0xBF]) {
-        return String::from_utf8(rest.to_vec()).map_err(|e| enc(format!("invalid UTF-8 at byte {}", e.utf8_error().valid_up_to() + 3)));
+        return std::str::from_utf8(rest).map(Cow::Borrowed).map_err(|e| enc(format!("invalid UTF-8 at byte {}", e.valid_up_to() + 3)));
     }
-    let utf16 = |rest: &[u8], be: bool| -> Result<String, LoadError> {
+    let utf16 = |rest: &[u8], be: bool| -> Result<Cow<'a, str>, LoadError> {
         if rest.len() % 2 != 0 {
             return Err(enc("UTF-16 file with an odd number of bytes".into()));
         }
         let units = rest.chunks_exact(2).map(|c| if be { u16::from_be_bytes([c[0], c[1]]) } else { u16::from_le_bytes([c[0], c[1]]) });
-        char::decode_utf16(units).collect::<Result<String, _>>().map_err(|e| enc(format!("invalid UTF-16: unpaired surrogate {:#x}", e.unpaired_surrogate())))
+        char::decode_utf16(units)
+            .collect::<Result<String, _>>()
+            .map(Cow::Owned)
+            .map_err(|e| enc(format!("invalid UTF-16: unpaired surrogate {:#x}", e.unpaired_surrogate())))
     };
     if let Some(rest) = bytes.strip_prefix(&[0xFE, 0xFF]) {
         return utf16(rest, true);
@@ -252,8 +288,8 @@ pub(super) fn decode_text(path: &Path, bytes: &[u8]) -> Result<String, LoadError
     if let Some(rest) = bytes.strip_prefix(&[0xFF, 0xFE]) {
         return utf16(rest, false);
     }
-    String::from_utf8(bytes.to_vec()).map_err(|e| {
-        enc(format!("invalid UTF-8 at byte {} (only UTF-8 and UTF-16 with a byte-order mark are supported)", e.utf8_error().valid_up_to()))
+    std::str::from_utf8(bytes).map(Cow::Borrowed).map_err(|e| {
+        enc(format!("invalid UTF-8 at byte {} (only UTF-8 and UTF-16 with a byte-order mark are supported)", e.valid_up_to()))
     })
 }
 
@@ -309,4 +345,134 @@ pub(super) fn candidates(dir: &Path, name: &str) -> Vec<PathBuf> {
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The models as tobj reads them (the loader before [`obj_text`]), each made into the
+    /// primitive [`load`] makes: per model its name, material and primitive.
+    fn tobj_models(path: &Path, text: &str) -> Result<Vec<(String, Option<usize>, Primitive)>, String> {
+        let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        let load_opts = tobj::LoadOptions { single_index: false, triangulate: false, ignore_points: true, ignore_lines: true };
+        let (models, _) = tobj::load_obj_buf(&mut std::io::Cursor::new(text.as_bytes()), &load_opts, |mtl: &Path| {
+            let found = resolve(&dir, &mtl.to_string_lossy()).ok_or(tobj::LoadError::OpenFileFailed)?;
+            let bytes = std::fs::read(found).map_err(|_| tobj::LoadError::ReadError)?;
+            let text = String::from_utf8_lossy(&bytes).into_owned();
+            tobj::load_mtl_buf(&mut std::io::Cursor::new(join_continuations(&text).as_bytes()))
+        })
+        .map_err(|e| e.to_string())?;
+        let mut out = Vec::new();
+        for m in &models {
+            let mesh = &m.mesh;
+            let tri = |v: &[f32]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
+            let has = |idx: &Vec<u32>| !idx.is_empty() && idx.len() == mesh.indices.len();
+            let corners: Vec<[u32; 3]> = (0..mesh.indices.len())
+                .map(|c| {
+                    let t = if has(&mesh.texcoord_indices) { mesh.texcoord_indices[c] } else { obj_text::MISSING };
+                    let n = if has(&mesh.normal_indices) { mesh.normal_indices[c] } else { obj_text::MISSING };
+                    [mesh.indices[c], t, n]
+                })
+                .collect();
+            let arities = if mesh.face_arities.is_empty() { vec![3; mesh.indices.len() / 3] } else { mesh.face_arities.clone() };
+            let texcoords: Vec<[f32; 2]> = mesh.texcoords.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+            let parsed = obj_text::Parsed {
+                positions: tri(&mesh.positions),
+                colors: tri(&mesh.vertex_color),
+                texcoords,
+                normals: tri(&mesh.normals),
+                corners,
+                arities,
+                models: Vec::new(),
+            };
+            let model = obj_text::ObjModel {
+                name: m.name.clone(),
+                material: mesh.material_id,
+                faces: 0..parsed.arities.len(),
+                corners: 0..parsed.corners.len(),
+                positions: parsed.positions.len(),
+                texcoords: if has(&mesh.texcoord_indices) { parsed.texcoords.len() } else { 0 },
+                normals: if has(&mesh.normal_indices) { parsed.normals.len() } else { 0 },
+                colors: parsed.colors.len(),
+            };
+            let mut first = vec![u32::MAX; parsed.positions.len()];
+            let prim = model_primitive(path, "reference", &parsed, &model, &LoadOptions::default(), &mut first, &mut LoadStats::default()).map_err(|e| e.to_string())?;
+            out.push((m.name.clone(), mesh.material_id, prim));
+        }
+        Ok(out)
+    }
+
+    /// [`load`]'s meshes against tobj's for the file at `path` (its text `text`).
+    fn assert_same_as_tobj(path: &Path, text: &str) {
+        let want = tobj_models(path, text).unwrap_or_else(|e| panic!("{}: tobj refuses it: {e}", path.display()));
+        let scene = load(path, text.as_bytes(), &LoadOptions { load_textures: false, ..Default::default() }).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(scene.meshes.len(), want.len(), "{}: models", path.display());
+        for (k, (mesh, (name, material, prim))) in scene.meshes.iter().zip(&want).enumerate() {
+            let got = &mesh.primitives[0];
+            let at = format!("{} model {k} ({name:?})", path.display());
+            assert_eq!(&mesh.name, name, "{at}: name");
+            assert_eq!(got.material, material.filter(|&m| m < scene.materials.len()), "{at}: material");
+            // Degenerate triangles are dropped after the fact (finish_primitive): compare
+            // the vertices, and the triangles the reference keeps.
+            assert_eq!(got.positions, prim.positions, "{at}: positions");
+            assert_eq!(got.uvs, prim.uvs, "{at}: uvs");
+            assert_eq!(got.normals, prim.normals, "{at}: normals");
+            assert_eq!(got.colors, prim.colors, "{at}: colours");
+            let kept: Vec<[u32; 3]> = prim.triangles.iter().copied().filter(|t| got.triangles.contains(t)).collect();
+            assert_eq!(got.triangles, kept, "{at}: triangles");
+        }
+    }
+
+    #[test]
+    fn models_match_tobj_on_statements_of_every_kind() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        std::fs::write(dir.path().join("m.mtl"), "newmtl red\nKd 1 0 0\nnewmtl green\nKd 0 1 0\n").expect("write");
+        let cases = [
+            // Relative indices, uvs on some corners only (the others take the previous one's).
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nf -4 -3/-2 -2\nf 1/1 3/3 4\nvn 0 0 1\nf 1//1 2 3\n",
+            // Objects, groups and materials ending models; a quad and a concave hexagon.
+            "mtllib m.mtl\nv 0 0 0\nv 2 0 0\nv 2 2 0\nv 0 2 0\nv 1 1 0\nv 1 0.5 0\no a\nusemtl red\nf 1 2 3 4\nusemtl green\nf 1 2 6 3 4 5\ng b\nf 1 2 3\nusemtl red\nusemtl red\nf 2 3 4\n",
+            // Vertex colours.
+            "v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nv 0 0 1 0.5 0.5 0.5\nf 1 2 3\nf 3 4 1\n",
+            // A weight.
+            "v 0 0 0\nv 2 0 0 2\nv 0 3 0 3\nf 1 2 3\n",
+            // The same position with several uv/normal pairs.
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 1\nvn 0 0 1\nvn 0 0 -1\nf 1/1/1 2/1/1 3/1/1\nf 1/2/2 3/2/2 2/2/2\nf 1/1/2 2/2/1 3/1/1\n",
+        ];
+        for (k, text) in cases.iter().enumerate() {
+            let path = dir.path().join(format!("case{k}.obj"));
+            std::fs::write(&path, text).expect("write");
+            assert_same_as_tobj(&path, text);
+        }
+        // A face on a vertex without a colour, in a file with colours: both refuse it.
+        let text = "v 0 0 0 1 0 0\nv 2 0 0\nv 0 1 0 0 0 1\nf 1 2 3\n";
+        let path = dir.path().join("mixed.obj");
+        assert!(tobj_models(&path, text).is_err());
+        let e = load(&path, text.as_bytes(), &LoadOptions::default()).expect_err("refused");
+        assert!(matches!(&e, LoadError::IndexOutOfRange { element, .. } if element.contains("colour")), "{e}");
+    }
+
+    /// Every OBJ of the shared models (when present) loads as tobj loaded it.
+    #[test]
+    fn models_match_tobj_on_the_shared_models() {
+        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/models");
+        let mut stack = vec![root];
+        let mut seen = 0;
+        while let Some(d) = stack.pop() {
+            let Ok(rd) = std::fs::read_dir(&d) else { continue };
+            for e in rd.flatten() {
+                let p = e.path();
+                if p.is_dir() {
+                    stack.push(p);
+                } else if p.extension().is_some_and(|x| x.eq_ignore_ascii_case("obj")) {
+                    let bytes = std::fs::read(&p).expect("read");
+                    let Ok(text) = decode_text(&p, &bytes) else { continue };
+                    assert_same_as_tobj(&p, &join_continuations(&text));
+                    seen += 1;
+                }
+            }
+        }
+        eprintln!("{seen} shared OBJ files compared");
+    }
 }
