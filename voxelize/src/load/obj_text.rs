@@ -547,6 +547,31 @@ mod tests {
         assert_eq!(p.positions[0], [1.0, 2.0, 3.0]);
     }
 
+    /// Lines of random tokens (indices past the ends, zeros, signs, huge numbers, stray
+    /// slashes, non-ASCII) never panic: every text parses or is refused with a line.
+    #[test]
+    fn random_statements_parse_or_are_refused() {
+        let mut r = SplitMix64(17);
+        let tokens = ["v", "vt", "vn", "f", "o", "g", "usemtl", "mtllib", "1", "-1", "0", "3/", "/2", "1//1", "2/3/4/5", "-99", "+4", "1e40", "nan", "inf", "-9223372036854775808", "4294967296", "é", "\u{a0}", " ", "\t", "/"];
+        for _ in 0..3_000 {
+            let text: String = (0..r.next_u64() % 40)
+                .map(|_| {
+                    let mut line: String = (0..r.next_u64() % 8).map(|_| format!("{} ", pick(&mut r, &tokens))).collect();
+                    line.push('\n');
+                    line
+                })
+                .collect();
+            let whole = parse_in_chunks(&text, usize::MAX, library);
+            let cut = parse_in_chunks(&text, 5, library);
+            match (whole, cut) {
+                // Debug text: a NaN coordinate is equal to itself there.
+                (Ok(a), Ok(b)) => assert_eq!(format!("{a:?}"), format!("{b:?}"), "{text:?}"),
+                (Err(a), Err(b)) => assert_eq!((a.line, a.message), (b.line, b.message), "{text:?}"),
+                (a, b) => panic!("{text:?}: {:?} / {:?}", a.map(|_| ()), b.map(|_| ())),
+            }
+        }
+    }
+
     #[test]
     fn words_split_as_split_whitespace_does() {
         let mut r = SplitMix64(11);
