@@ -6,7 +6,8 @@ Tasks (the peers each do the same job as ours, on the same input, for the same p
   mesh -> points   sct-voxelize (default density)   vs open3d sample_points_uniformly,
                                                        trimesh sample_surface (N = our samples)
   points -> LOD    sct-build-tree on those samples  vs copc_converter on a LAS of them
-  dense mesh       sct-build-tree, one step         vs open3d and trimesh mesh -> points
+  dense mesh       sct-build-tree, one step         vs open3d and trimesh mesh -> points,
+                   the same mesh as binary PLY, OBJ and GLB
   threads          ours with 1 and 2 threads (RAYON_NUM_THREADS)
 Every run is a whole process timed by /usr/bin/time (wall, user + system CPU, peak RSS).
 Outputs are removed before each run. Medians over the rounds; a round runs every tool once,
@@ -56,18 +57,23 @@ def clear(*paths):
     os.sync()
 
 
-def make_dense(py, src, dst):
-    """The bunny subdivided three times (each triangle into four), binary PLY."""
-    if dst.exists():
-        return
+def make_dense(py, src, out):
+    """The bunny subdivided three times (each triangle into four), as binary PLY, OBJ and GLB:
+    {format: path}."""
+    paths = {"PLY": out / "dense-bunny.ply", "OBJ": out / "dense-bunny.obj", "GLB": out / "dense-bunny.glb"}
+    if all(p.exists() for p in paths.values()):
+        return paths
     code = """
 import sys, trimesh
 m = trimesh.load(sys.argv[1], force="mesh", process=False)
 for _ in range(3):
     m = m.subdivide()
 m.export(sys.argv[2], encoding="binary")
+m.export(sys.argv[3])
+m.export(sys.argv[4])
 """
-    subprocess.run([py, "-c", code, str(src), str(dst)], check=True)
+    subprocess.run([py, "-c", code, str(src), *map(str, paths.values())], check=True)
+    return paths
 
 
 def write_las(py, ply, las):
@@ -111,8 +117,7 @@ def main():
         "dragon": m / "scans/stanford-dragon-100k/dragon.ply",
         "spot (textured)": m / "textured-obj/spot/spot_triangulated.obj",
     }
-    dense = out / "dense-bunny.ply"
-    make_dense(py, meshes["bunny"], dense)
+    dense = make_dense(py, meshes["bunny"], out)
     dense_tris = 69451 * 64
 
     # Preparation (untimed): our sample counts, the LAS inputs of the LOD task.
@@ -129,8 +134,11 @@ def main():
         las = out / f"{key}.las"
         write_las(py, ply, las)
         prep[name] = (mesh, smp, n, las)
-    r = subprocess.run([build, dense, "-o", out / "dense.sct", "--json"], check=True, capture_output=True)
-    dense_n = json.loads(r.stdout)["build"]["leaves"]
+    dense_n = {}
+    for fmt, path in dense.items():
+        r = subprocess.run([build, path, "-o", out / "dense.sct", "--json"], check=True, capture_output=True)
+        dense_n[fmt] = json.loads(r.stdout)["build"]["leaves"]
+    dense_input = {fmt: f"bunny x64 (4.4 M tris), {fmt}" for fmt in dense}
 
     runs = {}  # (task, input, tool) -> list of (wall, cpu, rss)
     size = {}  # (task, input, tool) -> (bytes, points)
@@ -153,13 +161,15 @@ def main():
             ]
             for key_, cmd, output in (reversed(jobs) if flip else jobs):
                 run(key_, cmd, output, n)
-        dense_jobs = [
-            (("dense mesh -> LOD / points", "bunny x64 (4.4 M tris)", "ours"), [build, dense, "-o", out / "dense.t.sct"], out / "dense.t.sct"),
-            (("dense mesh -> LOD / points", "bunny x64 (4.4 M tris)", "open3d"), [py, "-c", PY_SAMPLE["open3d"], dense, dense_n, out / "dense.o3d.ply"], out / "dense.o3d.ply"),
-            (("dense mesh -> LOD / points", "bunny x64 (4.4 M tris)", "trimesh"), [py, "-c", PY_SAMPLE["trimesh"], dense, dense_n, out / "dense.tm.ply"], out / "dense.tm.ply"),
-        ]
-        for key_, cmd, output in (reversed(dense_jobs) if flip else dense_jobs):
-            run(key_, cmd, output, dense_n)
+        for fmt, path in dense.items():
+            inp, n = dense_input[fmt], dense_n[fmt]
+            dense_jobs = [
+                (("dense mesh -> LOD / points", inp, "ours"), [build, path, "-o", out / "dense.t.sct"], out / "dense.t.sct"),
+                (("dense mesh -> LOD / points", inp, "open3d"), [py, "-c", PY_SAMPLE["open3d"], path, n, out / "dense.o3d.ply"], out / "dense.o3d.ply"),
+                (("dense mesh -> LOD / points", inp, "trimesh"), [py, "-c", PY_SAMPLE["trimesh"], path, n, out / "dense.tm.ply"], out / "dense.tm.ply"),
+            ]
+            for key_, cmd, output in (reversed(dense_jobs) if flip else dense_jobs):
+                run(key_, cmd, output, n)
         for threads in ("1", "2"):
             env = dict(os.environ, RAYON_NUM_THREADS=threads)
             mesh, smp, n, _ = prep["dragon"]
@@ -184,9 +194,11 @@ def main():
         ratio = "—" if tool == "ours" else f"{med(key, 0) / ours:.2f}×"
         print(f"| {task} | {inp} | {pts:,} | {tool} | {med(key, 0):.2f} | {med(key, 1):.2f} | {med(key, 2):.0f} | {b / pts:.2f} | {ratio} |")
     print()
-    w, c, rss = (med(("dense mesh -> LOD / points", "bunny x64 (4.4 M tris)", "ours"), i) for i in range(3))
-    print(f"Dense mesh, ours one step: {w / dense_tris * 1e6:.2f} µs wall and {rss * 1048576 / dense_tris:.0f} B peak per triangle "
-          f"({dense_tris:,} triangles, {dense_n:,} leaves).")
+    print("| dense mesh, ours one step | µs wall per triangle | B peak per triangle | leaves |")
+    print("|---|---:|---:|---:|")
+    for fmt in dense:
+        w, c, rss = (med(("dense mesh -> LOD / points", dense_input[fmt], "ours"), i) for i in range(3))
+        print(f"| {dense_input[fmt]} | {w / dense_tris * 1e6:.2f} | {rss * 1048576 / dense_tris:.0f} | {dense_n[fmt]:,} |")
     print()
     print("| threads | tool | 1 thread s | 2 threads s | speed-up |")
     print("|---|---|---:|---:|---:|")

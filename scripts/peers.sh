@@ -10,7 +10,8 @@
 #   - copc_converter (crates.io, `cargo install` into OUT_DIR/cargo): points -> LOD file
 #     (COPC: an octree of LAZ chunks), fed a LAS file of our own samples (laspy).
 # Inputs: the Stanford bunny and dragon scans, the textured spot, and a dense mesh made by
-# subdividing the bunny three times (4.4 M triangles, binary PLY) for the cost per triangle.
+# subdividing the bunny three times (4.4 M triangles, as binary PLY, OBJ and GLB) for the
+# cost per triangle.
 #
 # Usage: scripts/peers.sh [ROUNDS] [OUT_DIR]   (default 3, out/peers; needs ../shared/models)
 set -euo pipefail
