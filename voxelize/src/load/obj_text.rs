@@ -208,27 +208,24 @@ fn parse_in_chunks(text: &str, chunk_bytes: usize, mut mtllib: impl FnMut(&str) 
             }
         }
     }
-    for ch in &chunks {
+    end_model(&mut open, faces, corners, total, &mut p.models);
+
+    // Elements and corners in file order, each chunk freed once copied (the peak holds one
+    // chunk twice, not the file); negative indices resolved against the elements before
+    // their chunk.
+    for (ch, &(base, lines0, _, _)) in chunks.into_iter().zip(&before) {
         p.positions.extend_from_slice(&ch.positions);
         p.colors.extend_from_slice(&ch.colors);
         p.texcoords.extend_from_slice(&ch.texcoords);
         p.normals.extend_from_slice(&ch.normals);
         p.arities.extend_from_slice(&ch.arities);
-    }
-    let (face_total, corner_total) = (p.arities.len(), corners);
-    end_model(&mut open, face_total, corner_total, total, &mut p.models);
-
-    // Corners, with negative indices resolved against the elements before their chunk.
-    let mut all = Vec::with_capacity(corner_total);
-    for (ch, &(base, lines0, _, _)) in chunks.iter().zip(&before) {
-        let start = all.len();
-        all.extend_from_slice(&ch.corners);
+        let start = p.corners.len();
+        p.corners.extend_from_slice(&ch.corners);
         for r in &ch.relative {
             let b = [base.v, base.vt, base.vn][r.component] as i64;
             let v = b + r.local;
-            let slot = &mut all[start + r.corner][r.component];
             match u32::try_from(v) {
-                Ok(v) if v != MISSING => *slot = v,
+                Ok(v) if v != MISSING => p.corners[start + r.corner][r.component] = v,
                 _ => {
                     return Err(SyntaxError {
                         line: lines0 + r.line,
@@ -238,7 +235,6 @@ fn parse_in_chunks(text: &str, chunk_bytes: usize, mut mtllib: impl FnMut(&str) 
             }
         }
     }
-    p.corners = all;
     Ok(p)
 }
 
