@@ -181,6 +181,10 @@ fn model_primitive(
         (prev_t, prev_n) = (t, n);
         let pi = p as usize;
         let mut v = first[pi];
+        // Positions only (scans): one vertex per position, no chain to walk.
+        if v != u32::MAX && !has_uv && !has_n {
+            return Ok(v);
+        }
         while v != u32::MAX {
             if tn[v as usize] == (t, n) {
                 return Ok(v);
