@@ -298,10 +298,10 @@ pub(super) fn decode_text<'a>(path: &Path, bytes: &'a [u8]) -> Result<Cow<'a, st
 }
 
 /// Joins lines ending in a backslash with the next line (an OBJ/MTL continuation).
-/// Also drops `usemtl`/`mtllib` lines without a name (Rhino writes them; tobj refuses them).
 pub(super) fn join_continuations(text: &str) -> Cow<'_, str> {
-    // Most files have neither (a substring search is far cheaper than a copy line by line).
-    if !text.contains('\\') && !text.contains("usemtl") && !text.contains("mtllib") {
+    // Most files have none (a substring search is far cheaper than a copy line by line; a
+    // backslash elsewhere, as in a Windows path, is no reason to copy).
+    if !text.contains("\\\n") && !text.contains("\\\r\n") && !text.ends_with('\\') {
         return Cow::Borrowed(text);
     }
     let mut out = String::with_capacity(text.len());
@@ -310,8 +310,6 @@ pub(super) fn join_continuations(text: &str) -> Cow<'_, str> {
         if let Some(body) = trimmed.strip_suffix('\\') {
             out.push_str(body);
             out.push(' ');
-        } else if matches!(trimmed.trim(), "usemtl" | "mtllib") {
-            out.push('\n');
         } else {
             out.push_str(line);
         }
@@ -360,6 +358,9 @@ mod tests {
     fn tobj_models(path: &Path, text: &str) -> Result<Vec<(String, Option<usize>, Primitive)>, String> {
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         let load_opts = tobj::LoadOptions { single_index: false, triangulate: false, ignore_points: true, ignore_lines: true };
+        // tobj refuses `usemtl` and `mtllib` without a name (Rhino writes them); the reader
+        // skips them.
+        let text: String = join_continuations(text).split_inclusive('\n').map(|l| if matches!(l.trim(), "usemtl" | "mtllib") { "\n" } else { l }).collect();
         let (models, _) = tobj::load_obj_buf(&mut std::io::Cursor::new(text.as_bytes()), &load_opts, |mtl: &Path| {
             let found = resolve(&dir, &mtl.to_string_lossy()).ok_or(tobj::LoadError::OpenFileFailed)?;
             let bytes = std::fs::read(found).map_err(|_| tobj::LoadError::ReadError)?;
@@ -441,6 +442,8 @@ mod tests {
             "v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nv 0 0 1 0.5 0.5 0.5\nf 1 2 3\nf 3 4 1\n",
             // A weight.
             "v 0 0 0\nv 2 0 0 2\nv 0 3 0 3\nf 1 2 3\n",
+            // Rhino's nameless usemtl and mtllib, a Windows path, a continued face.
+            "mtllib\nmtllib C:\\models\\m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl red\nf 1 2 3\nusemtl \nf 2 \\\n4 3\nusemtl green\nf 1 2 4\n",
             // The same position with several uv/normal pairs.
             "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 1\nvn 0 0 1\nvn 0 0 -1\nf 1/1/1 2/1/1 3/1/1\nf 1/2/2 3/2/2 2/2/2\nf 1/1/2 2/2/1 3/1/1\n",
         ];
@@ -472,7 +475,7 @@ mod tests {
                 } else if p.extension().is_some_and(|x| x.eq_ignore_ascii_case("obj")) {
                     let bytes = std::fs::read(&p).expect("read");
                     let Ok(text) = decode_text(&p, &bytes) else { continue };
-                    assert_same_as_tobj(&p, &join_continuations(&text));
+                    assert_same_as_tobj(&p, &text);
                     seen += 1;
                 }
             }

@@ -14,8 +14,8 @@
 //! - `v x y z w` divides by `w`; `v x y z r g b` adds a vertex colour, and then every vertex
 //!   a face uses must have one.
 //!
-//! Faces of one or two corners (points, lines written with `f`) and `l`, `p` and all other
-//! statements are skipped. What tobj accepted by accident is refused with the line that
+//! Faces of one or two corners (points, lines written with `f`), `usemtl` and `mtllib`
+//! without a name, and `l`, `p` and all other statements are skipped. What tobj accepted by accident is refused with the line that
 //! says it: an index of 0, a malformed colour, an index too large for the machine.
 
 use rayon::prelude::*;
@@ -418,6 +418,8 @@ fn parse_line(line: &str, ch: &mut Chunk, face: &mut Vec<[u32; 3]>) -> Result<()
             }
         }
         "o" | "g" => ch.events.push((ch.arities.len(), ch.corners.len(), counts(ch), Event::Object(rest().trim().to_owned()))),
+        // Without a name (Rhino writes such lines) they say nothing.
+        "usemtl" | "mtllib" if rest().trim().is_empty() => {}
         "usemtl" => ch.events.push((ch.arities.len(), ch.corners.len(), counts(ch), Event::UseMtl(rest().trim().to_owned()))),
         "mtllib" => ch.events.push((ch.arities.len(), ch.corners.len(), counts(ch), Event::MtlLib(rest().trim().to_owned()))),
         _ => {}
