@@ -671,8 +671,8 @@ pub const PIT_DEPTH: f32 = 2e-3;
 /// Closes cracks through which a farther surface shows (the holes [`fill_holes`] cannot see,
 /// as the crack pixel is covered): each covered pixel lying more than [`PIT_DEPTH`] of its
 /// depth behind all four of its neighbours takes the nearest neighbour's colour and depth.
-/// Three of four would close more of a crack (the plates of BENCHMARKS.md: 0.1 % of the
-/// front plate dark instead of 0.9 %) but also eats single pixels of a farther model seen
+/// Three of four would close more of a crack (the plates of BENCHMARKS.md: 0.1–1.0 % of the
+/// front plate dark) but also eats single pixels of a farther model seen
 /// between nearer ones (0.1 dB and 0.01 SSIM on the 30 × 30 grid and the 8³ block); all four
 /// leaves those scenes within 0.02 dB. Returns the pixels filled.
 pub fn fill_depth_pits(frame: &mut Frame) -> usize {

@@ -47,9 +47,10 @@ impl Scene {
 }
 
 /// zstd level used for the default profile's blocks unless the caller picks one. Measured on
-/// the voxelized bunny (2.34 M leaves, BENCHMARKS.md "Node codecs"), with one zstd block per
-/// stream: levels 1 and 3 give 5.61 B/leaf, 9 gives 5.43 at +1.2 s, 19 gives 5.29 at +9 s.
-/// Level 1 keeps compression off the critical path; `--compression-level 19` buys ~6 %.
+/// the Table-8 bunny samples (2.34 M leaves, BENCHMARKS.md "Node codecs"), with one zstd block
+/// per stream: level 1 gives 6.86 B/leaf in 2.9 s, 3 gives 7.03, 9 gives 6.76 at +0.7 s, 19
+/// gives 6.65 at +8.9 s. Level 1 keeps compression off the critical path;
+/// `--compression-level 19` buys ~3 %.
 pub const DEFAULT_ZSTD_LEVEL: i32 = 1;
 
 /// How to encode.
