@@ -186,7 +186,7 @@ const PLAN_BLOCK: usize = 1 << 15;
 /// ones: at 8, the 100k-triangle dragon made 9 slabs of about 30 ms, and on 2 threads one
 /// thread made the 9th alone (the slabs ran 1.83× faster on 2 threads than on 1). Each slab
 /// boundary costs the triangles crossing it a cut and a second call, so meshes that make
-/// many slabs anyway keep their size: at 32 the dragon's sampling costs about 1 % more
+/// many slabs anyway keep their size: at 32 the dragon's run costs 0.7 % more
 /// instructions; at 4 × as many slabs for every mesh (slabs of 32,768 expected samples) the
 /// 4.4 M-triangle subdivided bunny cost 4.6 % more.
 const MIN_SLABS: usize = 32;
