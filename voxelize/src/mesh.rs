@@ -254,9 +254,12 @@ impl LoadedScene {
         };
         for inst in &self.instances {
             let Some(mesh) = self.meshes.get(inst.mesh) else { continue };
+            // The identity gives a finite coordinate back but for -0, which it makes +0, as
+            // adding +0 does (see `world_area`).
+            let identity = inst.transform == IDENTITY;
             for p in &mesh.primitives {
                 for v in &p.positions {
-                    add(transform_point(&inst.transform, *v));
+                    add(if identity { v.map(|c| f64::from(c) + 0.0) } else { transform_point(&inst.transform, *v) });
                 }
             }
         }
@@ -791,8 +794,8 @@ pub fn surface_points(scene: &LoadedScene, n: usize, seed: u64) -> Vec<[f64; 3]>
 mod tests {
     use super::*;
 
-    /// The identity instance's area, taken without the transform, has the bits of the area
-    /// through the transform: on triangles with signed zeros (the only coordinates the
+    /// The identity instance's area and bounds, taken without the transform, have the bits of
+    /// those through the transform: on triangles with signed zeros (the only coordinates the
     /// identity changes, -0 to +0), zero-length edges and magnitudes far apart. The sum over
     /// a non-identity instance still goes through its transform.
     #[test]
@@ -820,6 +823,13 @@ mod tests {
         for m in [IDENTITY, shift] {
             let scene = LoadedScene { meshes: vec![mesh.clone()], instances: vec![Instance { mesh: 0, transform: m }], ..Default::default() };
             assert_eq!(scene.world_area().to_bits(), through(&m).to_bits());
+            // The bounds too, vertex by vertex: the transform of each, and of a signed zero.
+            for v in &mesh.primitives[0].positions {
+                let one = Mesh { name: "v".into(), primitives: vec![Primitive { positions: vec![*v], ..Default::default() }] };
+                let scene = LoadedScene { meshes: vec![one], instances: vec![Instance { mesh: 0, transform: m }], ..Default::default() };
+                let p = transform_point(&m, *v).map(f64::to_bits);
+                assert_eq!(scene.world_bounds().map(|(lo, hi)| (lo.map(f64::to_bits), hi.map(f64::to_bits))), Some((p, p)), "{v:?}");
+            }
         }
     }
 
