@@ -114,7 +114,9 @@ pub(super) fn plan_sampling(scene: &LoadedScene, opts: &SampleOptions) -> Result
     }
     // A voxel wider than the model says nothing more than one that just spans it; the
     // vertex sampler has no voxels.
-    let extent = scene.world_bounds().map_or(0.0, |(lo, hi)| (0..3).fold(0.0f64, |m, k| m.max(hi[k] - lo[k])));
+    // Bounds once (a pass over every vertex).
+    let bounds = scene.world_bounds();
+    let extent = bounds.map_or(0.0, |(lo, hi)| (0..3).fold(0.0f64, |m, k| m.max(hi[k] - lo[k])));
     if opts.method != Method::Vertex && extent > 0.0 && extent < voxel.size {
         let asked = voxel.size;
         voxel.reason = format!("{}; clamped to the model's largest extent {extent:.6}", voxel.reason);
@@ -127,7 +129,7 @@ pub(super) fn plan_sampling(scene: &LoadedScene, opts: &SampleOptions) -> Result
         ));
     }
     let h = voxel.size;
-    if let Some(b) = scene.world_bounds() {
+    if let Some(b) = bounds {
         let ext = b.0.iter().chain(b.1.iter()).fold(0.0f64, |m, v| m.max(v.abs()));
         if units.iter().any(|u| u.bake.is_some() && ext / u.h > (1u64 << 30) as f64) {
             return Err(format!("voxel size {h} is too small for coordinates up to {ext} (more than 2^30 voxels along an axis)"));

@@ -324,7 +324,10 @@ pub(super) fn voxel_triangle_axis<const D: usize>(
             (_, 0) => tri.clip_axis(1, x0, x1),
             _ => tri.clip_half(|p| depth(p) - x0, None).clip_half(|p| x1 - depth(p), None),
         };
-        if tri.n < 3 {
+        // A triangle that only touches the band (its corner or edge on the band's face) leaves
+        // a polygon without area, whose pieces would be samples of area 0 in the voxels past
+        // that face.
+        if tri.n < 3 || !(tri.area_centroid().0 > 0.0) {
             return 0;
         }
     }
