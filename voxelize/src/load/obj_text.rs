@@ -227,10 +227,12 @@ fn parse_in_chunks(text: &str, chunk_bytes: usize, mut mtllib: impl FnMut(&str) 
             match u32::try_from(v) {
                 Ok(v) if v != MISSING => p.corners[start + r.corner][r.component] = v,
                 _ => {
-                    return Err(SyntaxError {
-                        line: lines0 + r.line,
-                        message: format!("a relative index points {} elements before the first of its kind", -v),
-                    })
+                    let message = if v < 0 {
+                        format!("a relative index points {} elements before the first of its kind", -v)
+                    } else {
+                        format!("a relative index resolves to {v}, too large")
+                    };
+                    return Err(SyntaxError { line: lines0 + r.line, message });
                 }
             }
         }
