@@ -121,11 +121,9 @@ fn position_key(q: [f32; 3]) -> [u32; 3] {
     q.map(|c| if c == 0.0 { 0 } else { c.to_bits() })
 }
 
-/// One 64-bit mix step (SplitMix64's finaliser).
-fn mix(mut z: u64) -> u64 {
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
+/// A 64-bit hash of `z`: one step of the workspace's SplitMix64.
+fn mix(z: u64) -> u64 {
+    sct_format::rng::SplitMix64(z).next_u64()
 }
 
 /// The sum, wrapping, over every edge of every non-degenerate triangle of a hash of its two

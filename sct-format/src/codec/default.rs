@@ -405,19 +405,13 @@ fn pick_offset(p: &Node, orig: &Node, dec: &Node, state: u16) -> (i8, Node) {
         return (0, *dec);
     }
     let mut s = want.clamp(i8::MIN as f64, i8::MAX as f64) as i8;
-    let bound = posrad::stick_out_bound() as f32;
     while s != 0 {
         let mut moved = *dec;
         apply_offset(&mut moved, s, p.radius);
-        let contains_original = crate::geometry::sphere_contains(&moved, orig, 0.0);
         // Within the stick-out bound, and encodable itself: a decoded tree written again
         // must encode, and a child off the state grid that sticks out of its parent may fit
         // no state.
-        if contains_original
-            && moved.center.iter().all(|c| c.is_finite())
-            && crate::geometry::sphere_contains(p, &moved, bound)
-            && posrad::encodable_near(state, p.center, p.radius, moved.center, moved.radius)
-        {
+        if acceptable(p, orig, &moved, state) {
             return (s, moved);
         }
         s -= s.signum();
@@ -644,7 +638,8 @@ pub fn encode_with_leaves(params: CodecParams, parents: &[Node], children: &[Nod
                 let mut state = s;
                 let mut node = child_node(t, p, Codes { state: s, cone, color: q }, axis, ch, if h == 0 { area_a } else { area_b })
                     .ok_or_else(|| Error::Misuse(format!("default encoder: state {s} of child {i} is not decodable (bug)")))?;
-                if params.centre_offsets && !has_children.is_some_and(|f| f[i]) {
+                let leaf = !has_children.is_some_and(|f| f[i]);
+                if params.centre_offsets && leaf {
                     let first = pick_offset(p, c, &node, s);
                     let tol = c.radius as f64 / PLANE_STEPS;
                     let (s2, o, moved) = pick_state_near_plane(t, p, c, s, &node, first, tol, |s2| hist.weight(s2));
@@ -656,7 +651,6 @@ pub fn encode_with_leaves(params: CodecParams, parents: &[Node], children: &[Nod
                     node = moved;
                     offsets[i] = zz(o as u8, 0, 8);
                 }
-                let leaf = !has_children.is_some_and(|f| f[i]);
                 if params.leaf_refinement && leaf {
                     if !params.centre_offsets {
                         let (d, k, refined) = pick_refinement(p, c, &node, state);

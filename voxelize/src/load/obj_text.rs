@@ -115,6 +115,13 @@ struct Chunk {
     error: Option<SyntaxError>,
 }
 
+impl Chunk {
+    /// The elements read so far.
+    fn counts(&self) -> Counts {
+        Counts { v: self.positions.len(), c: self.colors.len(), vt: self.texcoords.len(), vn: self.normals.len() }
+    }
+}
+
 /// Bytes per chunk: large enough that a chunk's set-up is negligible, small enough that
 /// every thread gets many.
 const CHUNK_BYTES: usize = 1 << 20;
@@ -152,7 +159,7 @@ fn parse_in_chunks(text: &str, chunk_bytes: usize, mut mtllib: impl FnMut(&str) 
             return Err(SyntaxError { line: lines + e.line, message: e.message.clone() });
         }
         before.push((counts, lines, faces, corners));
-        counts = counts.add(Counts { v: ch.positions.len(), c: ch.colors.len(), vt: ch.texcoords.len(), vn: ch.normals.len() });
+        counts = counts.add(ch.counts());
         lines += ch.lines;
         faces += ch.arities.len();
         corners += ch.corners.len();
@@ -347,7 +354,6 @@ fn parse_line(line: &str, ch: &mut Chunk, face: &mut Vec<[u32; 3]>) -> Result<()
     let mut words = Words::new(line);
     let Some(keyword) = words.next() else { return Ok(()) };
     let rest = || after(line, keyword);
-    let counts = |ch: &Chunk| Counts { v: ch.positions.len(), c: ch.colors.len(), vt: ch.texcoords.len(), vn: ch.normals.len() };
     match keyword {
         "v" => {
             let mut p = floats::<3>(&mut words, "vertex")?;
@@ -383,7 +389,7 @@ fn parse_line(line: &str, ch: &mut Chunk, face: &mut Vec<[u32; 3]>) -> Result<()
         "vn" => ch.normals.push(floats::<3>(&mut words, "normal")?),
         "f" => {
             face.clear();
-            let at = counts(ch);
+            let at = ch.counts();
             let mut relative = Vec::new();
             for w in words {
                 let mut idx = [MISSING; 3];
@@ -419,11 +425,11 @@ fn parse_line(line: &str, ch: &mut Chunk, face: &mut Vec<[u32; 3]>) -> Result<()
                 ch.arities.push(face.len() as u32);
             }
         }
-        "o" | "g" => ch.events.push((ch.arities.len(), ch.corners.len(), counts(ch), Event::Object(rest().trim().to_owned()))),
+        "o" | "g" => ch.events.push((ch.arities.len(), ch.corners.len(), ch.counts(), Event::Object(rest().trim().to_owned()))),
         // Without a name (Rhino writes such lines) they say nothing.
         "usemtl" | "mtllib" if rest().trim().is_empty() => {}
-        "usemtl" => ch.events.push((ch.arities.len(), ch.corners.len(), counts(ch), Event::UseMtl(rest().trim().to_owned()))),
-        "mtllib" => ch.events.push((ch.arities.len(), ch.corners.len(), counts(ch), Event::MtlLib(rest().trim().to_owned()))),
+        "usemtl" => ch.events.push((ch.arities.len(), ch.corners.len(), ch.counts(), Event::UseMtl(rest().trim().to_owned()))),
+        "mtllib" => ch.events.push((ch.arities.len(), ch.corners.len(), ch.counts(), Event::MtlLib(rest().trim().to_owned()))),
         _ => {}
     }
     Ok(())
