@@ -54,8 +54,7 @@ impl Default for LoadOptions {
 /// Loads a mesh file, choosing the loader by extension (.obj, .gltf, .glb, .ply; the glTF
 /// binary magic and the `ply` magic are also recognised).
 pub fn load(path: &Path, opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
-    let bytes = read_file(path, opts.max_file_bytes)?;
-    load_bytes(path, &bytes, opts)
+    read_and_load(path, opts, false, obj_piece_bytes()).map(|(scene, _)| scene)
 }
 
 /// [`load`], and the BLAKE3 of the bytes it read (lowercase hex, the value of
@@ -63,15 +62,76 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
 /// was loaded, and is computed on every thread while the file is parsed rather than in a
 /// pass of its own.
 pub fn load_and_hash(path: &Path, opts: &LoadOptions) -> Result<(LoadedScene, String), LoadError> {
-    let bytes = read_file(path, opts.max_file_bytes)?;
-    let (hash, scene) = rayon::join(|| sct_format::atomic::hash_bytes(&bytes), || load_bytes(path, &bytes, opts));
+    read_and_load(path, opts, true, obj_piece_bytes()).map(|(scene, hash)| (scene, hash.unwrap_or_default()))
+}
+
+/// Bytes of an OBJ file read and parsed at a time ([`obj::load_streamed`]): a few chunks
+/// for every thread, and little beside the parsed statements (the dense 4.4 M-triangle
+/// bunny's text is 189 MB).
+fn obj_piece_bytes() -> usize {
+    (32 << 20).max(rayon::current_num_threads().saturating_mul(4 << 20))
+}
+
+/// [`load`], with the BLAKE3 of the bytes read when `hash`. A UTF-8 OBJ file larger than
+/// `piece` bytes is read, hashed and parsed piece by piece; other files are read whole, then
+/// hashed on every thread while they are parsed.
+fn read_and_load(path: &Path, opts: &LoadOptions, hash: bool, piece: usize) -> Result<(LoadedScene, Option<String>), LoadError> {
+    let mut file = PieceReader::open(path, opts.max_file_bytes)?;
+    let mut bytes = Vec::new();
+    let more = file.read_more(&mut bytes, piece)?;
+    if more && matches!(kind_of(path, &bytes, file.len)?, Kind::Obj) && obj::streams(&bytes) {
+        let mut hasher = hash.then(blake3::Hasher::new);
+        let scene = guarded(path, Kind::Obj, || obj::load_streamed(path, bytes, &mut |b| file.read_more(b, piece), hasher.as_mut(), opts))?;
+        let scene = finish_scene(path, scene, opts)?;
+        return Ok((scene, hasher.map(|h| h.finalize().to_hex().to_string())));
+    }
+    if more {
+        file.read_more(&mut bytes, usize::MAX)?;
+    }
+    let (hash, scene) = rayon::join(|| hash.then(|| sct_format::atomic::hash_bytes(&bytes)), || load_bytes(path, &bytes, opts));
     Ok((scene?, hash))
 }
 
-/// [`load`] of the bytes read from `path`.
-fn load_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
+/// A regular file ([`sct_format::fsio::open_regular`]) read in pieces, never past the size
+/// it had when opened: a file that grows or shrinks meanwhile is an I/O error.
+struct PieceReader<'p> {
+    path: &'p Path,
+    file: std::fs::File,
+    /// Its size when opened.
+    len: u64,
+    read: u64,
+}
+
+impl<'p> PieceReader<'p> {
+    fn open(path: &'p Path, max: u64) -> Result<Self, LoadError> {
+        let file = sct_format::fsio::open_regular(path).map_err(|e| load_error(path, e))?;
+        let len = file.metadata().map_err(|e| LoadError::Io { path: path.to_path_buf(), source: e })?.len();
+        sct_format::Limits::check("file size", len, max).map_err(|e| load_error(path, e))?;
+        Ok(PieceReader { path, file, len, read: 0 })
+    }
+
+    /// Appends the next `n` bytes (or all that are left) to `buf`; whether any are left.
+    fn read_more(&mut self, buf: &mut Vec<u8>, n: usize) -> Result<bool, LoadError> {
+        use std::io::Read;
+        let io = |source| LoadError::Io { path: self.path.to_path_buf(), source };
+        let want = (self.len - self.read).min(n as u64);
+        buf.reserve(usize::try_from(want).unwrap_or(usize::MAX));
+        let got = (&mut self.file).take(want).read_to_end(buf).map_err(io)? as u64;
+        self.read += got;
+        // One byte past the size tells a file that grew (without reading the growth).
+        let grew = self.read == self.len && (&mut self.file).take(1).read_to_end(&mut Vec::new()).map_err(io)? > 0;
+        if got < want || grew {
+            let message = format!("the file changed size while it was read ({} bytes when opened, {}{} read)", self.len, self.read, if grew { "+" } else { "" });
+            return Err(io(std::io::Error::other(message)));
+        }
+        Ok(self.read < self.len)
+    }
+}
+
+/// The loader for `path`, whose first bytes are `head` and whose size is `len`.
+fn kind_of(path: &Path, head: &[u8], len: u64) -> Result<Kind, LoadError> {
     let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    let sniffed = sniff::sniff(&bytes[..bytes.len().min(sniff::SNIFF_BYTES)], bytes.len() as u64);
+    let sniffed = sniff::sniff(&head[..head.len().min(sniff::SNIFF_BYTES)], len);
     // The content wins over a misleading extension only where it is unambiguous (a GLB
     // named .gltf); a text file is read by its extension.
     let kind = match (ext.as_deref(), sniffed) {
@@ -94,24 +154,39 @@ fn load_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<LoadedSce
             })
         }
     };
-    // Third-party parsers are not all panic-free on hostile input; a panic becomes a typed
-    // error naming the file instead of aborting the tool.
-    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| match kind {
+    Ok(kind)
+}
+
+/// [`load`] of the bytes read from `path`.
+fn load_bytes(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
+    let kind = kind_of(path, bytes, bytes.len() as u64)?;
+    let scene = guarded(path, kind, || match kind {
         Kind::Obj => obj::load(path, bytes, opts),
         Kind::Gltf => gltf_load::load(path, bytes, opts),
         Kind::Ply => ply::load(path, bytes, opts),
-    }));
-    let mut scene = match result {
-        Ok(r) => r?,
+    })?;
+    finish_scene(path, scene, opts)
+}
+
+/// `load()`, with a panic turned into a typed error naming the file: third-party parsers
+/// are not all panic-free on hostile input, and the tool must not abort.
+fn guarded(path: &Path, kind: Kind, load: impl FnOnce() -> Result<LoadedScene, LoadError>) -> Result<LoadedScene, LoadError> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(load)) {
+        Ok(r) => r,
         Err(panic) => {
             let message = panic
                 .downcast_ref::<&str>()
                 .map(|s| s.to_string())
                 .or_else(|| panic.downcast_ref::<String>().cloned())
                 .unwrap_or_else(|| "unknown panic".into());
-            return Err(LoadError::ParserPanic { path: path.to_path_buf(), format: kind.name(), message });
+            Err(LoadError::ParserPanic { path: path.to_path_buf(), format: kind.name(), message })
         }
-    };
+    }
+}
+
+/// What every loader's scene gets: the texture override bound, world coordinates checked,
+/// the file recorded.
+fn finish_scene(path: &Path, mut scene: LoadedScene, opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
     if let Some(tex) = &opts.texture_override {
         bind_texture_override(&mut scene, tex, opts)?;
     }
@@ -306,5 +381,60 @@ mod tests {
         assert!(matches!(read_file(dir.path(), 1 << 20), Err(LoadError::NotRegularFile { kind: "a directory", .. })));
         // A device reports length 0 and never ends: refused by type, not read.
         assert!(matches!(read_file(Path::new("/dev/zero"), 1 << 20), Err(LoadError::NotRegularFile { kind: "a character device", .. })));
+
+        // The same for the mesh itself, which is read in pieces.
+        let limited = LoadOptions { max_file_bytes: 9, ..LoadOptions::default() };
+        assert!(matches!(load(&f, &limited), Err(LoadError::Limit { .. })));
+        assert!(matches!(load(&fifo, &LoadOptions::default()), Err(LoadError::NotRegularFile { kind: "a FIFO", .. })));
+        assert!(matches!(load(dir.path(), &LoadOptions::default()), Err(LoadError::NotRegularFile { kind: "a directory", .. })));
+        assert!(matches!(load(Path::new("/dev/zero"), &LoadOptions::default()), Err(LoadError::NotRegularFile { .. })));
+    }
+
+    /// A file read in pieces gives its bytes, says when none are left, and never reads past
+    /// the size it had when opened.
+    #[test]
+    fn pieces_read_the_file_as_it_was_opened() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let f = dir.path().join("a.obj");
+        std::fs::write(&f, b"0123456789").expect("write");
+        let mut r = PieceReader::open(&f, 10).expect("open");
+        let mut buf = Vec::new();
+        assert!(r.read_more(&mut buf, 4).expect("read"));
+        assert!(r.read_more(&mut buf, 4).expect("read"));
+        assert!(!r.read_more(&mut buf, 4).expect("read"));
+        assert_eq!(buf, b"0123456789");
+        // Grown after opening: an I/O error, not the extra bytes.
+        let mut r = PieceReader::open(&f, 100).expect("open");
+        assert!(r.read_more(&mut buf, 4).expect("read"));
+        std::fs::OpenOptions::new().append(true).open(&f).and_then(|mut w| std::io::Write::write_all(&mut w, b"abc")).expect("append");
+        let e = r.read_more(&mut buf, 100).expect_err("grew");
+        assert!(e.to_string().contains("changed size"), "{e}");
+        // Shrunk after opening.
+        let mut r = PieceReader::open(&f, 100).expect("open");
+        std::fs::write(&f, b"01").expect("truncate");
+        let e = r.read_more(&mut Vec::new(), 100).expect_err("shrank");
+        assert!(e.to_string().contains("changed size"), "{e}");
+    }
+
+    /// A shared OBJ read in small pieces (hashed and parsed piece by piece) loads to the scene
+    /// and hash of the whole-file path, through the public entry points too.
+    #[test]
+    fn an_obj_read_in_pieces_loads_as_read_whole() {
+        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/models");
+        // Materials without their images: the scenes are compared as text.
+        let opts = LoadOptions { load_textures: false, ..LoadOptions::default() };
+        for rel in ["scans/stanford-bunny/stanford-bunny.obj", "textured-obj/spider/spider.obj", "textured-obj/capsule/capsule.obj"] {
+            let path = root.join(rel);
+            let bytes = std::fs::read(&path).expect("read");
+            let whole = format!("{:?}", load_bytes(&path, &bytes, &opts).expect("loads"));
+            let hash = sct_format::atomic::hash_bytes(&bytes);
+            for piece in [1 << 12, 100_003] {
+                let (scene, h) = read_and_load(&path, &opts, true, piece).expect("loads in pieces");
+                assert_eq!(format!("{scene:?}"), whole, "{rel}, pieces of {piece}");
+                assert_eq!(h.as_deref(), Some(hash.as_str()), "{rel}");
+            }
+            let (scene, h) = load_and_hash(&path, &opts).expect("loads");
+            assert_eq!((format!("{scene:?}"), h), (whole, hash));
+        }
     }
 }

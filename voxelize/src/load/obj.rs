@@ -1,5 +1,6 @@
 //! OBJ files: the text decoded (UTF-8 with or without a BOM, UTF-16 with one), backslash
-//! line continuations joined, its statements parsed on every thread ([`obj_text`]), MTL
+//! line continuations joined, its statements parsed on every thread ([`obj_text`]; a large
+//! UTF-8 file piece by piece as it is read, [`load_streamed`]), MTL
 //! libraries read with tobj (texture paths with backslashes, spaces or options found), and
 //! n-gons triangulated by CDT ([`crate::polygon`]).
 
@@ -7,20 +8,109 @@ use std::borrow::Cow;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use super::{decode_image, finish_primitive, obj_text, read_file, LoadOptions};
+use super::obj_text::{self, ChunkedParse};
+use super::{decode_image, finish_primitive, read_file, LoadOptions};
 use crate::error::LoadError;
 use crate::mesh::*;
 
 pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
     let text = decode_text(path, bytes)?;
-    let text = join_continuations(&text);
+    let mut parse = ChunkedParse::default();
+    parse.add(&join_continuations(&text), obj_text::CHUNK_BYTES);
+    drop(text);
+    load_parsed(path, parse, opts)
+}
+
+/// Whether the OBJ file starting with `head` can be read piece by piece ([`load_streamed`]):
+/// UTF-8 can (a line end is never part of another character), UTF-16 is decoded whole.
+pub(super) fn streams(head: &[u8]) -> bool {
+    !(head.starts_with(&[0xFE, 0xFF]) || head.starts_with(&[0xFF, 0xFE]))
+}
+
+/// [`load`] of a UTF-8 OBJ file read piece by piece, so that the text held at once is one
+/// piece, not the file (a scan's OBJ text is 40–45 bytes per triangle): `buf` holds the
+/// file's first bytes, `more` appends the next ones to it and says whether any are left,
+/// and `hasher`, if any, is given every byte. Each piece ends at a line end that does not
+/// continue its line (a backslash before it), so decoding, joining continuations and
+/// parsing piece by piece give exactly what they give on the whole text, errors included
+/// (an invalid byte is reported at its offset in the file).
+pub(super) fn load_streamed(
+    path: &Path,
+    mut buf: Vec<u8>,
+    more: &mut dyn FnMut(&mut Vec<u8>) -> Result<bool, LoadError>,
+    mut hasher: Option<&mut blake3::Hasher>,
+    opts: &LoadOptions,
+) -> Result<LoadedScene, LoadError> {
+    let mut done = false;
+    while buf.len() < 3 && !done {
+        done = !more(&mut buf)?;
+    }
+    let bom = buf.starts_with(&[0xEF, 0xBB, 0xBF]);
+    // File offset of `buf[0]`; the bytes of `buf` from `fresh` on are not hashed yet.
+    let (mut at, mut fresh) = (0u64, 0usize);
+    let mut start = if bom { 3 } else { 0 };
+    let mut parse = ChunkedParse::default();
+    loop {
+        let cut = if done { Some(buf.len()) } else { logical_line_end(&buf[start..]).map(|e| start + e) };
+        let Some(cut) = cut else {
+            // Not one whole line yet.
+            done = !more(&mut buf)?;
+            continue;
+        };
+        let text = std::str::from_utf8(&buf[start..cut]).map_err(|e| utf8_error(path, at + (start + e.valid_up_to()) as u64, bom))?;
+        let new = &buf[fresh..];
+        rayon::join(
+            || {
+                if let Some(h) = hasher.as_deref_mut() {
+                    h.update(new);
+                }
+            },
+            || {
+                // After a malformed line nothing changes the error reported, but the rest is
+                // still checked for invalid bytes, which are reported first (as when decoded
+                // whole).
+                if !parse.failed() {
+                    parse.add(&join_continuations(text), obj_text::CHUNK_BYTES);
+                }
+            },
+        );
+        if done {
+            break;
+        }
+        buf.drain(..cut);
+        at += cut as u64;
+        fresh = buf.len();
+        start = 0;
+        done = !more(&mut buf)?;
+    }
+    drop(buf);
+    load_parsed(path, parse, opts)
+}
+
+/// Just past the last line end in `b` that does not continue its line: a `\n` (or `\r\n`)
+/// with no backslash before it (see [`join_continuations`]).
+fn logical_line_end(b: &[u8]) -> Option<usize> {
+    let mut end = b.len();
+    while let Some(i) = b[..end].iter().rposition(|&c| c == b'\n') {
+        let line = &b[..i];
+        let line = line.strip_suffix(b"\r").unwrap_or(line);
+        if !line.ends_with(b"\\") {
+            return Some(i + 1);
+        }
+        end = i;
+    }
+    None
+}
+
+/// The scene of a parsed OBJ file.
+fn load_parsed(path: &Path, parse: ChunkedParse, opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let mut scene = LoadedScene::default();
     let mut mats: Vec<tobj::Material> = Vec::new();
     // Material name -> directory of the MTL that defined it (texture paths are relative to
     // the MTL, not the OBJ).
     let mut mtl_dirs = HashMap::<String, PathBuf>::new();
-    let parsed = obj_text::parse(&text, |mtl| {
+    let parsed = parse.finish(|mtl| {
         let loaded = load_mtl(path, &dir, mtl, opts, &mut scene);
         let names = loaded.iter().map(|(m, _)| m.name.clone()).collect();
         for (m, mdir) in loaded {
@@ -274,7 +364,7 @@ pub(super) fn file_stem(path: &Path) -> String {
 pub(super) fn decode_text<'a>(path: &Path, bytes: &'a [u8]) -> Result<Cow<'a, str>, LoadError> {
     let enc = |message: String| LoadError::Encoding { path: path.to_path_buf(), message };
     if let Some(rest) = bytes.strip_prefix(&[0xEF, 0xBB, 0xBF]) {
-        return std::str::from_utf8(rest).map(Cow::Borrowed).map_err(|e| enc(format!("invalid UTF-8 at byte {}", e.valid_up_to() + 3)));
+        return std::str::from_utf8(rest).map(Cow::Borrowed).map_err(|e| utf8_error(path, e.valid_up_to() as u64 + 3, true));
     }
     let utf16 = |rest: &[u8], be: bool| -> Result<Cow<'a, str>, LoadError> {
         if rest.len() % 2 != 0 {
@@ -292,21 +382,33 @@ pub(super) fn decode_text<'a>(path: &Path, bytes: &'a [u8]) -> Result<Cow<'a, st
     if let Some(rest) = bytes.strip_prefix(&[0xFF, 0xFE]) {
         return utf16(rest, false);
     }
-    std::str::from_utf8(bytes).map(Cow::Borrowed).map_err(|e| {
-        enc(format!("invalid UTF-8 at byte {} (only UTF-8 and UTF-16 with a byte-order mark are supported)", e.valid_up_to()))
-    })
+    std::str::from_utf8(bytes).map(Cow::Borrowed).map_err(|e| utf8_error(path, e.valid_up_to() as u64, false))
 }
 
-/// Joins lines ending in a backslash with the next line (an OBJ/MTL continuation).
+/// The error for an invalid UTF-8 sequence at byte `at` of the file (`bom`: the file starts
+/// with a UTF-8 byte-order mark, so it declared its encoding).
+fn utf8_error(path: &Path, at: u64, bom: bool) -> LoadError {
+    let message = if bom {
+        format!("invalid UTF-8 at byte {at}")
+    } else {
+        format!("invalid UTF-8 at byte {at} (only UTF-8 and UTF-16 with a byte-order mark are supported)")
+    };
+    LoadError::Encoding { path: path.to_path_buf(), message }
+}
+
+/// Joins lines ending in a backslash with the next line (an OBJ/MTL continuation). A line
+/// ends at `\n` or `\r\n`, as tobj reads it (so that the search below finds every
+/// continuation the copy joins).
 pub(super) fn join_continuations(text: &str) -> Cow<'_, str> {
     // Most files have none (a substring search is far cheaper than a copy line by line; a
     // backslash elsewhere, as in a Windows path, is no reason to copy).
-    if !text.contains("\\\n") && !text.contains("\\\r\n") && !text.ends_with('\\') {
+    if !text.contains("\\\n") && !text.contains("\\\r\n") && !text.ends_with('\\') && !text.ends_with("\\\r") {
         return Cow::Borrowed(text);
     }
     let mut out = String::with_capacity(text.len());
     for line in text.split_inclusive('\n') {
-        let trimmed = line.trim_end_matches(['\n', '\r']);
+        let trimmed = line.strip_suffix('\n').unwrap_or(line);
+        let trimmed = trimmed.strip_suffix('\r').unwrap_or(trimmed);
         if let Some(body) = trimmed.strip_suffix('\\') {
             out.push_str(body);
             out.push(' ');
@@ -481,5 +583,142 @@ mod tests {
             }
         }
         eprintln!("{seen} shared OBJ files compared");
+    }
+
+    /// `load_streamed` fed `bytes` `piece` bytes at a time, and the hash it computed.
+    fn streamed(path: &Path, bytes: &[u8], piece: usize) -> (Result<LoadedScene, LoadError>, String) {
+        let first = bytes[..piece.min(bytes.len())].to_vec();
+        let mut at = first.len();
+        let mut more = |b: &mut Vec<u8>| {
+            let end = (at + piece).min(bytes.len());
+            b.extend_from_slice(&bytes[at..end]);
+            at = end;
+            Ok(at < bytes.len())
+        };
+        let mut h = blake3::Hasher::new();
+        let r = load_streamed(path, first, &mut more, Some(&mut h), &LoadOptions { load_textures: false, ..Default::default() });
+        (r, h.finalize().to_hex().to_string())
+    }
+
+    /// Random OBJ texts (continuations, CRLF, a BOM, non-ASCII comments, materials and
+    /// objects, now and then a malformed line or an invalid byte) read piece by piece give
+    /// the scene or the error of the whole text, for pieces from one byte up, and the hash
+    /// of every byte.
+    #[test]
+    fn pieces_load_as_the_whole_text_loads() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move |n: u64| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x % n
+        };
+        let path = Path::new("random.obj");
+        let opts = LoadOptions { load_textures: false, ..Default::default() };
+        let (mut ok, mut failed) = (0, 0);
+        for case in 0..300 {
+            let mut t: Vec<u8> = Vec::new();
+            if case % 7 == 0 {
+                t.extend_from_slice(&[0xEF, 0xBB, 0xBF]);
+            }
+            let crlf = case % 3 == 0;
+            let mut lines: Vec<Vec<u8>> = (0..4).map(|i| format!("v {i} {} 0.{i}", i * i).into_bytes()).collect();
+            lines.push(b"vn 0 1 0".to_vec());
+            for _ in 0..next(30) + 5 {
+                let line: &str = match next(16) {
+                    0 => "vt 0.5 0.25",
+                    1 => "vn 0 0 1",
+                    2 => "f 1 2 3",
+                    3 => "f -1 -2 -3",
+                    4 => "f 1//1 2//1 3//1",
+                    5 => "f 1 2 3 4",
+                    6 => "o part",
+                    7 => "g group",
+                    8 => "usemtl missing",
+                    9 => "# commentaire: déjà vu",
+                    10 => "",
+                    11 => "f 1 2 \\\n3",
+                    12 => "v 0.25 0.5 \\\r\n0.75",
+                    13 => "   ",
+                    _ => "v 1 2 3",
+                };
+                lines.push(line.as_bytes().to_vec());
+            }
+            match next(10) {
+                0 => lines.push(b"f 0 1 2".to_vec()),
+                1 => {
+                    let k = 5 + next(lines.len() as u64 - 5) as usize;
+                    lines[k].push(0xFF);
+                }
+                _ => {}
+            }
+            for (i, l) in lines.iter().enumerate() {
+                t.extend_from_slice(l);
+                if i + 1 < lines.len() || case % 2 == 0 {
+                    t.extend_from_slice(if crlf { b"\r\n" } else { b"\n" });
+                }
+            }
+            let whole = load(path, &t, &opts);
+            for piece in [1, 2, 5, 17, 64, 1 << 20] {
+                let (r, hash) = streamed(path, &t, piece);
+                match (&whole, &r) {
+                    (Ok(a), Ok(b)) => {
+                        assert_eq!(format!("{a:?}"), format!("{b:?}"), "case {case}, pieces of {piece}");
+                        assert_eq!(hash, blake3::hash(&t).to_hex().to_string(), "case {case}");
+                    }
+                    (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string(), "case {case}, pieces of {piece}"),
+                    _ => panic!("case {case}, pieces of {piece}: {:?} whole, {:?} in pieces", whole.as_ref().err(), r.as_ref().err()),
+                }
+            }
+            if whole.is_ok() {
+                ok += 1;
+            } else {
+                failed += 1;
+            }
+        }
+        assert!(ok > 150 && failed > 30, "{ok} loaded, {failed} refused");
+    }
+
+    /// A piece ends after the last line end that does not continue its line.
+    #[test]
+    fn pieces_end_after_a_line_that_is_not_continued() {
+        assert_eq!(logical_line_end(b"a\nb"), Some(2));
+        assert_eq!(logical_line_end(b"a\\\nb\n"), Some(5));
+        assert_eq!(logical_line_end(b"a\nb\\\nc"), Some(2));
+        assert_eq!(logical_line_end(b"a\\\nb"), None);
+        assert_eq!(logical_line_end(b"a\\\r\n"), None);
+        assert_eq!(logical_line_end(b"a\r\n"), Some(3));
+        assert_eq!(logical_line_end(b"\n"), Some(1));
+        assert_eq!(logical_line_end(b"\\\n"), None);
+        assert_eq!(logical_line_end(b"abc"), None);
+    }
+
+    /// The search for continuations finds every line the copy joins: the borrowed text is
+    /// what the line-by-line copy gives (texts of backslashes, CRs, LFs and letters).
+    #[test]
+    fn continuations_are_found_wherever_they_are_joined() {
+        fn copy(text: &str) -> String {
+            let mut out = String::new();
+            for line in text.split_inclusive('\n') {
+                let trimmed = line.strip_suffix('\n').unwrap_or(line);
+                let trimmed = trimmed.strip_suffix('\r').unwrap_or(trimmed);
+                match trimmed.strip_suffix('\\') {
+                    Some(body) => {
+                        out.push_str(body);
+                        out.push(' ');
+                    }
+                    None => out.push_str(line),
+                }
+            }
+            out
+        }
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        for _ in 0..20_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let text: String = (0..(x % 9)).map(|i| ['a', '\\', '\r', '\n'][(x >> (8 + 2 * i) & 3) as usize]).collect();
+            assert_eq!(join_continuations(&text), copy(&text), "{text:?}");
+        }
     }
 }

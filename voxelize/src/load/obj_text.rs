@@ -124,127 +124,156 @@ impl Chunk {
 
 /// Bytes per chunk: large enough that a chunk's set-up is negligible, small enough that
 /// every thread gets many.
-const CHUNK_BYTES: usize = 1 << 20;
+pub(super) const CHUNK_BYTES: usize = 1 << 20;
 
 /// Parses `text` (calls `mtllib` for each `mtllib` statement, in file order, with the rest
 /// of its line; it returns the names of the materials the library adds, which `usemtl`
 /// then finds).
-pub(super) fn parse(text: &str, mtllib: impl FnMut(&str) -> Vec<String>) -> Result<Parsed, SyntaxError> {
+#[cfg(test)]
+fn parse(text: &str, mtllib: impl FnMut(&str) -> Vec<String>) -> Result<Parsed, SyntaxError> {
     parse_in_chunks(text, CHUNK_BYTES, mtllib)
 }
 
 /// [`parse`] with chunks of about `chunk_bytes` (whole lines).
-fn parse_in_chunks(text: &str, chunk_bytes: usize, mut mtllib: impl FnMut(&str) -> Vec<String>) -> Result<Parsed, SyntaxError> {
-    let bytes = text.as_bytes();
-    let mut cuts = vec![0];
-    while let Some(&last) = cuts.last() {
-        if last >= bytes.len() {
-            break;
+#[cfg(test)]
+fn parse_in_chunks(text: &str, chunk_bytes: usize, mtllib: impl FnMut(&str) -> Vec<String>) -> Result<Parsed, SyntaxError> {
+    let mut p = ChunkedParse::default();
+    p.add(text, chunk_bytes);
+    p.finish(mtllib)
+}
+
+/// A file's statements parsed as its text arrives, in pieces of whole lines ([`Self::add`]),
+/// then put together in file order ([`Self::finish`]): a reader streaming the file holds
+/// one piece of text at a time, not the file.
+#[derive(Default)]
+pub(super) struct ChunkedParse {
+    chunks: Vec<Chunk>,
+}
+
+impl ChunkedParse {
+    /// Parses `text`, the lines that follow those added before, on every thread in chunks of
+    /// about `chunk_bytes` (whole lines).
+    pub(super) fn add(&mut self, text: &str, chunk_bytes: usize) {
+        let bytes = text.as_bytes();
+        let mut cuts = vec![0];
+        while let Some(&last) = cuts.last() {
+            if last >= bytes.len() {
+                break;
+            }
+            let want = (last + chunk_bytes.max(1)).min(bytes.len());
+            // Cut after a line end (a chunk never splits a line).
+            let end = match bytes[want..].iter().position(|&b| b == b'\n') {
+                Some(i) => want + i + 1,
+                None => bytes.len(),
+            };
+            cuts.push(end);
         }
-        let want = (last + chunk_bytes.max(1)).min(bytes.len());
-        // Cut after a line end (a chunk never splits a line).
-        let end = match bytes[want..].iter().position(|&b| b == b'\n') {
-            Some(i) => want + i + 1,
-            None => bytes.len(),
+        self.chunks.par_extend(cuts.par_windows(2).map(|w| parse_chunk(&text[w[0]..w[1]])));
+    }
+
+    /// Whether a line added so far is malformed ([`Self::finish`] reports the first).
+    pub(super) fn failed(&self) -> bool {
+        self.chunks.iter().any(|c| c.error.is_some())
+    }
+
+    /// The statements of all the text added, in file order.
+    pub(super) fn finish(self, mut mtllib: impl FnMut(&str) -> Vec<String>) -> Result<Parsed, SyntaxError> {
+        let chunks = self.chunks;
+        // Counts before each chunk, and the first error in file order.
+        let mut before = Vec::with_capacity(chunks.len());
+        let (mut counts, mut lines, mut faces, mut corners) = (Counts::default(), 0usize, 0usize, 0usize);
+        for ch in &chunks {
+            if let Some(e) = &ch.error {
+                return Err(SyntaxError { line: lines + e.line, message: e.message.clone() });
+            }
+            before.push((counts, lines, faces, corners));
+            counts = counts.add(ch.counts());
+            lines += ch.lines;
+            faces += ch.arities.len();
+            corners += ch.corners.len();
+        }
+        let total = counts;
+        let mut p = Parsed {
+            positions: Vec::with_capacity(total.v),
+            colors: Vec::with_capacity(total.c),
+            texcoords: Vec::with_capacity(total.vt),
+            normals: Vec::with_capacity(total.vn),
+            corners: Vec::with_capacity(corners),
+            arities: Vec::with_capacity(faces),
+            models: Vec::new(),
         };
-        cuts.push(end);
-    }
-    let chunks: Vec<Chunk> = cuts.par_windows(2).map(|w| parse_chunk(&text[w[0]..w[1]])).collect();
-
-    // Counts before each chunk, and the first error in file order.
-    let mut before = Vec::with_capacity(chunks.len());
-    let (mut counts, mut lines, mut faces, mut corners) = (Counts::default(), 0usize, 0usize, 0usize);
-    for ch in &chunks {
-        if let Some(e) = &ch.error {
-            return Err(SyntaxError { line: lines + e.line, message: e.message.clone() });
-        }
-        before.push((counts, lines, faces, corners));
-        counts = counts.add(ch.counts());
-        lines += ch.lines;
-        faces += ch.arities.len();
-        corners += ch.corners.len();
-    }
-    let total = counts;
-    let mut p = Parsed {
-        positions: Vec::with_capacity(total.v),
-        colors: Vec::with_capacity(total.c),
-        texcoords: Vec::with_capacity(total.vt),
-        normals: Vec::with_capacity(total.vn),
-        corners: Vec::with_capacity(corners),
-        arities: Vec::with_capacity(faces),
-        models: Vec::new(),
-    };
-    // Models, from the events in file order.
-    let mut defined: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
-    let mut material_count = 0usize;
-    let mut open = ObjModel { name: UNNAMED.to_owned(), material: None, faces: 0..0, corners: 0..0, positions: 0, texcoords: 0, normals: 0, colors: 0 };
-    let end_model = |open: &mut ObjModel, face: usize, corner: usize, at: Counts, models: &mut Vec<ObjModel>| {
-        let name = open.name.clone();
-        let m = ObjModel { name, material: open.material, faces: open.faces.start..face, corners: open.corners.start..corner, positions: at.v, texcoords: at.vt, normals: at.vn, colors: at.c };
-        open.faces = face..face;
-        open.corners = corner..corner;
-        models.push(m);
-    };
-    for (ch, &(base, _, face0, corner0)) in chunks.iter().zip(&before) {
-        for (face_local, corner_local, at, ev) in &ch.events {
-            let (face, corner, at) = (face0 + face_local, corner0 + corner_local, base.add(*at));
-            let has_faces = face > open.faces.start;
-            match ev {
-                Event::Object(name) => {
-                    if has_faces {
-                        end_model(&mut open, face, corner, at, &mut p.models);
+        // Models, from the events in file order.
+        let mut defined: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
+        let mut material_count = 0usize;
+        let mut open = ObjModel { name: UNNAMED.to_owned(), material: None, faces: 0..0, corners: 0..0, positions: 0, texcoords: 0, normals: 0, colors: 0 };
+        let end_model = |open: &mut ObjModel, face: usize, corner: usize, at: Counts, models: &mut Vec<ObjModel>| {
+            let name = open.name.clone();
+            let m = ObjModel { name, material: open.material, faces: open.faces.start..face, corners: open.corners.start..corner, positions: at.v, texcoords: at.vt, normals: at.vn, colors: at.c };
+            open.faces = face..face;
+            open.corners = corner..corner;
+            models.push(m);
+        };
+        for (ch, &(base, _, face0, corner0)) in chunks.iter().zip(&before) {
+            for (face_local, corner_local, at, ev) in &ch.events {
+                let (face, corner, at) = (face0 + face_local, corner0 + corner_local, base.add(*at));
+                let has_faces = face > open.faces.start;
+                match ev {
+                    Event::Object(name) => {
+                        if has_faces {
+                            end_model(&mut open, face, corner, at, &mut p.models);
+                        }
+                        open.name = if name.is_empty() { UNNAMED.to_owned() } else { name.clone() };
                     }
-                    open.name = if name.is_empty() { UNNAMED.to_owned() } else { name.clone() };
-                }
-                Event::UseMtl(name) => {
-                    let new = defined.get(name).copied();
-                    if open.material != new && has_faces {
-                        end_model(&mut open, face, corner, at, &mut p.models);
+                    Event::UseMtl(name) => {
+                        let new = defined.get(name).copied();
+                        if open.material != new && has_faces {
+                            end_model(&mut open, face, corner, at, &mut p.models);
+                        }
+                        open.material = new;
                     }
-                    open.material = new;
-                }
-                Event::MtlLib(file) => {
-                    // The library's materials follow the ones before; a name defined again
-                    // means the later one.
-                    let names = mtllib(file);
-                    for (k, name) in names.iter().enumerate() {
-                        defined.insert(name.clone(), material_count + k);
+                    Event::MtlLib(file) => {
+                        // The library's materials follow the ones before; a name defined again
+                        // means the later one.
+                        let names = mtllib(file);
+                        for (k, name) in names.iter().enumerate() {
+                            defined.insert(name.clone(), material_count + k);
+                        }
+                        material_count += names.len();
                     }
-                    material_count += names.len();
                 }
             }
         }
-    }
-    end_model(&mut open, faces, corners, total, &mut p.models);
+        end_model(&mut open, faces, corners, total, &mut p.models);
 
-    // Elements and corners in file order, each chunk freed once copied (the peak holds one
-    // chunk twice, not the file); negative indices resolved against the elements before
-    // their chunk.
-    for (ch, &(base, lines0, _, _)) in chunks.into_iter().zip(&before) {
-        p.positions.extend_from_slice(&ch.positions);
-        p.colors.extend_from_slice(&ch.colors);
-        p.texcoords.extend_from_slice(&ch.texcoords);
-        p.normals.extend_from_slice(&ch.normals);
-        p.arities.extend_from_slice(&ch.arities);
-        let start = p.corners.len();
-        p.corners.extend_from_slice(&ch.corners);
-        for r in &ch.relative {
-            let b = [base.v, base.vt, base.vn][r.component] as i64;
-            let v = b + r.local;
-            match u32::try_from(v) {
-                Ok(v) if v != MISSING => p.corners[start + r.corner][r.component] = v,
-                _ => {
-                    let message = if v < 0 {
-                        format!("a relative index points {} elements before the first of its kind", -v)
-                    } else {
-                        format!("a relative index resolves to {v}, too large")
-                    };
-                    return Err(SyntaxError { line: lines0 + r.line, message });
+        // Elements and corners in file order, each chunk freed once copied (the peak holds one
+        // chunk twice, not the file); negative indices resolved against the elements before
+        // their chunk.
+        for (ch, &(base, lines0, _, _)) in chunks.into_iter().zip(&before) {
+            p.positions.extend_from_slice(&ch.positions);
+            p.colors.extend_from_slice(&ch.colors);
+            p.texcoords.extend_from_slice(&ch.texcoords);
+            p.normals.extend_from_slice(&ch.normals);
+            p.arities.extend_from_slice(&ch.arities);
+            let start = p.corners.len();
+            p.corners.extend_from_slice(&ch.corners);
+            for r in &ch.relative {
+                let b = [base.v, base.vt, base.vn][r.component] as i64;
+                let v = b + r.local;
+                match u32::try_from(v) {
+                    Ok(v) if v != MISSING => p.corners[start + r.corner][r.component] = v,
+                    _ => {
+                        let message = if v < 0 {
+                            format!("a relative index points {} elements before the first of its kind", -v)
+                        } else {
+                            format!("a relative index resolves to {v}, too large")
+                        };
+                        return Err(SyntaxError { line: lines0 + r.line, message });
+                    }
                 }
             }
         }
+        Ok(p)
     }
-    Ok(p)
 }
 
 /// The whitespace-separated words of a line, as `str::split_whitespace` gives them: on
