@@ -8,7 +8,8 @@ Tasks (the peers each do the same job as ours, on the same input, for the same p
   points -> LOD    sct-build-tree on those samples  vs copc_converter on a LAS of them
   dense mesh       sct-build-tree, one step         vs open3d and trimesh mesh -> points,
                    the same mesh as binary PLY, OBJ and GLB
-  threads          ours with 1 and 2 threads (RAYON_NUM_THREADS)
+  threads          ours with 1 and 2 threads (RAYON_NUM_THREADS), and the machine's ceiling:
+                   a CPU-only loop split over 1 or 2 processes
 Every run is a whole process timed by /usr/bin/time (wall, user + system CPU, peak RSS).
 Outputs are removed before each run. Medians over the rounds; a round runs every tool once,
 the order of ours and the peers alternating between rounds.
@@ -38,6 +39,22 @@ pts, face = trimesh.sample.sample_surface(m, int(sys.argv[2]))
 trimesh.PointCloud(pts).export(sys.argv[3])
 """,
 }
+
+
+# The machine's own 1 -> 2 ceiling: a fixed amount of CPU-only work (no shared data, no
+# memory traffic) split over 1 or 2 processes. On a shared VM two busy vCPUs do not each run
+# at the speed of one.
+CPU_LOOP = """
+import sys, multiprocessing as mp
+def spin(n):
+    x = 0
+    for i in range(n):
+        x += i * i
+    return x
+k = int(sys.argv[1])
+with mp.get_context("fork").Pool(k) as p:
+    p.map(spin, [24_000_000 // k] * k)
+"""
 
 
 def timed(cmd, env=None):
@@ -99,6 +116,9 @@ las.red, las.green, las.blue = (a["c"][:, k].astype(np.uint16) * 257 for k in ra
 las.write(sys.argv[2])
 """
     subprocess.run([py, "-c", code, str(ply), str(las)], check=True)
+
+
+CEILING = "CPU-only loop, 1 or 2 processes (the machine's ceiling)"
 
 
 def main():
@@ -175,6 +195,7 @@ def main():
             mesh, smp, n, _ = prep["dragon"]
             run(("threads", "dragon, sct-voxelize", threads), [vox, mesh, "-o", out / "thr.samples"], out / "thr.samples", n, env)
             run(("threads", "dragon, sct-build-tree", threads), [build, smp, "-o", out / "thr.sct"], out / "thr.sct", n, env)
+            runs.setdefault(("threads", CEILING, threads), []).append(timed([sys.executable, "-c", CPU_LOOP, threads]))
         print(f"round {rnd + 1}/{a.rounds} done", file=sys.stderr)
 
     def med(key, i):
@@ -202,7 +223,7 @@ def main():
     print()
     print("| threads | tool | 1 thread s | 2 threads s | speed-up |")
     print("|---|---|---:|---:|---:|")
-    for inp in ("dragon, sct-voxelize", "dragon, sct-build-tree"):
+    for inp in ("dragon, sct-voxelize", "dragon, sct-build-tree", CEILING):
         one, two = med(("threads", inp, "1"), 0), med(("threads", inp, "2"), 0)
         print(f"| 1 -> 2 | {inp} | {one:.2f} | {two:.2f} | {one / two:.2f}× |")
 
