@@ -304,6 +304,17 @@ fn bind_texture_override(scene: &mut LoadedScene, tex: &Path, opts: &LoadOptions
     Ok(())
 }
 
+/// The index of the first item (in order) for which `f` holds, looked for on every thread: by
+/// chunks, then within the first chunk that has one (rayon's `position_first` pays for its
+/// bookkeeping on every item: 0.17 s for the dense bunny's 13 M corners, against 0.02 s).
+pub(crate) fn first_where<T: Sync>(items: &[T], f: impl Fn(&T) -> bool + Sync) -> Option<usize> {
+    use rayon::prelude::*;
+    const CHUNK: usize = 1 << 14;
+    let k = items.par_chunks(CHUNK).position_first(|ch| ch.iter().any(&f))?;
+    let at = k * CHUNK;
+    items[at..].iter().position(&f).map(|i| at + i)
+}
+
 /// Checks a primitive's data (finite values; indices were checked by the loader) and drops
 /// zero-area triangles, counting them.
 pub(crate) fn finish_primitive(
@@ -313,9 +324,9 @@ pub(crate) fn finish_primitive(
     stats: &mut LoadStats,
 ) -> Result<(), LoadError> {
     use rayon::prelude::*;
-    // Checked in parallel; `position_first` finds the first fault, the one a serial scan
+    // Checked in parallel; `first_where` finds the first fault, the one a serial scan
     // would report.
-    if let Some(i) = p.positions.par_iter().position_first(|v| !v.iter().all(|c| c.is_finite())) {
+    if let Some(i) = first_where(&p.positions, |v| !v.iter().all(|c| c.is_finite())) {
         return Err(LoadError::NonFinite { path: path.to_path_buf(), element: format!("position of {what}"), index: i as u64 });
     }
     if let Some(n) = &mut p.normals {
@@ -324,17 +335,17 @@ pub(crate) fn finish_primitive(
         n.par_iter_mut().filter(|v| !v.iter().all(|c| c.is_finite())).for_each(|v| *v = [0.0; 3]);
     }
     for (k, set) in p.uvs.iter_mut().enumerate() {
-        if let Some(i) = set.par_iter().position_first(|v| !v.iter().all(|c| c.is_finite())) {
+        if let Some(i) = first_where(set, |v| !v.iter().all(|c| c.is_finite())) {
             return Err(LoadError::NonFinite { path: path.to_path_buf(), element: format!("TEXCOORD_{k} of {what}"), index: i as u64 });
         }
     }
     if let Some(c) = &p.colors {
-        if let Some(i) = c.par_iter().position_first(|v| !v.iter().all(|c| c.is_finite())) {
+        if let Some(i) = first_where(c, |v| !v.iter().all(|c| c.is_finite())) {
             return Err(LoadError::NonFinite { path: path.to_path_buf(), element: format!("colour of {what}"), index: i as u64 });
         }
     }
     let n = p.positions.len() as u64;
-    if let Some(i) = p.triangles.par_iter().position_first(|t| t.iter().any(|&v| u64::from(v) >= n)) {
+    if let Some(i) = first_where(&p.triangles, |t| t.iter().any(|&v| u64::from(v) >= n)) {
         let value = p.triangles[i].iter().map(|&v| u64::from(v)).find(|&v| v >= n).unwrap_or(n);
         return Err(LoadError::IndexOutOfRange { path: path.to_path_buf(), element: format!("triangle of {what}"), index: i as u64, value, count: n });
     }
@@ -388,6 +399,22 @@ mod tests {
         assert!(matches!(load(&fifo, &LoadOptions::default()), Err(LoadError::NotRegularFile { kind: "a FIFO", .. })));
         assert!(matches!(load(dir.path(), &LoadOptions::default()), Err(LoadError::NotRegularFile { kind: "a directory", .. })));
         assert!(matches!(load(Path::new("/dev/zero"), &LoadOptions::default()), Err(LoadError::NotRegularFile { .. })));
+    }
+
+    /// The first item found on every thread is the first in order, wherever the chunks end.
+    #[test]
+    fn first_where_finds_the_first_in_order() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        for case in 0..200 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let len = (x % 100_000) as usize;
+            let every = 1 + (x >> 20) % 50_000;
+            let items: Vec<u64> = (0..len as u64).map(|i| i.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 40).collect();
+            let f = |v: &u64| v % every == (case % 3) as u64;
+            assert_eq!(first_where(&items, f), items.iter().position(f), "case {case}");
+        }
     }
 
     /// A file read in pieces gives its bytes, says when none are left, and never reads past

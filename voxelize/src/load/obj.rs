@@ -253,7 +253,7 @@ fn positions_only_primitive(path: &Path, what: &str, parsed: &obj_text::Parsed, 
     let has_vc = model.colors > 0 && !corners.is_empty();
     // The first corner in file order whose index is out of range, as the walk reports it.
     let bad = |k: &[u32; 3]| k[0] as usize >= model.positions || (has_vc && k[0] as usize >= model.colors);
-    if let Some(c) = corners.par_iter().position_first(bad) {
+    if let Some(c) = super::first_where(corners, bad) {
         let p = corners[c][0];
         return Err(if p as usize >= model.positions {
             index_error(path, what, "face vertex index", c, p, model.positions)

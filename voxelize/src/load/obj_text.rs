@@ -193,13 +193,14 @@ impl ChunkedParse {
             corners += ch.corners.len();
         }
         let total = counts;
+        // Zeroed by the allocator (fresh pages): each is written once, below, on every thread.
         let mut p = Parsed {
-            positions: Vec::with_capacity(total.v),
-            colors: Vec::with_capacity(total.c),
-            texcoords: Vec::with_capacity(total.vt),
-            normals: Vec::with_capacity(total.vn),
-            corners: Vec::with_capacity(corners),
-            arities: Vec::with_capacity(faces),
+            positions: vec![[0.0; 3]; total.v],
+            colors: vec![[0.0; 3]; total.c],
+            texcoords: vec![[0.0; 2]; total.vt],
+            normals: vec![[0.0; 3]; total.vn],
+            corners: vec![[0; 3]; corners],
+            arities: vec![0; faces],
             models: Vec::new(),
         };
         // Models, from the events in file order.
@@ -245,35 +246,83 @@ impl ChunkedParse {
         }
         end_model(&mut open, faces, corners, total, &mut p.models);
 
-        // Elements and corners in file order, each chunk freed once copied (the peak holds one
-        // chunk twice, not the file); negative indices resolved against the elements before
-        // their chunk.
-        for (ch, &(base, lines0, _, _)) in chunks.into_iter().zip(&before) {
-            p.positions.extend_from_slice(&ch.positions);
-            p.colors.extend_from_slice(&ch.colors);
-            p.texcoords.extend_from_slice(&ch.texcoords);
-            p.normals.extend_from_slice(&ch.normals);
-            p.arities.extend_from_slice(&ch.arities);
-            let start = p.corners.len();
-            p.corners.extend_from_slice(&ch.corners);
-            for r in &ch.relative {
-                let b = [base.v, base.vt, base.vn][r.component] as i64;
-                let v = b + r.local;
-                match u32::try_from(v) {
-                    Ok(v) if v != MISSING => p.corners[start + r.corner][r.component] = v,
-                    _ => {
-                        let message = if v < 0 {
-                            format!("a relative index points {} elements before the first of its kind", -v)
-                        } else {
-                            format!("a relative index resolves to {v}, too large")
-                        };
-                        return Err(SyntaxError { line: lines0 + r.line, message });
+        // Elements and corners in file order, copied on every thread into each chunk's part
+        // of the arrays, each chunk freed once copied (the peak holds the chunks in flight
+        // twice, not the file); negative indices resolved against the elements before their
+        // chunk. The first error in file order is the first chunk's that has one.
+        let parts: Vec<Part> = {
+            let sizes = |f: fn(&Chunk) -> usize| chunks.iter().map(f).collect::<Vec<_>>();
+            let mut positions = split_into(&mut p.positions, sizes(|c| c.positions.len()));
+            let mut colors = split_into(&mut p.colors, sizes(|c| c.colors.len()));
+            let mut texcoords = split_into(&mut p.texcoords, sizes(|c| c.texcoords.len()));
+            let mut normals = split_into(&mut p.normals, sizes(|c| c.normals.len()));
+            let mut corners = split_into(&mut p.corners, sizes(|c| c.corners.len()));
+            let mut arities = split_into(&mut p.arities, sizes(|c| c.arities.len()));
+            (0..chunks.len())
+                .map(|_| Part {
+                    positions: positions.pop_front().unwrap_or_default(),
+                    colors: colors.pop_front().unwrap_or_default(),
+                    texcoords: texcoords.pop_front().unwrap_or_default(),
+                    normals: normals.pop_front().unwrap_or_default(),
+                    corners: corners.pop_front().unwrap_or_default(),
+                    arities: arities.pop_front().unwrap_or_default(),
+                })
+                .collect()
+        };
+        let copied: Vec<Result<(), SyntaxError>> = chunks
+            .into_par_iter()
+            .zip(parts)
+            .zip(&before)
+            .map(|((ch, part), &(base, lines0, _, _))| {
+                part.positions.copy_from_slice(&ch.positions);
+                part.colors.copy_from_slice(&ch.colors);
+                part.texcoords.copy_from_slice(&ch.texcoords);
+                part.normals.copy_from_slice(&ch.normals);
+                part.arities.copy_from_slice(&ch.arities);
+                part.corners.copy_from_slice(&ch.corners);
+                for r in &ch.relative {
+                    let b = [base.v, base.vt, base.vn][r.component] as i64;
+                    let v = b + r.local;
+                    match u32::try_from(v) {
+                        Ok(v) if v != MISSING => part.corners[r.corner][r.component] = v,
+                        _ => {
+                            let message = if v < 0 {
+                                format!("a relative index points {} elements before the first of its kind", -v)
+                            } else {
+                                format!("a relative index resolves to {v}, too large")
+                            };
+                            return Err(SyntaxError { line: lines0 + r.line, message });
+                        }
                     }
                 }
-            }
-        }
+                Ok(())
+            })
+            .collect();
+        copied.into_iter().collect::<Result<(), _>>()?;
         Ok(p)
     }
+}
+
+/// One chunk's part of the file's arrays.
+struct Part<'a> {
+    positions: &'a mut [[f32; 3]],
+    colors: &'a mut [[f32; 3]],
+    texcoords: &'a mut [[f32; 2]],
+    normals: &'a mut [[f32; 3]],
+    corners: &'a mut [[u32; 3]],
+    arities: &'a mut [u32],
+}
+
+/// `all` cut into consecutive parts of the given sizes (which sum to its length).
+fn split_into<T>(mut all: &mut [T], sizes: Vec<usize>) -> std::collections::VecDeque<&mut [T]> {
+    sizes
+        .into_iter()
+        .map(|n| {
+            let (part, rest) = std::mem::take(&mut all).split_at_mut(n);
+            all = rest;
+            part
+        })
+        .collect()
 }
 
 /// The whitespace-separated words of a line, as `str::split_whitespace` gives them: on
