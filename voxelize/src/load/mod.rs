@@ -78,8 +78,10 @@ fn obj_piece_bytes() -> usize {
 fn read_and_load(path: &Path, opts: &LoadOptions, hash: bool, piece: usize) -> Result<(LoadedScene, Option<String>), LoadError> {
     let mut file = PieceReader::open(path, opts.max_file_bytes)?;
     let mut bytes = Vec::new();
-    let more = file.read_more(&mut bytes, piece)?;
-    if more && matches!(kind_of(path, &bytes, file.len)?, Kind::Obj) && obj::streams(&bytes) {
+    // The head decides: a large UTF-8 OBJ is read piece by piece, anything else whole into
+    // one buffer of its size (not a piece's buffer grown, which would copy the piece).
+    let more = file.read_more(&mut bytes, sniff::SNIFF_BYTES)?;
+    if more && file.len > piece as u64 && matches!(kind_of(path, &bytes, file.len)?, Kind::Obj) && obj::streams(&bytes) {
         let mut hasher = hash.then(blake3::Hasher::new);
         let scene = guarded(path, Kind::Obj, || obj::load_streamed(path, bytes, &mut |b| file.read_more(b, piece), hasher.as_mut(), opts))?;
         let scene = finish_scene(path, scene, opts)?;
