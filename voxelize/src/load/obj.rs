@@ -51,11 +51,15 @@ pub(super) fn load_streamed(
     // File offset of `buf[0]`; the bytes of `buf` from `fresh` on are not hashed yet.
     let (mut at, mut fresh) = (0u64, 0usize);
     let mut start = if bom { 3 } else { 0 };
+    // No line end before this index ends a piece (each byte is searched once: a file of
+    // continued lines must not be searched again for every piece read).
+    let mut searched = start;
     let mut parse = ChunkedParse::default();
     loop {
-        let cut = if done { Some(buf.len()) } else { logical_line_end(&buf[start..]).map(|e| start + e) };
+        let cut = if done { Some(buf.len()) } else { logical_line_end(&buf, searched) };
         let Some(cut) = cut else {
             // Not one whole line yet.
+            searched = buf.len();
             done = !more(&mut buf)?;
             continue;
         };
@@ -83,17 +87,20 @@ pub(super) fn load_streamed(
         at += cut as u64;
         fresh = buf.len();
         start = 0;
+        searched = 0;
         done = !more(&mut buf)?;
     }
     drop(buf);
     load_parsed(path, parse, opts)
 }
 
-/// Just past the last line end in `b` that does not continue its line: a `\n` (or `\r\n`)
-/// with no backslash before it (see [`join_continuations`]).
-fn logical_line_end(b: &[u8]) -> Option<usize> {
+/// Just past the last line end in `b`, at or after `from`, that does not continue its line: a
+/// `\n` (or `\r\n`) with no backslash before it (see [`join_continuations`]).
+fn logical_line_end(b: &[u8], from: usize) -> Option<usize> {
+    let from = from.min(b.len());
     let mut end = b.len();
-    while let Some(i) = b[..end].iter().rposition(|&c| c == b'\n') {
+    while let Some(i) = b[from..end].iter().rposition(|&c| c == b'\n') {
+        let i = from + i;
         let line = &b[..i];
         let line = line.strip_suffix(b"\r").unwrap_or(line);
         if !line.ends_with(b"\\") {
@@ -748,18 +755,38 @@ mod tests {
         assert!(ok > 150 && failed > 30, "{ok} loaded, {failed} refused");
     }
 
+    /// A file whose lines all continue is searched for a line end once, not again for every
+    /// piece read (300,000 one-byte pieces here: searching the buffer again each time would
+    /// take minutes), and loads as it does whole.
+    #[test]
+    fn continued_lines_are_searched_once() {
+        let mut t = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 \\\n".to_vec();
+        while t.len() < 300_000 {
+            t.extend_from_slice(b"\\\n");
+        }
+        t.extend_from_slice(b"3\n");
+        let whole = load(Path::new("c.obj"), &t, &LoadOptions { load_textures: false, ..Default::default() });
+        let (pieces, _) = streamed(Path::new("c.obj"), &t, 1);
+        assert_eq!(format!("{:?}", whole.map(|s| s.meshes)), format!("{:?}", pieces.map(|s| s.meshes)));
+    }
+
     /// A piece ends after the last line end that does not continue its line.
     #[test]
     fn pieces_end_after_a_line_that_is_not_continued() {
-        assert_eq!(logical_line_end(b"a\nb"), Some(2));
-        assert_eq!(logical_line_end(b"a\\\nb\n"), Some(5));
-        assert_eq!(logical_line_end(b"a\nb\\\nc"), Some(2));
-        assert_eq!(logical_line_end(b"a\\\nb"), None);
-        assert_eq!(logical_line_end(b"a\\\r\n"), None);
-        assert_eq!(logical_line_end(b"a\r\n"), Some(3));
-        assert_eq!(logical_line_end(b"\n"), Some(1));
-        assert_eq!(logical_line_end(b"\\\n"), None);
-        assert_eq!(logical_line_end(b"abc"), None);
+        assert_eq!(logical_line_end(b"a\nb", 0), Some(2));
+        assert_eq!(logical_line_end(b"a\\\nb\n", 0), Some(5));
+        assert_eq!(logical_line_end(b"a\nb\\\nc", 0), Some(2));
+        assert_eq!(logical_line_end(b"a\\\nb", 0), None);
+        assert_eq!(logical_line_end(b"a\\\r\n", 0), None);
+        assert_eq!(logical_line_end(b"a\r\n", 0), Some(3));
+        assert_eq!(logical_line_end(b"\n", 0), Some(1));
+        assert_eq!(logical_line_end(b"\\\n", 0), None);
+        assert_eq!(logical_line_end(b"abc", 0), None);
+        // Only line ends at or after `from`; the backslash before one may lie before it.
+        assert_eq!(logical_line_end(b"a\nb\nc", 3), Some(4));
+        assert_eq!(logical_line_end(b"a\nb\nc", 4), None);
+        assert_eq!(logical_line_end(b"a\\\nb", 2), None);
+        assert_eq!(logical_line_end(b"a\\\r\nb\n", 3), Some(6));
     }
 
     /// The search for continuations finds every line the copy joins: the borrowed text is
