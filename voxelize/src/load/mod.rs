@@ -406,11 +406,9 @@ mod tests {
     /// The first item found on every thread is the first in order, wherever the chunks end.
     #[test]
     fn first_where_finds_the_first_in_order() {
-        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut rng = sct_format::rng::SplitMix64(5);
         for case in 0..200 {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
+            let x = rng.next_u64();
             let len = (x % 100_000) as usize;
             let every = 1 + (x >> 20) % 50_000;
             let items: Vec<u64> = (0..len as u64).map(|i| i.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 40).collect();

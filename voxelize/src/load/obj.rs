@@ -237,8 +237,8 @@ fn model_primitive(
     first: &mut [u32],
     stats: &mut LoadStats,
 ) -> Result<Primitive, LoadError> {
-    let triangles_only = opts.max_face_corners >= 3 && parsed.arities[model.faces.clone()].par_iter().all(|&a| a == 3);
-    if model.texcoords == 0 && model.normals == 0 && triangles_only {
+    let positions_only = model.texcoords == 0 && model.normals == 0;
+    if positions_only && opts.max_face_corners >= 3 && parsed.arities[model.faces.clone()].par_iter().all(|&a| a == 3) {
         return positions_only_primitive(path, what, parsed, model);
     }
     walked_primitive(path, what, parsed, model, opts, first, stats)
@@ -285,18 +285,15 @@ fn positions_only_primitive(path: &Path, what: &str, parsed: &obj_text::Parsed, 
     let at = |k: &[u32; 3]| vertex[k[0] as usize].load(Relaxed);
     Ok(Primitive {
         positions: order.par_iter().map(|&p| parsed.positions[p as usize]).collect(),
-        colors: has_vc.then(|| {
-            order
-                .par_iter()
-                .map(|&p| {
-                    let c = parsed.colors[p as usize];
-                    [srgb_to_linear(c[0]), srgb_to_linear(c[1]), srgb_to_linear(c[2]), 1.0]
-                })
-                .collect()
-        }),
+        colors: has_vc.then(|| order.par_iter().map(|&p| vertex_color(parsed.colors[p as usize])).collect()),
         triangles: corners.par_chunks_exact(3).map(|t| [at(&t[0]), at(&t[1]), at(&t[2])]).collect(),
         ..Primitive::default()
     })
+}
+
+/// An OBJ vertex colour (`v x y z r g b`, sRGB) as a linear, opaque vertex colour.
+fn vertex_color(c: [f32; 3]) -> [f32; 4] {
+    [srgb_to_linear(c[0]), srgb_to_linear(c[1]), srgb_to_linear(c[2]), 1.0]
 }
 
 /// A model's primitive, walking its corners in file order: each (position, uv, normal)
@@ -372,8 +369,7 @@ fn walked_primitive(
             normals.push(parsed.normals[n as usize]);
         }
         if has_vc {
-            let c = parsed.colors[pi];
-            colors.push([srgb_to_linear(c[0]), srgb_to_linear(c[1]), srgb_to_linear(c[2]), 1.0]);
+            colors.push(vertex_color(parsed.colors[pi]));
         }
         Ok(v)
     };
@@ -682,13 +678,8 @@ mod tests {
     /// of every byte.
     #[test]
     fn pieces_load_as_the_whole_text_loads() {
-        let mut x = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move |n: u64| {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x % n
-        };
+        let mut rng = sct_format::rng::SplitMix64(11);
+        let mut next = move |n: u64| rng.next_u64() % n;
         let path = Path::new("random.obj");
         let opts = LoadOptions { load_textures: false, ..Default::default() };
         let (mut ok, mut failed) = (0, 0);
@@ -808,11 +799,9 @@ mod tests {
             }
             out
         }
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rng = sct_format::rng::SplitMix64(3);
         for _ in 0..20_000 {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
+            let x = rng.next_u64();
             let text: String = (0..(x % 9)).map(|i| ['a', '\\', '\r', '\n'][(x >> (8 + 2 * i) & 3) as usize]).collect();
             assert_eq!(join_continuations(&text), copy(&text), "{text:?}");
         }
@@ -823,13 +812,8 @@ mod tests {
     /// colours with them), and refused at the same corner with the same error.
     #[test]
     fn positions_only_models_are_numbered_as_the_walk_numbers_them() {
-        let mut x = 0x853c_49e6_748f_ea9bu64;
-        let mut next = move |n: u64| {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x % n.max(1)
-        };
+        let mut rng = sct_format::rng::SplitMix64(13);
+        let mut next = move |n: u64| rng.next_u64() % n.max(1);
         let path = Path::new("m.obj");
         let (mut ok, mut refused) = (0, 0);
         for case in 0..400 {
