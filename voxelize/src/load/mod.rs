@@ -8,6 +8,7 @@ mod obj;
 mod obj_text;
 mod ply;
 pub mod sniff;
+mod vertex_order;
 
 use std::path::{Path, PathBuf};
 

@@ -239,7 +239,9 @@ fn model_primitive(
 ) -> Result<Primitive, LoadError> {
     let positions_only = model.texcoords == 0 && model.normals == 0;
     if positions_only && opts.max_face_corners >= 3 && parsed.arities[model.faces.clone()].par_iter().all(|&a| a == 3) {
-        return positions_only_primitive(path, what, parsed, model);
+        if let Some(prim) = positions_only_primitive(path, what, parsed, model)? {
+            return Ok(prim);
+        }
     }
     walked_primitive(path, what, parsed, model, opts, first, stats)
 }
@@ -252,10 +254,10 @@ fn index_error(path: &Path, what: &str, element: &str, c: usize, value: u32, cou
 /// [`walked_primitive`] of a model of triangles whose corners name positions only (scans):
 /// one vertex per position used, numbered in the order of first use, found on every thread
 /// (the walk takes a tenth of a second per million triangles on one). The vertex of a
-/// position is its rank among the corners that use a position first: each position's first
-/// corner is a parallel minimum, the ranks a prefix sum over chunks of corners.
-fn positions_only_primitive(path: &Path, what: &str, parsed: &obj_text::Parsed, model: &obj_text::ObjModel) -> Result<Primitive, LoadError> {
-    use std::sync::atomic::{AtomicU32, AtomicUsize, Ordering::Relaxed};
+/// position is its rank among the corners that use a position first
+/// ([`super::vertex_order::first_use_order`]).
+/// `None` for a model of 2^32 − 1 corners or more, which the walk numbers.
+fn positions_only_primitive(path: &Path, what: &str, parsed: &obj_text::Parsed, model: &obj_text::ObjModel) -> Result<Option<Primitive>, LoadError> {
     let corners = &parsed.corners[model.corners.clone()];
     let has_vc = model.colors > 0 && !corners.is_empty();
     // The first corner in file order whose index is out of range, as the walk reports it.
@@ -268,27 +270,14 @@ fn positions_only_primitive(path: &Path, what: &str, parsed: &obj_text::Parsed, 
             index_error(path, what, "vertex colour of face vertex index", c, p, model.colors)
         });
     }
-    let first_use: Vec<AtomicUsize> = (0..model.positions).into_par_iter().map(|_| AtomicUsize::new(usize::MAX)).collect();
-    corners.par_iter().enumerate().for_each(|(c, k)| {
-        first_use[k[0] as usize].fetch_min(c, Relaxed);
-    });
-    const CHUNK: usize = 1 << 16;
-    let is_first = |c: usize, k: &[u32; 3]| first_use[k[0] as usize].load(Relaxed) == c;
-    // The positions first used in each chunk, in order: concatenated, the vertices' positions.
-    let order: Vec<u32> = corners
-        .par_chunks(CHUNK)
-        .enumerate()
-        .flat_map_iter(|(i, ch)| ch.iter().enumerate().filter(move |&(j, k)| is_first(i * CHUNK + j, k)).map(|(_, k)| k[0]))
-        .collect();
-    let vertex: Vec<AtomicU32> = (0..model.positions).into_par_iter().map(|_| AtomicU32::new(u32::MAX)).collect();
-    order.par_iter().enumerate().for_each(|(v, &p)| vertex[p as usize].store(v as u32, Relaxed));
-    let at = |k: &[u32; 3]| vertex[k[0] as usize].load(Relaxed);
-    Ok(Primitive {
+    let Some((order, vertex)) = super::vertex_order::first_use_order(model.positions, corners.len(), |c| corners[c][0]) else { return Ok(None) };
+    let at = |k: &[u32; 3]| vertex[k[0] as usize].load(std::sync::atomic::Ordering::Relaxed);
+    Ok(Some(Primitive {
         positions: order.par_iter().map(|&p| parsed.positions[p as usize]).collect(),
         colors: has_vc.then(|| order.par_iter().map(|&p| vertex_color(parsed.colors[p as usize])).collect()),
         triangles: corners.par_chunks_exact(3).map(|t| [at(&t[0]), at(&t[1]), at(&t[2])]).collect(),
         ..Primitive::default()
-    })
+    }))
 }
 
 /// An OBJ vertex colour (`v x y z r g b`, sRGB) as a linear, opaque vertex colour.
@@ -847,7 +836,7 @@ mod tests {
             let walked = walked_primitive(path, "object", &parsed, &model, &LoadOptions::default(), &mut first, &mut LoadStats::default());
             let fast = positions_only_primitive(path, "object", &parsed, &model);
             match (walked, fast) {
-                (Ok(a), Ok(b)) => {
+                (Ok(a), Ok(Some(b))) => {
                     assert_eq!(format!("{a:?}"), format!("{b:?}"), "case {case}");
                     ok += 1;
                 }
