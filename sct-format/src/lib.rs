@@ -50,6 +50,7 @@ pub mod fsio;
 pub mod graph;
 pub mod geometry;
 pub mod limits;
+pub mod memory;
 pub mod node;
 pub mod raw;
 pub mod read;

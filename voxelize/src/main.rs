@@ -50,6 +50,7 @@ struct Cli {
 }
 
 fn main() -> ExitCode {
+    sct_format::memory::map_large_allocations();
     let cli = Cli::parse();
     voxelize::interrupt::remove_temp_files_on_signal("sct-voxelize");
     if let Some(t) = cli.threads {
