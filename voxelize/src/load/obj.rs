@@ -256,6 +256,7 @@ fn index_error(path: &Path, what: &str, element: &str, c: usize, value: u32, cou
 /// (the walk takes a tenth of a second per million triangles on one). The vertex of a
 /// position is its rank among the corners that use a position first
 /// ([`super::vertex_order::first_use_order`]).
+///
 /// `None` for a model of 2^32 − 1 corners or more, which the walk numbers.
 fn positions_only_primitive(path: &Path, what: &str, parsed: &obj_text::Parsed, model: &obj_text::ObjModel) -> Result<Option<Primitive>, LoadError> {
     let corners = &parsed.corners[model.corners.clone()];
