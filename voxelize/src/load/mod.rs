@@ -82,7 +82,7 @@ fn read_and_load(path: &Path, opts: &LoadOptions, hash: bool, piece: usize) -> R
     // The head decides: a large UTF-8 OBJ is read piece by piece, anything else whole into
     // one buffer of its size (not a piece's buffer grown, which would copy the piece).
     let more = file.read_more(&mut bytes, sniff::SNIFF_BYTES)?;
-    if more && file.len > piece as u64 && matches!(kind_of(path, &bytes, file.len)?, Kind::Obj) && obj::streams(&bytes) {
+    if more && file.file.len() > piece as u64 && matches!(kind_of(path, &bytes, file.file.len())?, Kind::Obj) && obj::streams(&bytes) {
         let mut hasher = hash.then(blake3::Hasher::new);
         let scene = guarded(path, Kind::Obj, || obj::load_streamed(path, bytes, &mut |b| file.read_more(b, piece), hasher.as_mut(), opts))?;
         let scene = finish_scene(path, scene, opts)?;
@@ -95,39 +95,21 @@ fn read_and_load(path: &Path, opts: &LoadOptions, hash: bool, piece: usize) -> R
     Ok((scene?, hash))
 }
 
-/// A regular file ([`sct_format::fsio::open_regular`]) read in pieces, never past the size
-/// it had when opened: a file that grows or shrinks meanwhile is an I/O error.
+/// [`sct_format::fsio::PieceReader`] with the loader's errors.
 struct PieceReader<'p> {
     path: &'p Path,
-    file: std::fs::File,
-    /// Its size when opened.
-    len: u64,
-    read: u64,
+    file: sct_format::fsio::PieceReader,
 }
 
 impl<'p> PieceReader<'p> {
     fn open(path: &'p Path, max: u64) -> Result<Self, LoadError> {
-        let file = sct_format::fsio::open_regular(path).map_err(|e| load_error(path, e))?;
-        let len = file.metadata().map_err(|e| LoadError::Io { path: path.to_path_buf(), source: e })?.len();
-        sct_format::Limits::check("file size", len, max).map_err(|e| load_error(path, e))?;
-        Ok(PieceReader { path, file, len, read: 0 })
+        let file = sct_format::fsio::PieceReader::open(path, max).map_err(|e| load_error(path, e))?;
+        Ok(PieceReader { path, file })
     }
 
     /// Appends the next `n` bytes (or all that are left) to `buf`; whether any are left.
     fn read_more(&mut self, buf: &mut Vec<u8>, n: usize) -> Result<bool, LoadError> {
-        use std::io::Read;
-        let io = |source| LoadError::Io { path: self.path.to_path_buf(), source };
-        let want = (self.len - self.read).min(n as u64);
-        buf.reserve(usize::try_from(want).unwrap_or(usize::MAX));
-        let got = (&mut self.file).take(want).read_to_end(buf).map_err(io)? as u64;
-        self.read += got;
-        // One byte past the size tells a file that grew (without reading the growth).
-        let grew = self.read == self.len && (&mut self.file).take(1).read_to_end(&mut Vec::new()).map_err(io)? > 0;
-        if got < want || grew {
-            let message = format!("the file changed size while it was read ({} bytes when opened, {}{} read)", self.len, self.read, if grew { "+" } else { "" });
-            return Err(io(std::io::Error::other(message)));
-        }
-        Ok(self.read < self.len)
+        self.file.read_more(buf, n).map_err(|e| load_error(self.path, e))
     }
 }
 
@@ -416,32 +398,6 @@ mod tests {
             let f = |v: &u64| v % every == (case % 3) as u64;
             assert_eq!(first_where(&items, f), items.iter().position(f), "case {case}");
         }
-    }
-
-    /// A file read in pieces gives its bytes, says when none are left, and never reads past
-    /// the size it had when opened.
-    #[test]
-    fn pieces_read_the_file_as_it_was_opened() {
-        let dir = tempfile::tempdir().expect("tempdir");
-        let f = dir.path().join("a.obj");
-        std::fs::write(&f, b"0123456789").expect("write");
-        let mut r = PieceReader::open(&f, 10).expect("open");
-        let mut buf = Vec::new();
-        assert!(r.read_more(&mut buf, 4).expect("read"));
-        assert!(r.read_more(&mut buf, 4).expect("read"));
-        assert!(!r.read_more(&mut buf, 4).expect("read"));
-        assert_eq!(buf, b"0123456789");
-        // Grown after opening: an I/O error, not the extra bytes.
-        let mut r = PieceReader::open(&f, 100).expect("open");
-        assert!(r.read_more(&mut buf, 4).expect("read"));
-        std::fs::OpenOptions::new().append(true).open(&f).and_then(|mut w| std::io::Write::write_all(&mut w, b"abc")).expect("append");
-        let e = r.read_more(&mut buf, 100).expect_err("grew");
-        assert!(e.to_string().contains("changed size"), "{e}");
-        // Shrunk after opening.
-        let mut r = PieceReader::open(&f, 100).expect("open");
-        std::fs::write(&f, b"01").expect("truncate");
-        let e = r.read_more(&mut Vec::new(), 100).expect_err("shrank");
-        assert!(e.to_string().contains("changed size"), "{e}");
     }
 
     /// A shared OBJ read in small pieces (hashed and parsed piece by piece) loads to the scene
