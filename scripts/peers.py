@@ -150,28 +150,10 @@ def main():
     dense_tris = 69451 * 64
 
     # Preparation (untimed): our sample counts, the LAS inputs of the LOD task.
-    prep = {}
-    for name, mesh in meshes.items():
-        key = name.split()[0]
+    def prepare(mesh, key, flags=()):
+        """Our samples of `mesh` and a LAS of the leaves built from them: (samples, count, LAS)."""
         smp = out / f"{key}.samples"
-        r = subprocess.run([vox, mesh, "-o", smp, "--json"], check=True, capture_output=True)
-        n = json.loads(r.stdout)["samples"]
-        sct = out / f"{key}.sct"
-        subprocess.run([build, smp, "-o", sct], check=True, capture_output=True)
-        ply = out / f"{key}.leaves.ply"
-        subprocess.run([inspect, sct, "--export-ply", ply], check=True, capture_output=True)
-        las = out / f"{key}.las"
-        write_las(py, ply, las)
-        prep[name] = (mesh, smp, n, las)
-    # Larger point sets for the LOD task: the dragon voxelized finer.
-    large = {
-        "dragon, finer": ["--screen-error", "0.7"],
-        "dragon, finest": ["--screen-error", "0.35", "--sample-budget", "20000000"],
-    }
-    for name, flags in large.items():
-        key = name.replace(", ", "-")
-        smp = out / f"{key}.samples"
-        r = subprocess.run([vox, meshes["dragon"], "-o", smp, "--json", *flags], check=True, capture_output=True)
+        r = subprocess.run([vox, mesh, "-o", smp, "--json", *flags], check=True, capture_output=True)
         n = json.loads(r.stdout)["samples"]
         sct = out / f"{key}.sct"
         subprocess.run([build, smp, "-o", sct], check=True, capture_output=True)
@@ -180,7 +162,19 @@ def main():
         las = out / f"{key}.las"
         write_las(py, ply, las)
         ply.unlink()
-        large[name] = (key, smp, n, las)
+        return smp, n, las
+
+    prep = {}
+    for name, mesh in meshes.items():
+        prep[name] = (mesh, *prepare(mesh, name.split()[0]))
+    # Larger point sets for the LOD task: the dragon voxelized finer.
+    large = {
+        "dragon, finer": ["--screen-error", "0.7"],
+        "dragon, finest": ["--screen-error", "0.35", "--sample-budget", "20000000"],
+    }
+    for name, flags in large.items():
+        key = name.replace(", ", "-")
+        large[name] = (key, *prepare(meshes["dragon"], key, flags))
     dense_n = {}
     for fmt, path in dense.items():
         r = subprocess.run([build, path, "-o", out / "dense.sct", "--json"], check=True, capture_output=True)
