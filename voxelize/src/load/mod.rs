@@ -82,7 +82,7 @@ fn read_and_load(path: &Path, opts: &LoadOptions, hash: bool, piece: usize) -> R
     // The head decides: a large UTF-8 OBJ is read piece by piece, anything else whole into
     // one buffer of its size (not a piece's buffer grown, which would copy the piece).
     let more = file.read_more(&mut bytes, sniff::SNIFF_BYTES)?;
-    if more && file.file.len() > piece as u64 && matches!(kind_of(path, &bytes, file.file.len())?, Kind::Obj) && obj::streams(&bytes) {
+    if more && file.len() > piece as u64 && matches!(kind_of(path, &bytes, file.len())?, Kind::Obj) && obj::streams(&bytes) {
         let mut hasher = hash.then(blake3::Hasher::new);
         let scene = guarded(path, Kind::Obj, || obj::load_streamed(path, bytes, &mut |b| file.read_more(b, piece), hasher.as_mut(), opts))?;
         let scene = finish_scene(path, scene, opts)?;
@@ -105,6 +105,11 @@ impl<'p> PieceReader<'p> {
     fn open(path: &'p Path, max: u64) -> Result<Self, LoadError> {
         let file = sct_format::fsio::PieceReader::open(path, max).map_err(|e| load_error(path, e))?;
         Ok(PieceReader { path, file })
+    }
+
+    /// The file's size when it was opened.
+    fn len(&self) -> u64 {
+        self.file.len()
     }
 
     /// Appends the next `n` bytes (or all that are left) to `buf`; whether any are left.
