@@ -492,11 +492,7 @@ fn pick_state_near_plane(
     // On the stack: this runs for a good share of all leaves.
     let mut cands = [(0f64, 0u16, 0i8, *plain); 26];
     let mut k = 0;
-    for b in 0..27 {
-        let d = [b / 9 - 1, b / 3 % 3 - 1, b % 3 - 1];
-        if d == [0, 0, 0] {
-            continue;
-        }
+    for d in NEIGHBOURS {
         let dn = d[0] as f64 * n[0] + d[1] as f64 * n[1] + d[2] as f64 * n[2];
         let side: f64 = (0..3).map(|a| (side0[a] + grid * (d[a] as f64 - dn * n[a])).powi(2)).sum();
         if side > room * room {
@@ -522,15 +518,60 @@ fn pick_state_near_plane(
             k += 1;
         }
     }
-    let cands = &mut cands[..k];
+    let cands = &cands[..k];
     // Those within `tol` first: of them, those that keep the tangential error (to half a
     // step: a longer move along a tilted decoded normal shifts the centre a little), which
     // decides whether a leaf at the edge of a face lies past it, then the cheapest (most
-    // frequent state bytes). Then the others, nearest the plane first.
+    // frequent state bytes). Then the others, nearest the plane first. Equals keep their
+    // order. Keys are worked out once each (the tangential error takes a square root).
     let key = |c: &(f64, u16, i8, Node)| if c.0 <= tol { (false, tangential(&c.3, c.0) > t0, u64::MAX - weight(c.1)) } else { (true, false, 0) };
-    cands.sort_by(|a, b| key(a).cmp(&key(b)).then(a.0.total_cmp(&b.0)));
-    cands.iter().find(|c| acceptable(p, orig, &c.3, c.1)).map_or(keep, |c| (c.1, c.2, c.3))
+    let mut keys = [(false, false, 0u64); 26];
+    for (kc, c) in keys.iter_mut().zip(cands) {
+        *kc = key(c);
+    }
+    let order = |i: usize, j: usize| keys[i].cmp(&keys[j]).then(cands[i].0.total_cmp(&cands[j].0));
+    first_accepted(k, order, |i| acceptable(p, orig, &cands[i].3, cands[i].1)).map_or(keep, |i| (cands[i].1, cands[i].2, cands[i].3))
 }
+
+/// The first of `0..n` (at most 32) in `order` (equals in index order, as a stable sort
+/// leaves them) that `accept` takes: the least not yet tried, in turn. Usually the first is
+/// taken, so this costs a scan where sorting would cost a sort.
+fn first_accepted(n: usize, order: impl Fn(usize, usize) -> std::cmp::Ordering, mut accept: impl FnMut(usize) -> bool) -> Option<usize> {
+    debug_assert!(n <= 32);
+    let mut untried = if n >= 32 { u32::MAX } else { (1u32 << n) - 1 };
+    while untried != 0 {
+        let mut least = untried.trailing_zeros() as usize;
+        let mut rest = untried & (untried - 1);
+        while rest != 0 {
+            let i = rest.trailing_zeros() as usize;
+            if order(i, least) == std::cmp::Ordering::Less {
+                least = i;
+            }
+            rest &= rest - 1;
+        }
+        if accept(least) {
+            return Some(least);
+        }
+        untried &= !(1 << least);
+    }
+    None
+}
+
+/// The 26 grid offsets around a grid point, x-major (the order decides among equal
+/// candidates of [`pick_state_near_plane`]). A table: working them out of a counter took a
+/// sixth of that search's instructions.
+const NEIGHBOURS: [[i32; 3]; 26] = {
+    let mut t = [[0; 3]; 26];
+    let (mut b, mut k) = (0, 0);
+    while b < 27 {
+        if b != 13 {
+            t[k] = [b / 9 - 1, b / 3 % 3 - 1, b % 3 - 1];
+            k += 1;
+        }
+        b += 1;
+    }
+    t
+};
 
 /// The decoded child with codes `c` (`ch` colour channels), `axis = oct_decode(c.normal)` and
 /// decoded area `area`: the one definition the
@@ -824,6 +865,37 @@ mod tests {
             }
         }
         assert!(checked > 300_000);
+    }
+
+    #[test]
+    fn neighbours_are_the_grid_offsets_x_major() {
+        let want: Vec<[i32; 3]> = (0..27).map(|b| [b / 9 - 1, b / 3 % 3 - 1, b % 3 - 1]).filter(|d| *d != [0, 0, 0]).collect();
+        assert_eq!(NEIGHBOURS.to_vec(), want);
+    }
+
+    #[test]
+    fn first_accepted_matches_a_stable_sort() {
+        let mut rng = crate::rng::SplitMix64(7);
+        for _ in 0..20_000 {
+            let n = (rng.next_u64() % 27) as usize;
+            // Few distinct keys: many ties, which must keep their order.
+            let keys: Vec<u64> = (0..n).map(|_| rng.next_u64() % 4).collect();
+            let taken: Vec<bool> = (0..n).map(|_| rng.next_u64() % 3 == 0).collect();
+            let mut sorted: Vec<usize> = (0..n).collect();
+            sorted.sort_by(|&a, &b| keys[a].cmp(&keys[b]));
+            let want = sorted.into_iter().find(|&i| taken[i]);
+            let mut tried = Vec::new();
+            let got = first_accepted(n, |a, b| keys[a].cmp(&keys[b]), |i| {
+                tried.push(i);
+                taken[i]
+            });
+            assert_eq!(got, want, "keys {keys:?} taken {taken:?}");
+            // Each candidate is tried at most once.
+            let mut once = tried.clone();
+            once.sort_unstable();
+            once.dedup();
+            assert_eq!(once.len(), tried.len());
+        }
     }
 
     #[test]

@@ -382,9 +382,12 @@ pub(super) fn stream_tree(
             let (written, encoded) = rayon::join(
                 || pending.drain(..).try_for_each(|b| sink(&b)),
                 || {
+                    // One block per task: rayon otherwise hands out runs of blocks, and a
+                    // batch ended with one thread finishing a run of several alone.
                     batch_chunks
                         .par_iter()
                         .zip(batch_internal)
+                        .with_max_len(1)
                         .map(|(&(s, e), &k)| {
                             // The block's parents, contiguous as the codec wants them (copied
                             // here, on its worker, when they span segments).

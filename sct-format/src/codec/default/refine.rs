@@ -122,15 +122,19 @@ pub(super) fn pick_nudge(p: &Node, orig: &Node, dec: &Node, state: u16) -> Optio
     }
     let unit = dec.radius as f64 / REFINE_STEPS as f64;
     let back = 1.0 - 0.75 * allowed / len;
-    let n = unit64(orig.normal);
-    let plane_before = n.map(|n| plane_error(orig, n, dec.center).abs().max(orig.radius as f64 / PLANE_STEPS));
+    // Without a usable normal no nudge is judged: refined whole.
+    let Some(n) = unit64(orig.normal) else { return Some(pick_refinement(p, orig, dec, state)) };
+    let before = plane_error(orig, n, dec.center).abs().max(orig.radius as f64 / PLANE_STEPS);
+    let on_piece = |moved: &Node| tangential_error(orig, moved).is_some_and(|(t2, _)| t2.iter().map(|v| v * v).sum::<f64>().sqrt() <= allowed);
     for grain in [NUDGE_GRAIN, 1.0] {
         let want = t.map(|v| -v * back / unit / grain);
         if !(unit > 0.0 && want.iter().all(|v| v.is_finite() && v.abs() * grain <= 126.0)) {
             break;
         }
         // Each axis rounded down or up: of the moves that land on the piece, the one nearest
-        // the plane (rounding per axis moves the centre along the normal too).
+        // the plane (rounding per axis moves the centre along the normal too). The plane
+        // test, a dot product, goes first: the piece test (a division and a square root)
+        // and `acceptable` are needed only for corners that pass it.
         let mut best: Option<(f64, [i8; 3], Node)> = None;
         for corner in 0..8 {
             let steps: [i8; 3] = std::array::from_fn(|a| {
@@ -139,10 +143,8 @@ pub(super) fn pick_nudge(p: &Node, orig: &Node, dec: &Node, state: u16) -> Optio
             });
             let mut moved = *dec;
             apply_refinement(&mut moved, steps, 0);
-            let on_piece = tangential_error(orig, &moved).is_some_and(|(t2, _)| t2.iter().map(|v| v * v).sum::<f64>().sqrt() <= allowed);
-            let (Some(n), Some(before)) = (n, plane_before) else { break };
             let e = plane_error(orig, n, moved.center).abs();
-            if on_piece && e <= before && best.as_ref().is_none_or(|b| e < b.0) && acceptable(p, orig, &moved, state) {
+            if e <= before && best.as_ref().is_none_or(|b| e < b.0) && on_piece(&moved) && acceptable(p, orig, &moved, state) {
                 best = Some((e, steps, moved));
             }
         }
