@@ -245,34 +245,29 @@ impl LoadedScene {
     }
 
     /// World-space axis-aligned bounds (min, max) over instances and points; `None` if empty.
+    /// The vertices are taken on every thread, with the bits of the serial loop (see
+    /// [`crate::par::bounds`]).
     pub fn world_bounds(&self) -> Option<([f64; 3], [f64; 3])> {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
+        let mut b = crate::par::NO_BOUNDS;
         let mut any = false;
-        let mut add = |p: [f64; 3]| {
-            any = true;
-            for k in 0..3 {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        };
         for inst in &self.instances {
             let Some(mesh) = self.meshes.get(inst.mesh) else { continue };
             // The identity gives a finite coordinate back but for -0, which it makes +0, as
             // adding +0 does (see `world_area`).
             let identity = inst.transform == IDENTITY;
             for p in &mesh.primitives {
-                for v in &p.positions {
-                    add(if identity { v.map(|c| f64::from(c) + 0.0) } else { transform_point(&inst.transform, *v) });
-                }
+                any |= !p.positions.is_empty();
+                b = crate::par::bounds(p.positions.len(), b, |i| {
+                    let v = p.positions[i];
+                    if identity { v.map(|c| f64::from(c) + 0.0) } else { transform_point(&inst.transform, v) }
+                });
             }
         }
         if let Some(pc) = &self.points {
-            for v in &pc.positions {
-                add(v.map(f64::from));
-            }
+            any |= !pc.positions.is_empty();
+            b = crate::par::bounds(pc.positions.len(), b, |i| pc.positions[i].map(f64::from));
         }
-        any.then_some((lo, hi))
+        any.then_some(b)
     }
 }
 

@@ -150,21 +150,104 @@ pub(super) fn plan_sampling(scene: &LoadedScene, opts: &SampleOptions) -> Result
 
 /// The voxel-key packing of a unit: its vertices' bounds in grid units.
 pub(super) fn unit_keys(mesh: &Mesh, u: &Unit) -> Result<KeyPack, String> {
-    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    // The bounds of the vertices divided by `h`, taken on every thread. Dividing by a
+    // positive finite `h` is monotone (correctly rounded) and makes NaN of NaN only, so the
+    // least and greatest quotients are the quotients of the least and greatest coordinates:
+    // three divisions per bound rather than per vertex. The quotients' values are those of the
+    // loop over the vertices; only the sign of a zero bound may differ, which no key sees
+    // (`KeyPack::new` floors). Any other `h` divides vertex by vertex, as that loop did.
+    let once = u.h.is_finite() && u.h > 0.0;
+    let mut b = crate::par::NO_BOUNDS;
     for p in &mesh.primitives {
-        for &v in &p.positions {
+        b = crate::par::bounds(p.positions.len(), b, |i| {
+            let v = p.positions[i];
             let w = match &u.bake {
                 Some(m) => transform_point(m, v),
                 None => v.map(f64::from),
             };
-            for k in 0..3 {
-                lo[k] = lo[k].min(w[k] / u.h);
-                hi[k] = hi[k].max(w[k] / u.h);
-            }
-        }
+            if once { w } else { w.map(|c| c / u.h) }
+        });
     }
+    let (mut lo, mut hi) = if once { (b.0.map(|c| c / u.h), b.1.map(|c| c / u.h)) } else { b };
     if lo.iter().chain(hi.iter()).any(|v| !v.is_finite()) {
         (lo, hi) = ([0.0; 3], [0.0; 3]);
     }
     KeyPack::new(lo, hi)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The loop over the vertices that `unit_keys` replaces: one quotient per coordinate.
+    fn unit_keys_per_vertex(mesh: &Mesh, u: &Unit) -> Result<KeyPack, String> {
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for p in &mesh.primitives {
+            for &v in &p.positions {
+                let w = match &u.bake {
+                    Some(m) => transform_point(m, v),
+                    None => v.map(f64::from),
+                };
+                for k in 0..3 {
+                    lo[k] = lo[k].min(w[k] / u.h);
+                    hi[k] = hi[k].max(w[k] / u.h);
+                }
+            }
+        }
+        if lo.iter().chain(hi.iter()).any(|v| !v.is_finite()) {
+            (lo, hi) = ([0.0; 3], [0.0; 3]);
+        }
+        KeyPack::new(lo, hi)
+    }
+
+    fn same(a: &Result<KeyPack, String>, b: &Result<KeyPack, String>) -> bool {
+        match (a, b) {
+            (Ok(a), Ok(b)) => (a.lo, a.hi, a.bits, a.shift_x) == (b.lo, b.hi, b.bits, b.shift_x),
+            (Err(a), Err(b)) => a == b,
+            _ => false,
+        }
+    }
+
+    /// The keys of the bounds divided once equal those of the quotients vertex by vertex, on
+    /// 1 and several threads: for vertices with signed zeros, NaN, infinities, subnormals and
+    /// magnitudes that overflow when divided, for baked and local units, and voxel sizes that
+    /// are tiny, huge, zero, negative, infinite or NaN (divided vertex by vertex).
+    #[test]
+    fn unit_keys_equal_the_per_vertex_loop() {
+        let mut rng = sct_format::rng::SplitMix64(3);
+        let specials = [0.0f32, -0.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e-40, -1e-40, f32::MAX, -f32::MAX];
+        let mut coord = |special_every: u64| -> f32 {
+            if rng.next_u64() % special_every == 0 {
+                specials[(rng.next_u64() % specials.len() as u64) as usize]
+            } else {
+                ((rng.next_f64() - 0.5) * 200.0) as f32
+            }
+        };
+        let mut meshes = Vec::new();
+        for (n, every) in [(0usize, 1u64), (1, 1), (5, 2), (40_000, 5_000), (40_000, 1 << 40), (20_000, 3)] {
+            let prims = (0..3).map(|_| Primitive { positions: (0..n).map(|_| [coord(every), coord(every), coord(every)]).collect(), ..Default::default() }).collect();
+            meshes.push(Mesh { name: "m".into(), primitives: prims });
+        }
+        // Every coordinate the same zero but one of the other sign.
+        for z in [0.0f32, -0.0] {
+            let mut positions = vec![[z; 3]; 30_000];
+            positions[17_000] = [-z; 3];
+            meshes.push(Mesh { name: "z".into(), primitives: vec![Primitive { positions, ..Default::default() }] });
+        }
+        let shift: Mat4 = [[2.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.5, 0.0, 3.0, 0.0], [-7.0, 0.25, 1e3, 1.0]];
+        let tiny = f64::from_bits(1);
+        for mesh in &meshes {
+            for bake in [None, Some(IDENTITY), Some(shift)] {
+                for h in [0.37, 1e-300, tiny, 1e300, 0.0, -0.0, -2.0, f64::INFINITY, f64::NEG_INFINITY, f64::NAN] {
+                    let u = Unit { mesh: 0, bake, h, name: String::new(), instances: Vec::new(), affine: Vec::new() };
+                    let want = unit_keys_per_vertex(mesh, &u);
+                    for threads in [1, 2, 3] {
+                        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+                        let got = pool.install(|| unit_keys(mesh, &u));
+                        assert!(same(&got, &want), "h {h:e}, bake {bake:?}, {threads} threads: {got:?} vs {want:?}");
+                    }
+                }
+            }
+        }
+    }
 }

@@ -53,33 +53,7 @@ pub(super) fn sample_slabs<E: Send>(
     let cell = width.div_ceil(1 << 20).max(1) as i64;
     let ncells = ((kp.hi[0] - kp.lo[0]) / cell + 1) as usize;
     let cell_of = |x: i64| ((x - kp.lo[0]) / cell) as usize;
-    let mut diff = vec![0.0f64; ncells + 1];
-    let mut total = 0.0f64;
-    let mut cells: Vec<(u32, u32)> = Vec::with_capacity(ntris);
-    let mut block: Vec<(u32, u32, f64)> = Vec::new();
-    for p in pp {
-        let n = p.prim.triangles.len();
-        for start in (0..n).step_by(PLAN_BLOCK) {
-            (start..(start + PLAN_BLOCK).min(n))
-                .into_par_iter()
-                .map(|ti| {
-                    let [a, b, c] = p.prim.triangles[ti].map(|v| p.pos[v as usize]);
-                    let lo = (a[0].min(b[0]).min(c[0]).floor() as i64).clamp(kp.lo[0], kp.hi[0]);
-                    let hi = (a[0].max(b[0]).max(c[0]).floor() as i64).clamp(kp.lo[0], kp.hi[0]);
-                    let est = 0.5 * norm(cross(sub(b, a), sub(c, a))) + 0.5 * (norm(sub(b, a)) + norm(sub(c, b)) + norm(sub(a, c))) + 1.0;
-                    (cell_of(lo) as u32, cell_of(hi) as u32, est)
-                })
-                .collect_into_vec(&mut block);
-            for &(c0, c1, e) in &block {
-                let per = e / (c1 - c0 + 1) as f64;
-                diff[c0 as usize] += per;
-                diff[c1 as usize + 1] -= per;
-                total += e;
-                cells.push((c0, c1));
-            }
-        }
-    }
-    drop(block);
+    let (cells, diff, total) = plan_cells(pp, kp, cell, ntris);
     // The slabs must not depend on the thread count: a triangle is cut to its slab's x band
     // before it is swept, which moves the pieces' vertices by rounding.
     let slabs = ((total / slab_target()).ceil() as usize).clamp(MIN_SLABS, 16_384).min(ncells);
@@ -98,12 +72,7 @@ pub(super) fn sample_slabs<E: Send>(
             start = c + 1;
         }
     }
-    let mut lists: Vec<Vec<u32>> = vec![Vec::new(); slab_x.len()];
-    for (gi, r) in cells.iter().enumerate() {
-        for l in &mut lists[slab_of_cell[r.0 as usize] as usize..=slab_of_cell[r.1 as usize] as usize] {
-            l.push(gi as u32);
-        }
-    }
+    let lists = SlabLists::new(&cells, &slab_of_cell, slab_x.len(), list_chunk(ntris));
     let per_slab = total / slab_x.len() as f64;
     // A voxel-method record's piece lies in its voxel; a scan-line record's column of plane
     // need not.
@@ -119,7 +88,7 @@ pub(super) fn sample_slabs<E: Send>(
     // zeroed once the first few exist.
     let outs: std::sync::Mutex<Vec<Vec<Node>>> = std::sync::Mutex::new(Vec::new());
     let make = |bufs: &mut Bufs, slab: usize| -> (Vec<Node>, u64, u64) {
-        let (list, (x0, x1)) = (&lists[slab], slab_x[slab]);
+        let (list, (x0, x1)) = (lists.get(slab), slab_x[slab]);
         bufs.parts.reset(kp, (x0, x1), per_slab);
         let mut dropped = 0u64;
         for &gi in list {
@@ -179,8 +148,153 @@ pub(super) fn sample_slabs<E: Send>(
     Ok((before, dropped))
 }
 
-/// Triangles planned per parallel call (their cells and estimates: 512 KiB).
+/// Per triangle (numbered over the primitives in order) its x cells, cells of `cell` voxels
+/// from `kp.lo[0]`; the cells' expected samples as a difference array (each triangle's
+/// spread evenly over its cells); and the expected samples in all. The sums are added in
+/// triangle order, the bits of a serial loop on any number of threads.
+fn plan_cells(pp: &[Prepared], kp: &KeyPack, cell: i64, ntris: usize) -> (Vec<(u32, u32)>, Vec<f64>, f64) {
+    let ncells = ((kp.hi[0] - kp.lo[0]) / cell + 1) as usize;
+    let cell_of = |x: i64| ((x - kp.lo[0]) / cell) as usize;
+    let mut diff = vec![0.0f64; ncells + 1];
+    let mut total = 0.0f64;
+    let mut cells: Vec<(u32, u32)> = Vec::with_capacity(ntris);
+    // Planned a block at a time (bounded memory: a block's terms, not the mesh's), and
+    // pipelined: while one thread adds block k into `diff` and `total` (in triangle order,
+    // the serial part), the others plan block k + 1.
+    let blocks: Vec<(usize, std::ops::Range<usize>)> = pp
+        .iter()
+        .enumerate()
+        .flat_map(|(pi, p)| {
+            let n = p.prim.triangles.len();
+            (0..n).step_by(PLAN_BLOCK).map(move |start| (pi, start..(start + PLAN_BLOCK).min(n)))
+        })
+        .collect();
+    let plan = |(pi, range): &(usize, std::ops::Range<usize>), out: &mut Vec<Planned>| {
+        let p = &pp[*pi];
+        range
+            .clone()
+            .into_par_iter()
+            .map(|ti| {
+                let [a, b, c] = p.prim.triangles[ti].map(|v| p.pos[v as usize]);
+                let lo = (a[0].min(b[0]).min(c[0]).floor() as i64).clamp(kp.lo[0], kp.hi[0]);
+                let hi = (a[0].max(b[0]).max(c[0]).floor() as i64).clamp(kp.lo[0], kp.hi[0]);
+                let est = 0.5 * norm(cross(sub(b, a), sub(c, a))) + 0.5 * (norm(sub(b, a)) + norm(sub(c, b)) + norm(sub(a, c))) + 1.0;
+                let (c0, c1) = (cell_of(lo) as u32, cell_of(hi) as u32);
+                Planned { c0, c1, per: est / (c1 - c0 + 1) as f64, est }
+            })
+            .collect_into_vec(out);
+    };
+    let (mut this, mut next) = (Vec::new(), Vec::new());
+    if let Some(b) = blocks.first() {
+        plan(b, &mut this);
+    }
+    for k in 0..blocks.len() {
+        rayon::join(
+            || {
+                for t in &this {
+                    diff[t.c0 as usize] += t.per;
+                    diff[t.c1 as usize + 1] -= t.per;
+                    total += t.est;
+                    cells.push((t.c0, t.c1));
+                }
+            },
+            || {
+                if let Some(b) = blocks.get(k + 1) {
+                    plan(b, &mut next);
+                }
+            },
+        );
+        std::mem::swap(&mut this, &mut next);
+    }
+    (cells, diff, total)
+}
+
+/// Triangles planned per parallel call (their cells and estimates: 768 KiB, two blocks held:
+/// one being added while the next is planned).
 const PLAN_BLOCK: usize = 1 << 15;
+
+/// A triangle's planned x cells `c0..=c1`, its expected samples, and their share per cell.
+struct Planned {
+    c0: u32,
+    c1: u32,
+    per: f64,
+    est: f64,
+}
+
+/// The triangles of every slab, each slab's in triangle order, in one array: slab `s` holds
+/// `tris[start[s]..start[s + 1]]`.
+#[derive(Debug, PartialEq)]
+struct SlabLists {
+    start: Vec<usize>,
+    tris: Vec<u32>,
+}
+
+impl SlabLists {
+    /// The lists of triangles whose cells `cells[gi]` (first, last) lie in slabs
+    /// `slab_of_cell[first]..=slab_of_cell[last]`, made on every thread: chunks of `chunk`
+    /// triangles count their triangles per slab, each chunk's part of each slab starts where
+    /// the earlier chunks' parts end (slab by slab), and the chunks fill their parts, each in
+    /// triangle order. The lists are the same for any `chunk`.
+    fn new(cells: &[(u32, u32)], slab_of_cell: &[u32], slabs: usize, chunk: usize) -> SlabLists {
+        let chunk = chunk.max(1);
+        let slab_range = |r: &(u32, u32)| slab_of_cell[r.0 as usize] as usize..=slab_of_cell[r.1 as usize] as usize;
+        let counts: Vec<Vec<u32>> = cells
+            .par_chunks(chunk)
+            .map(|c| {
+                let mut n = vec![0u32; slabs];
+                for r in c {
+                    n[slab_range(r)].iter_mut().for_each(|k| *k += 1);
+                }
+                n
+            })
+            .collect();
+        let mut start = Vec::with_capacity(slabs + 1);
+        let mut at = 0usize;
+        for s in 0..slabs {
+            start.push(at);
+            at += counts.iter().map(|n| n[s] as usize).sum::<usize>();
+        }
+        start.push(at);
+        // Zeroed pages come from the kernel untouched: the fill below faults them in on
+        // every thread.
+        let mut tris = vec![0u32; at];
+        // Each chunk's parts, slab by slab.
+        let mut parts: Vec<Vec<&mut [u32]>> = counts.iter().map(|_| Vec::with_capacity(slabs)).collect();
+        let mut rest: &mut [u32] = &mut tris;
+        for s in 0..slabs {
+            for (n, part) in counts.iter().zip(&mut parts) {
+                let (mine, later) = std::mem::take(&mut rest).split_at_mut(n[s] as usize);
+                part.push(mine);
+                rest = later;
+            }
+        }
+        parts.into_par_iter().zip(cells.par_chunks(chunk)).enumerate().for_each(|(ci, (mut part, c))| {
+            for (i, r) in c.iter().enumerate() {
+                let gi = (ci * chunk + i) as u32;
+                for s in slab_range(r) {
+                    // The counts sized every part for its triangles: there is always a place.
+                    if let Some((first, later)) = std::mem::take(&mut part[s]).split_first_mut() {
+                        *first = gi;
+                        part[s] = later;
+                    }
+                }
+            }
+        });
+        SlabLists { start, tris }
+    }
+
+    /// Slab `s`'s triangles.
+    fn get(&self, s: usize) -> &[u32] {
+        &self.tris[self.start[s]..self.start[s + 1]]
+    }
+}
+
+/// Triangles per chunk of [`SlabLists::new`]: 4 chunks per thread (one slow chunk does not
+/// hold the others up) but at most 64 (each holds a count and a part per slab), and at least
+/// 16,384 triangles each (a chunk's counts cost a pass over the slabs).
+fn list_chunk(ntris: usize) -> usize {
+    ntris.div_ceil((4 * rayon::current_num_threads()).min(64)).max(1 << 14)
+}
 
 /// Slabs made at least (whatever the thread count), so that the threads share the last
 /// ones: at 8, the 100k-triangle dragon made 9 slabs of about 30 ms, and on 2 threads one
@@ -294,7 +408,133 @@ impl SlabParts {
 
 #[cfg(test)]
 mod tests {
+    use super::super::prepare::MatOwned;
     use super::*;
+
+    /// The planner before its pipeline: the terms of a block in parallel, then added into
+    /// the difference array and the total in triangle order.
+    fn plan_cells_serial(pp: &[Prepared], kp: &KeyPack, cell: i64) -> (Vec<(u32, u32)>, Vec<f64>, f64) {
+        let ncells = ((kp.hi[0] - kp.lo[0]) / cell + 1) as usize;
+        let cell_of = |x: i64| ((x - kp.lo[0]) / cell) as usize;
+        let (mut diff, mut total, mut cells) = (vec![0.0f64; ncells + 1], 0.0f64, Vec::new());
+        for p in pp {
+            for t in &p.prim.triangles {
+                let [a, b, c] = t.map(|v| p.pos[v as usize]);
+                let lo = (a[0].min(b[0]).min(c[0]).floor() as i64).clamp(kp.lo[0], kp.hi[0]);
+                let hi = (a[0].max(b[0]).max(c[0]).floor() as i64).clamp(kp.lo[0], kp.hi[0]);
+                let e = 0.5 * norm(cross(sub(b, a), sub(c, a))) + 0.5 * (norm(sub(b, a)) + norm(sub(c, b)) + norm(sub(a, c))) + 1.0;
+                let (c0, c1) = (cell_of(lo) as u32, cell_of(hi) as u32);
+                let per = e / (c1 - c0 + 1) as f64;
+                diff[c0 as usize] += per;
+                diff[c1 as usize + 1] -= per;
+                total += e;
+                cells.push((c0, c1));
+            }
+        }
+        (cells, diff, total)
+    }
+
+    /// The pipelined planner gives the cells and the bits of the difference array and the
+    /// total of the serial one, on 1, 2 and 3 threads: primitives of several blocks, of a
+    /// partial block and empty ones, triangles of every size (some spanning most cells, some
+    /// beyond the grid on either side), magnitudes far apart (the sums' order shows), cells of
+    /// one and of several voxels.
+    #[test]
+    fn plan_cells_equal_the_serial_planner() {
+        let mut rng = sct_format::rng::SplitMix64(9);
+        let kp = KeyPack::new([0.0; 3], [4000.0, 60.0, 60.0]).expect("keys");
+        let sizes = [2 * PLAN_BLOCK + 123, 0, 7, PLAN_BLOCK, 1000];
+        let prims: Vec<Primitive> = sizes
+            .iter()
+            .map(|&n| Primitive { triangles: (0..n).map(|_| std::array::from_fn(|_| (rng.next_u64() % 3000) as u32)).collect(), ..Default::default() })
+            .collect();
+        let pos: Vec<Vec<[f64; 3]>> = prims
+            .iter()
+            .map(|_| {
+                (0..3000)
+                    .map(|i| {
+                        let scale = 10f64.powi((rng.next_u64() % 7) as i32 - 3);
+                        let x = if i % 97 == 0 { rng.next_f64() * 4400.0 - 200.0 } else { 2000.0 + (rng.next_f64() - 0.5) * 3000.0 };
+                        [x, rng.next_f64() * 60.0 * scale.min(1.0), rng.next_f64() * scale]
+                    })
+                    .collect()
+            })
+            .collect();
+        let pp: Vec<Prepared> = prims
+            .iter()
+            .zip(pos)
+            .map(|(prim, pos)| Prepared {
+                prim,
+                mat: MatOwned { base: [1.0; 4], tex: None, alpha_tex: None, alpha: AlphaMode::Opaque },
+                pos,
+                nrm: None,
+                computed: None,
+                baked: None,
+                flip: false,
+            })
+            .collect();
+        let ntris = sizes.iter().sum();
+        let bits = |(cells, diff, total): (Vec<(u32, u32)>, Vec<f64>, f64)| (cells, diff.iter().map(|d| d.to_bits()).collect::<Vec<_>>(), total.to_bits());
+        for cell in [1, 3] {
+            let want = bits(plan_cells_serial(&pp, &kp, cell));
+            assert!(want.0.iter().any(|c| c.1 > c.0 + 100), "wide triangles");
+            for threads in [1, 2, 3] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+                let got = bits(pool.install(|| plan_cells(&pp, &kp, cell, ntris)));
+                assert!(got == want, "cell {cell}, {threads} threads");
+            }
+        }
+    }
+
+    /// The lists one vector per slab, pushed triangle by triangle (what the planner did
+    /// before `SlabLists`).
+    fn lists_per_slab(cells: &[(u32, u32)], slab_of_cell: &[u32], slabs: usize) -> Vec<Vec<u32>> {
+        let mut lists: Vec<Vec<u32>> = vec![Vec::new(); slabs];
+        for (gi, r) in cells.iter().enumerate() {
+            for l in &mut lists[slab_of_cell[r.0 as usize] as usize..=slab_of_cell[r.1 as usize] as usize] {
+                l.push(gi as u32);
+            }
+        }
+        lists
+    }
+
+    /// `SlabLists` holds, slab by slab, the lists pushed triangle by triangle, for chunks of
+    /// any size (one triangle, sizes that do not divide the count, one chunk, more than all)
+    /// on 1 to 3 threads: slabs of one cell and of many, empty slabs, one slab, triangles
+    /// spanning one cell, one slab or all of them, and no triangles.
+    #[test]
+    fn slab_lists_equal_a_list_per_slab() {
+        let mut rng = sct_format::rng::SplitMix64(21);
+        for (ntris, ncells, slabs) in [(0usize, 10usize, 3usize), (1, 1, 1), (5000, 300, 1), (20_000, 1000, 37), (70_000, 5000, 400), (3000, 40, 40)] {
+            // Slab boundaries at random cells (some slabs empty of triangles when narrow).
+            let mut cuts: Vec<usize> = (1..slabs).map(|_| (rng.next_u64() % ncells as u64) as usize).collect();
+            cuts.sort_unstable();
+            let slab_of_cell: Vec<u32> = (0..ncells).map(|c| cuts.partition_point(|&k| k <= c) as u32).collect();
+            let cells: Vec<(u32, u32)> = (0..ntris)
+                .map(|i| {
+                    let c0 = (rng.next_u64() % ncells as u64) as u32;
+                    let span = match i % 50 {
+                        0 => ncells as u64,
+                        1..=5 => 1 + rng.next_u64() % 60,
+                        _ => 1 + rng.next_u64() % 3,
+                    };
+                    (c0, (c0 as u64 + rng.next_u64() % span).min(ncells as u64 - 1) as u32)
+                })
+                .collect();
+            let want = lists_per_slab(&cells, &slab_of_cell, slabs);
+            for chunk in [1, 7, 1000, 16_384, ntris.max(1), 10 * ntris + 1] {
+                for threads in [1, 2, 3] {
+                    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+                    let got = pool.install(|| SlabLists::new(&cells, &slab_of_cell, slabs, chunk));
+                    assert_eq!(got.start.len(), slabs + 1);
+                    assert_eq!(got.tris.len(), want.iter().map(Vec::len).sum::<usize>());
+                    for (s, w) in want.iter().enumerate() {
+                        assert_eq!(got.get(s), &w[..], "{ntris} triangles, slab {s}, chunk {chunk}, {threads} threads");
+                    }
+                }
+            }
+        }
+    }
 
     /// Records dealt to a slab's parts (x inside the slab, and strays beyond it on both sides)
     /// and then sorted part by part come out in the order of one stable sort of them all by
