@@ -229,10 +229,14 @@ impl<'a> TreeInput<'a> {
     }
 }
 
-impl NodeSource<'_> {
+impl<'a> NodeSource<'a> {
     /// Nodes `range` (breadth-first indices) of one batch; batches are asked for in file
-    /// order. Owned nodes are moved into `buf` and released from the tree.
-    fn batch<'b>(&'b mut self, range: std::ops::Range<usize>, buf: &'b mut Vec<Node>) -> Result<&'b [Node]> {
+    /// order. Owned nodes are moved into `buf` and dropped from the tree (their memory goes
+    /// back in [`NodeSource::release`]).
+    fn batch<'b>(&mut self, range: std::ops::Range<usize>, buf: &'b mut Vec<Node>) -> Result<&'b [Node]>
+    where
+        'a: 'b,
+    {
         let bug = || Error::Misuse(format!("nodes {range:?} requested out of order (bug)"));
         match self {
             NodeSource::Borrowed(all) => all.get(range.clone()).ok_or_else(bug),
@@ -244,17 +248,26 @@ impl NodeSource<'_> {
                 buf.clear();
                 buf.par_extend(rest[keep..].par_iter().rev().copied());
                 rest.truncate(keep);
-                // Shrinking costs a realloc (for a large vector an mremap that frees the
-                // pages); once per this many bytes of surplus capacity.
-                const SHRINK_BYTES: usize = 4 << 20;
-                if (rest.capacity() - rest.len()) * std::mem::size_of::<Node>() >= SHRINK_BYTES {
-                    rest.shrink_to_fit();
-                }
                 Ok(buf)
             }
         }
     }
+
+    /// Gives the memory of the nodes taken so far back to the system, once per
+    /// [`SHRINK_BYTES`] of them. Freeing pages takes a while (unmapping them, and flushing
+    /// every thread's TLB): the writer does it beside a batch's encoding, not between batches.
+    fn release(&mut self) {
+        if let NodeSource::Reversed { rest, .. } = self {
+            if (rest.capacity() - rest.len()) * std::mem::size_of::<Node>() >= SHRINK_BYTES {
+                rest.shrink_to_fit();
+            }
+        }
+    }
 }
+
+/// Shrinking costs a realloc (for a large vector an mremap that frees the pages); once per
+/// this many bytes of surplus capacity.
+const SHRINK_BYTES: usize = 4 << 20;
 
 /// Decoded internal nodes of one level in the order the next level consumes them, as one
 /// segment per encoded block. Segments are dropped as soon as the next level's batches have
@@ -378,9 +391,14 @@ pub(super) fn stream_tree(
         for (batch_chunks, batch_internal) in chunks.chunks(batch).zip(internal.chunks(batch)) {
             let (Some(&(first, _)), Some(&(_, last))) = (batch_chunks.first(), batch_chunks.last()) else { continue };
             let level_nodes = tree.nodes.batch(range.start + first..range.start + last, &mut batch_nodes)?;
-            // The previous batch goes to the sink while this one is encoded.
+            // While this batch is encoded, the previous one goes to the sink and the memory of
+            // the nodes taken for this one goes back to the system.
+            let nodes = &mut tree.nodes;
             let (written, encoded) = rayon::join(
-                || pending.drain(..).try_for_each(|b| sink(&b)),
+                || {
+                    nodes.release();
+                    pending.drain(..).try_for_each(|b| sink(&b))
+                },
                 || {
                     // One block per task: rayon otherwise hands out runs of blocks, and a
                     // batch ended with one thread finishing a run of several alone.
