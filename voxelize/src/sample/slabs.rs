@@ -35,8 +35,7 @@ pub(super) fn sample_slabs<E: Send>(
 ) -> Result<(u64, u64), E> {
     // Triangles are numbered over the primitives in order (`gi`); `first[pi]` is primitive
     // `pi`'s first number. Per triangle only its x-cell range is kept (8 bytes: there are at
-    // most 2^20 + 1 cells, below), its expected samples go straight into the cells' difference
-    // array and the total, added in triangle order (the same bits on any thread count).
+    // most 2^20 + 1 cells, below); see `plan_cells`.
     let mut first = Vec::with_capacity(pp.len() + 1);
     let mut ntris = 0usize;
     for p in pp {
@@ -50,10 +49,9 @@ pub(super) fn sample_slabs<E: Send>(
     // Expected samples per x cell (difference array), cells of `cell` voxels (coarser only
     // for enormous grids: at most 2^20 + 1 cells), then slab boundaries at equal quantiles.
     let width = (kp.hi[0] - kp.lo[0] + 1) as u64;
-    let cell = width.div_ceil(1 << 20).max(1) as i64;
-    let ncells = ((kp.hi[0] - kp.lo[0]) / cell + 1) as usize;
-    let cell_of = |x: i64| ((x - kp.lo[0]) / cell) as usize;
-    let (cells, diff, total) = plan_cells(pp, kp, cell, ntris);
+    let xc = XCells::new(kp, width.div_ceil(1 << 20).max(1) as i64);
+    let (ncells, cell) = (xc.count, xc.cell);
+    let (cells, diff, total) = plan_cells(pp, kp, xc, ntris);
     // The slabs must not depend on the thread count: a triangle is cut to its slab's x band
     // before it is swept, which moves the pieces' vertices by rounding.
     let slabs = ((total / slab_target()).ceil() as usize).clamp(MIN_SLABS, 16_384).min(ncells);
@@ -117,7 +115,7 @@ pub(super) fn sample_slabs<E: Send>(
             bufs.parts.extend(&bufs.recs);
         }
         // Progress counts a triangle once, in its first slab.
-        let first_cell = cell_of(x0) as u32;
+        let first_cell = xc.of(x0) as u32;
         progress(list.iter().filter(|&&gi| cells[gi as usize].0 >= first_cell).count() as u64);
         let before = bufs.parts.len();
         let mut out = outs.lock().ok().and_then(|mut o| o.pop()).unwrap_or_default();
@@ -148,14 +146,31 @@ pub(super) fn sample_slabs<E: Send>(
     Ok((before, dropped))
 }
 
-/// Per triangle (numbered over the primitives in order) its x cells, cells of `cell` voxels
-/// from `kp.lo[0]`; the cells' expected samples as a difference array (each triangle's
-/// spread evenly over its cells); and the expected samples in all. The sums are added in
-/// triangle order, the bits of a serial loop on any number of threads.
-fn plan_cells(pp: &[Prepared], kp: &KeyPack, cell: i64, ntris: usize) -> (Vec<(u32, u32)>, Vec<f64>, f64) {
-    let ncells = ((kp.hi[0] - kp.lo[0]) / cell + 1) as usize;
-    let cell_of = |x: i64| ((x - kp.lo[0]) / cell) as usize;
-    let mut diff = vec![0.0f64; ncells + 1];
+/// The grid's x cells: `count` cells of `cell` voxels each, from `lo` (`kp.lo[0]`).
+#[derive(Clone, Copy)]
+struct XCells {
+    lo: i64,
+    cell: i64,
+    count: usize,
+}
+
+impl XCells {
+    fn new(kp: &KeyPack, cell: i64) -> XCells {
+        XCells { lo: kp.lo[0], cell, count: ((kp.hi[0] - kp.lo[0]) / cell + 1) as usize }
+    }
+
+    /// The cell of voxel column `x` (in `kp.lo[0]..=kp.hi[0]`).
+    fn of(&self, x: i64) -> usize {
+        ((x - self.lo) / self.cell) as usize
+    }
+}
+
+/// Per triangle (numbered over the primitives in order) its x cells `xc`; the cells'
+/// expected samples as a difference array (each triangle's spread evenly over its cells);
+/// and the expected samples in all. The sums are added in triangle order, the bits of a
+/// serial loop on any number of threads.
+fn plan_cells(pp: &[Prepared], kp: &KeyPack, xc: XCells, ntris: usize) -> (Vec<(u32, u32)>, Vec<f64>, f64) {
+    let mut diff = vec![0.0f64; xc.count + 1];
     let mut total = 0.0f64;
     let mut cells: Vec<(u32, u32)> = Vec::with_capacity(ntris);
     // Planned a block at a time (bounded memory: a block's terms, not the mesh's), and
@@ -179,7 +194,7 @@ fn plan_cells(pp: &[Prepared], kp: &KeyPack, cell: i64, ntris: usize) -> (Vec<(u
                 let lo = (a[0].min(b[0]).min(c[0]).floor() as i64).clamp(kp.lo[0], kp.hi[0]);
                 let hi = (a[0].max(b[0]).max(c[0]).floor() as i64).clamp(kp.lo[0], kp.hi[0]);
                 let est = 0.5 * norm(cross(sub(b, a), sub(c, a))) + 0.5 * (norm(sub(b, a)) + norm(sub(c, b)) + norm(sub(a, c))) + 1.0;
-                let (c0, c1) = (cell_of(lo) as u32, cell_of(hi) as u32);
+                let (c0, c1) = (xc.of(lo) as u32, xc.of(hi) as u32);
                 Planned { c0, c1, per: est / (c1 - c0 + 1) as f64, est }
             })
             .collect_into_vec(out);
@@ -480,7 +495,7 @@ mod tests {
             assert!(want.0.iter().any(|c| c.1 > c.0 + 100), "wide triangles");
             for threads in [1, 2, 3] {
                 let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
-                let got = bits(pool.install(|| plan_cells(&pp, &kp, cell, ntris)));
+                let got = bits(pool.install(|| plan_cells(&pp, &kp, XCells::new(&kp, cell), ntris)));
                 assert!(got == want, "cell {cell}, {threads} threads");
             }
         }
