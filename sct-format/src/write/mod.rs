@@ -50,10 +50,10 @@ impl Scene {
 }
 
 /// zstd level used for the default profile's blocks unless the caller picks one. Measured on
-/// the Table-8 bunny samples (2.34 M leaves, BENCHMARKS.md "Node codecs"), with one zstd block
-/// per stream: level 1 gives 6.86 B/leaf in 2.9 s, 3 gives 7.03, 9 gives 6.76 at +0.7 s, 19
-/// gives 6.65 at +8.9 s. Level 1 keeps compression off the critical path;
-/// `--compression-level 19` buys ~3 %.
+/// the voxelized bunny (412,889 leaves, `scripts/peers.sh` samples), one zstd block per stream
+/// and no match shorter than 7 bytes: level 1 gives 7.04 B/leaf with the whole build in
+/// 0.36 s, 3 gives 7.03, 9 gives 6.91, 19 gives 6.81 in 0.95 s. Level 1 keeps compression
+/// off the critical path; `--compression-level 19` buys ~3 %.
 pub const DEFAULT_ZSTD_LEVEL: i32 = 1;
 
 /// How to encode.
