@@ -261,3 +261,27 @@ fn gltf_nodes_reached_twice_are_refused() {
         assert!(t.elapsed().as_secs() < 2, "{name}: {:?}", t.elapsed());
     }
 }
+
+/// A POSITION attribute naming an accessor the file does not have (found by the
+/// `mesh_loaders` fuzz target): the gltf crate's validator looked it up unchecked and
+/// panicked. Refused with the mesh, the primitive and the index, also when the file has no
+/// accessors at all.
+#[test]
+fn gltf_position_naming_a_missing_accessor_is_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::write(dir.path().join("tri.bin"), triangle_bin()).expect("write");
+    let base = gltf_with("tri.bin", None);
+    for (name, from, to, want) in [
+        ("index.gltf", r#""POSITION":0"#, r#""POSITION":2"#, "accessor 2, but the file has 1 accessors"),
+        ("none.gltf", r#""accessors":["#, r#""accessoms":["#, "accessor 0, but the file has 0 accessors"),
+    ] {
+        let text = base.replace(from, to);
+        assert_ne!(text, base);
+        let p = dir.path().join(name);
+        std::fs::write(&p, text).expect("write");
+        let e = load(&p, &LoadOptions::default()).expect_err(name);
+        let msg = e.to_string();
+        assert!(msg.contains("mesh 0 primitive 0") && msg.contains(want) && msg.contains(name), "{name}: {msg}");
+        assert_eq!(voxelize::Error::from(e).exit_code(), 1, "{name}");
+    }
+}

@@ -57,10 +57,16 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
     // JSON and reads as "missing"; we never use them, so fill them in and let the real data
     // check report the non-finite vertex precisely.
     let mut pos_accessors = Vec::new();
-    for mesh in &root.meshes {
-        for prim in &mesh.primitives {
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
             for (sem, idx) in &prim.attributes {
                 if matches!(sem, gltf::json::validation::Checked::Valid(gltf::Semantic::Positions)) {
+                    // The crate's validator looks this accessor up without a bounds check
+                    // (gltf-json 1.4 panics on a missing one), so it is checked first.
+                    if idx.value() >= root.accessors.len() {
+                        let msg = format!("POSITION names accessor {}, but the file has {} accessors", idx.value(), root.accessors.len());
+                        return Err(perr(&format!("mesh {m} primitive {p}"), msg));
+                    }
                     pos_accessors.push(idx.value());
                 }
             }
