@@ -260,3 +260,33 @@ fn a_closed_stdout_pipe_is_not_a_panic() {
     assert!(!err.contains("panicked"), "{err}");
     assert_eq!(o.status.code(), Some(0), "{err}");
 }
+
+/// A model named by its bare file name, run from its own directory, finds the files beside
+/// it: a glTF's external buffer (its directory used to be the empty path, which does not
+/// canonicalize, so the buffer was refused as outside it) and an OBJ's MTL.
+#[test]
+fn a_bare_file_name_finds_the_files_beside_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let tri: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+    std::fs::write(dir.path().join("tri.bin"), tri).unwrap();
+    std::fs::write(
+        dir.path().join("tri.gltf"),
+        r#"{"asset":{"version":"2.0"},"buffers":[{"uri":"tri.bin","byteLength":36}],"bufferViews":[{"buffer":0,"byteLength":36}],
+"accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}],
+"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],"nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}],"scene":0}"#,
+    )
+    .unwrap();
+    std::fs::write(dir.path().join("m.mtl"), "newmtl red\nKd 1 0 0\n").unwrap();
+    std::fs::write(dir.path().join("tri.obj"), "mtllib m.mtl\nusemtl red\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    for name in ["tri.gltf", "tri.obj"] {
+        let st = bin().current_dir(dir.path()).args([name, "-o", "out.samples", "--voxel-size", "0.1", "--json"]).output().unwrap();
+        assert_eq!(st.status.code(), Some(0), "{name}: {}", String::from_utf8_lossy(&st.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&st.stdout).unwrap();
+        assert_eq!(v["warnings"].as_array().map(Vec::len), Some(0), "{name}: {}", v["warnings"]);
+        let f = sct_format::samples::SamplesFile::read_file(&dir.path().join("out.samples"), &sct_format::Limits::default()).unwrap();
+        assert!(!f.samples.is_empty(), "{name}");
+        if name == "tri.obj" {
+            assert!(f.samples.iter().all(|s| s.color[..3] == [255, 0, 0]), "{name}: the MTL's colour");
+        }
+    }
+}

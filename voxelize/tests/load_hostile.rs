@@ -285,3 +285,51 @@ fn gltf_position_naming_a_missing_accessor_is_refused() {
         assert_eq!(voxelize::Error::from(e).exit_code(), 1, "{name}");
     }
 }
+
+/// A GLB whose header declares fewer bytes than the header itself (found by the
+/// `mesh_loaders` fuzz target; the gltf crate's subtraction overflowed): refused, named.
+#[test]
+fn glb_declaring_less_than_its_header_is_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for declared in [0u32, 11] {
+        let mut glb = b"glTF".to_vec();
+        glb.extend(2u32.to_le_bytes());
+        glb.extend(declared.to_le_bytes());
+        glb.extend([0u8; 20]);
+        let p = dir.path().join(format!("short{declared}.glb"));
+        std::fs::write(&p, glb).expect("write");
+        let e = load(&p, &LoadOptions::default()).expect_err("refused");
+        assert!(e.to_string().contains(&format!("declares {declared} bytes")), "{e}");
+        assert_eq!(voxelize::Error::from(e).exit_code(), 1);
+    }
+}
+
+/// A placement with a zero scale (found by the `mesh_loaders` fuzz target): baked into world
+/// space it flattens its copy of the mesh, whose triangles then have no plane (their depth
+/// plane divided by zero: an overflow in debug builds, a stray zero-area sample from the
+/// scan-line sampler). The flattened copy samples nothing; the other copy samples as alone,
+/// and only the singular placement is counted as such.
+#[test]
+fn a_flattening_placement_samples_nothing() {
+    use voxelize::sample::{sample_scene, Density, Method, SampleOptions};
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::write(dir.path().join("tri.bin"), triangle_bin()).expect("write");
+    let base = gltf_with("tri.bin", None);
+    let two = r#""nodes":[{"mesh":0},{"mesh":0,"scale":[1,0,1],"translation":[0,0,1]}],"scenes":[{"nodes":[0,1]}]"#;
+    let text = base.replace(r#""nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}]"#, two);
+    assert_ne!(text, base);
+    let p = dir.path().join("flat.gltf");
+    std::fs::write(&p, text).expect("write");
+    let scene = load(&p, &LoadOptions::default()).expect("loads");
+    for method in [Method::Voxel, Method::Scanline] {
+        let opts = SampleOptions { method, density: Density::VoxelSize(0.1), ..Default::default() };
+        let s = sample_scene(&scene, &opts, &|_, _| {}).expect("samples");
+        let sets: Vec<_> = s.meshes.iter().filter(|m| !m.samples.is_empty()).collect();
+        assert_eq!((s.meshes.len(), sets.len()), (2, 1), "{method:?}: the flattened copy samples nothing");
+        assert_eq!(s.stats.baked_non_similar, 1, "{method:?}");
+        let samples = &sets[0].samples;
+        assert!(samples.iter().all(|n| n.center.iter().chain(&n.normal).all(|c| c.is_finite()) && n.area > 0.0), "{method:?}");
+        let area: f64 = samples.iter().map(|n| n.area as f64).sum();
+        assert!((area - 0.5).abs() < 1e-6, "{method:?}: sample area {area}");
+    }
+}

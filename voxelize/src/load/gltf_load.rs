@@ -38,6 +38,14 @@ fn unsupported_hint(ext: &str) -> &'static str {
 
 pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
     let perr = |loc: &str, msg: String| LoadError::parse(path, "glTF", loc, msg);
+    // The gltf crate subtracts the 12-byte header from a GLB's declared length unchecked
+    // (a panic in debug builds, a wrapped length in release ones).
+    if let Some(h) = bytes.get(..12).filter(|h| h.starts_with(b"glTF")) {
+        let declared = u32::from_le_bytes([h[8], h[9], h[10], h[11]]);
+        if declared < 12 {
+            return Err(perr("GLB header", format!("declares {declared} bytes, less than the header's own 12")));
+        }
+    }
     let gltf::Gltf { document, mut blob } =
         gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| perr("document", e.to_string()))?;
     let mut root = document.into_json();
@@ -81,7 +89,9 @@ pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Load
         }
     }
     let document = gltf::Document::from_json(root).map_err(|e| perr("document validation", e.to_string()))?;
-    let base = path.parent().unwrap_or_else(|| Path::new("."));
+    // A bare file name's parent is the empty path, which does not canonicalize: the model's
+    // directory is then the working directory.
+    let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or_else(|| Path::new("."));
     let mut scene = LoadedScene { declares_sides: true, ..Default::default() };
 
     // Buffers: a missing one is fatal (the geometry is in it). External files are read here,

@@ -52,6 +52,7 @@ pub(super) fn plan_units(scene: &LoadedScene, h: f64, stats: &mut SampleStats) -
                 baked.push(inst.transform);
             }
         }
+        let singular = baked.len();
         if sims.len() + affs.len() >= 2 {
             // The largest stretch of any placement decides the local voxel, so no placement
             // is sampled coarser than the world voxel.
@@ -72,8 +73,8 @@ pub(super) fn plan_units(scene: &LoadedScene, h: f64, stats: &mut SampleStats) -
                 insts.iter().filter(|i| to_similarity(&i.transform).is_some() || to_affine(&i.transform).is_some()).map(|i| i.transform),
             );
         }
-        if !baked.is_empty() && insts.len() > 1 {
-            stats.baked_non_similar += baked.len() as u64;
+        if singular > 0 && insts.len() > 1 {
+            stats.baked_non_similar += singular as u64;
         }
         let many = baked.len() > 1;
         for (k, m) in baked.into_iter().enumerate() {

@@ -9,7 +9,7 @@
 //! count and the slabs' samples partition the triangle's.
 
 use super::keys::{offset_reach, up_f32, KeyPack, Rec, RecSink};
-use super::shade::{face_axes, near_face, shade_color, unit_or, Mat, Planes, Tri};
+use super::shade::{face_axes, has_plane, near_face, shade_color, unit_or, Mat, Planes, Tri};
 use super::texture::Tex;
 use crate::mesh::AlphaMode;
 use crate::mesh::{floor_i64, norm};
@@ -295,6 +295,9 @@ fn partition_point(lo: i64, hi: i64, pred: impl Fn(i64) -> bool) -> i128 {
 /// number of alpha-dropped samples among those emitted.
 pub(super) fn scanline_triangle(t: &Tri, mat: &Mat, kp: &KeyPack, keep: (i64, i64), out: &mut impl RecSink) -> u64 {
     let (fnrm, d, _, _) = face_axes(t);
+    if !has_plane(fnrm, d) {
+        return 0;
+    }
     // One copy per depth axis: the axis indices become constants.
     match d {
         0 => scanline_axis::<0, _>(t, fnrm, mat, kp, keep, out),

@@ -195,6 +195,15 @@ pub(super) fn face_axes(t: &Tri) -> ([f64; 3], usize, usize, usize) {
     (fnrm, d, (d + 1) % 3, (d + 2) % 3)
 }
 
+/// Whether face normal `fnrm` (largest component on axis `d`, [`face_axes`]) gives the
+/// triangle a plane in the sampling frame. The loader drops triangles without area, but a
+/// singular placement baked into world space (a zero scale) flattens the others too: such a
+/// triangle has no area to sample, and its depth plane would divide by zero.
+pub(super) fn has_plane(fnrm: [f64; 3], d: usize) -> bool {
+    let m = fnrm[d].abs();
+    m > 0.0 && m.is_finite()
+}
+
 pub(super) fn srgb8(c: [f32; 4]) -> [u8; 4] {
     let a = (c[3].clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
     let t = Srgb8::get();

@@ -5,7 +5,7 @@ use crate::mesh::*;
 
 use super::clip::{ping, Poly2, MAXV};
 use super::keys::{offset_reach, KeyPack, Rec};
-use super::shade::{face_axes, Mat, Planes, Tri};
+use super::shade::{face_axes, has_plane, Mat, Planes, Tri};
 use super::AreaMode;
 
 /// Every voxel x index (no slab restriction).
@@ -270,6 +270,9 @@ fn depths_and_reach2(poly: &Poly2, depth: impl Fn(&[f64; 2]) -> f64, c: [f64; 2]
 #[allow(clippy::too_many_arguments)]
 pub(super) fn voxel_triangle(t: &Tri, mat: &Mat, area_mode: AreaMode, kp: &KeyPack, xr: (i64, i64), keep: (i64, i64), out: &mut Vec<Rec>) -> u64 {
     let (fnrm, d, _, _) = face_axes(t);
+    if !has_plane(fnrm, d) {
+        return 0;
+    }
     // One copy per depth axis: the axis indices become constants (key assembly, the slab
     // tests), the arithmetic is the same.
     match d {
