@@ -6,7 +6,9 @@ Tasks (the peers each do the same job as ours, on the same input, for the same p
   mesh -> points   sct-voxelize (default density)   vs open3d sample_points_uniformly,
                                                        trimesh sample_surface (N = our samples)
   points -> LOD    sct-build-tree on those samples  vs copc_converter on a LAS of them;
-                   also the dragon voxelized finer (2.1 M and 8.3 M samples), LOD task only
+                   also the dragon voxelized finer (2.1 M and 8.3 M samples), LOD task only;
+                   ours also without the centre offsets and leaf refinement that put leaves
+                   back on their surface (--no-centre-offsets --leaf-refinement off)
   dense mesh       sct-build-tree, one step         vs open3d and trimesh mesh -> points,
                    the same mesh as binary PLY, OBJ and GLB
   load and prepare sct-voxelize --dry-run --screen-error 60 on the dense mesh: a few hundred
@@ -129,6 +131,11 @@ THREAD_REPS = 3
 
 CEILING = "CPU-only loop, 1 or 2 processes (the machine's ceiling)"
 
+# Ours without the on-surface features (centre offsets, leaf refinement): the tree of the
+# thesis's quantizers alone, still with normal, cone, radius and area per node.
+OFF_SURFACE = "ours, offsets and refinement off"
+OFF_FLAGS = ["--no-centre-offsets", "--leaf-refinement", "off"]
+
 
 def main():
     ap = argparse.ArgumentParser()
@@ -198,6 +205,7 @@ def main():
                 (("mesh -> points", name, "open3d"), [py, "-c", PY_SAMPLE["open3d"], mesh, n, out / f"{key}.o3d.ply"], out / f"{key}.o3d.ply"),
                 (("mesh -> points", name, "trimesh"), [py, "-c", PY_SAMPLE["trimesh"], mesh, n, out / f"{key}.tm.ply"], out / f"{key}.tm.ply"),
                 (("points -> LOD", name, "ours"), [build, smp, "-o", out / f"{key}.t.sct"], out / f"{key}.t.sct"),
+                (("points -> LOD", name, OFF_SURFACE), [build, smp, "-o", out / f"{key}.n.sct", *OFF_FLAGS], out / f"{key}.n.sct"),
                 (("points -> LOD", name, "copc_converter"), [a.copc, las, out / f"{key}.copc.laz"], out / f"{key}.copc.laz"),
             ]
             for key_, cmd, output in (reversed(jobs) if flip else jobs):
@@ -205,6 +213,7 @@ def main():
         for name, (key, smp, n, las) in large.items():
             jobs = [
                 (("points -> LOD", name, "ours"), [build, smp, "-o", out / f"{key}.t.sct"], out / f"{key}.t.sct"),
+                (("points -> LOD", name, OFF_SURFACE), [build, smp, "-o", out / f"{key}.n.sct", *OFF_FLAGS], out / f"{key}.n.sct"),
                 (("points -> LOD", name, "copc_converter"), [a.copc, las, out / f"{key}.copc.laz"], out / f"{key}.copc.laz"),
             ]
             for key_, cmd, output in (reversed(jobs) if flip else jobs):
@@ -243,12 +252,24 @@ def main():
     print("|---|---|---:|---|---:|---:|---:|---:|---:|")
     for key in runs:
         task, inp, tool = key
-        if task in ("threads", "load and prepare"):
+        if task in ("threads", "load and prepare") or tool == OFF_SURFACE:
             continue
         b, pts = size[key]
         ours = med((task, inp, "ours"), 0)
         ratio = "—" if tool == "ours" else f"{med(key, 0) / ours:.2f}×"
         print(f"| {task} | {inp} | {pts:,} | {tool} | {med(key, 0):.2f} | {med(key, 1):.2f} | {med(key, 2):.0f} | {b / pts:.2f} | {ratio} |")
+    print()
+    print(f"| points -> LOD, {OFF_SURFACE} ({' '.join(OFF_FLAGS)}) | wall s | CPU s | B/point "
+          "| copc_converter wall s | B/point | ours faster | ours ÷ copc_converter bytes |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for key in runs:
+        task, inp, tool = key
+        if tool != OFF_SURFACE:
+            continue
+        peer = (task, inp, "copc_converter")
+        (b, pts), (pb, _) = size[key], size[peer]
+        print(f"| {inp} | {med(key, 0):.2f} | {med(key, 1):.2f} | {b / pts:.2f} | {med(peer, 0):.2f} | {pb / pts:.2f} "
+              f"| {med(peer, 0) / med(key, 0):.2f}× | {b / pb:.2f} |")
     print()
     print(f"| dense mesh, ours | one step: µs wall per triangle | B peak per triangle | leaves "
           f"| load and prepare (dry run, --screen-error {COARSE}): µs wall per triangle | B peak per triangle |")
