@@ -333,3 +333,21 @@ fn a_flattening_placement_samples_nothing() {
         assert!((area - 0.5).abs() < 1e-6, "{method:?}: sample area {area}");
     }
 }
+
+/// An MTL colour statement with fewer than three numbers (found by the `mesh_loaders` fuzz
+/// target; tobj unwrapped them and panicked, so the whole OBJ failed): the model loads with
+/// the default colour and a warning naming the library, the line and the keyword, like any
+/// other unreadable material library.
+#[test]
+fn an_mtl_colour_short_of_numbers_is_a_warning() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (k, line) in ["Kd 1 0", "Ks", "Ka 0.5"].iter().enumerate() {
+        std::fs::write(dir.path().join("m.mtl"), format!("newmtl x\nNs 10\n{line}\n")).expect("write");
+        let obj = dir.path().join(format!("m{k}.obj"));
+        std::fs::write(&obj, format!("mtllib m.mtl\nusemtl x\n{TRIANGLE_OBJ}")).expect("write");
+        let s = load(&obj, &LoadOptions::default()).expect("loads without its materials");
+        let key = line.split(' ').next().expect("a keyword");
+        assert!(s.warnings.iter().any(|w| w.contains("m.mtl") && w.contains(&format!("line 3: {key} needs three numbers"))), "{line}: {:?}", s.warnings);
+        assert_eq!(s.meshes.iter().map(|m| m.primitives.len()).sum::<usize>(), 1, "{line}");
+    }
+}

@@ -165,6 +165,10 @@ fn load_mtl(path: &Path, dir: &Path, mtl: &str, opts: &LoadOptions, scene: &mut 
             return Vec::new();
         }
     };
+    if let Some((line, key)) = short_colour(&text) {
+        scene.warnings.push(format!("{}: line {line}: {key} needs three numbers; using default colour", found.display()));
+        return Vec::new();
+    }
     match tobj::load_mtl_buf(&mut std::io::Cursor::new(text.as_bytes())) {
         Ok((mats, _)) => {
             scene.files.push(found.clone());
@@ -176,6 +180,17 @@ fn load_mtl(path: &Path, dir: &Path, mtl: &str, opts: &LoadOptions, scene: &mut 
             Vec::new()
         }
     }
+}
+
+/// The first colour statement (`Ka`, `Kd`, `Ks`, `Ke`) of MTL text with fewer than three
+/// words after it, as its line (1-based) and keyword: tobj unwraps the three numbers it
+/// takes and panics on fewer.
+fn short_colour(text: &str) -> Option<(usize, &str)> {
+    text.lines().enumerate().find_map(|(i, l)| {
+        let mut words = l.split_whitespace();
+        let key = words.next().filter(|k| matches!(*k, "Ka" | "Kd" | "Ks" | "Ke"))?;
+        (words.count() < 3).then_some((i + 1, key))
+    })
 }
 
 /// Appends the MTL materials to the scene, with their textures.
