@@ -351,3 +351,21 @@ fn an_mtl_colour_short_of_numbers_is_a_warning() {
         assert_eq!(s.meshes.iter().map(|m| m.primitives.len()).sum::<usize>(), 1, "{line}");
     }
 }
+
+/// A buffer view whose byteStride is less than its accessor's element (found by the
+/// `mesh_loaders` fuzz target: gltf's iterator asserts against it in debug builds and reads
+/// overlapping elements in release ones): refused, naming the accessor and the stride.
+#[test]
+fn gltf_stride_below_the_element_is_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::write(dir.path().join("tri.bin"), triangle_bin()).expect("write");
+    let base = gltf_with("tri.bin", None);
+    let text = base.replace(r#""bufferViews":[{"buffer":0,"byteLength":36}]"#, r#""bufferViews":[{"buffer":0,"byteLength":36,"byteStride":8}]"#);
+    assert_ne!(text, base);
+    let p = dir.path().join("stride.gltf");
+    std::fs::write(&p, text).expect("write");
+    let e = load(&p, &LoadOptions::default()).expect_err("refused");
+    let msg = e.to_string();
+    assert!(msg.contains("accessor 0 (POSITION)") && msg.contains("byteStride 8, less than the 12-byte element"), "{msg}");
+    assert_eq!(voxelize::Error::from(e).exit_code(), 1);
+}
