@@ -541,8 +541,8 @@ mod tests {
         }
     }
     /// Tree blocks are compressed with no match shorter than [`MIN_MATCH`] bytes: a payload
-    /// whose only repeats are 6-byte words (500 of them, each followed by two random bytes) stays about
-    /// its own size, while zstd's level-1 default codes the words as matches.
+    /// whose only repeats are 6-byte words (500 of them, each followed by two random bytes)
+    /// stays about its own size, while zstd's level-1 default codes the words as matches.
     #[test]
     fn blocks_use_no_match_shorter_than_min_match() {
         let mut rng = crate::rng::SplitMix64(7);
