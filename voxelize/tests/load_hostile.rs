@@ -369,3 +369,28 @@ fn gltf_stride_below_the_element_is_refused() {
     assert!(msg.contains("accessor 0 (POSITION)") && msg.contains("byteStride 8, less than the 12-byte element"), "{msg}");
     assert_eq!(voxelize::Error::from(e).exit_code(), 1);
 }
+
+/// A PLY header number past 64 bits, in the format version or an element count (found by
+/// the `mesh_loaders` fuzz target: the header grammar unwrapped its parse and panicked, so a
+/// panic message and backtrace reached the terminal before the error): refused with its
+/// line, no panic.
+#[test]
+fn ply_header_numbers_past_64_bits_are_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let huge = "18446744073709551616"; // u64::MAX + 1
+    for (name, header, line) in [
+        ("version.ply", format!("ply\nformat ascii 1.{huge}\nelement vertex 3\n"), 2),
+        ("count.ply", format!("ply\nformat ascii 1.0\nelement vertex {huge}\n"), 3),
+    ] {
+        let p = dir.path().join(name);
+        std::fs::write(&p, format!("{header}property float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n")).expect("write");
+        let e = load(&p, &LoadOptions::default()).expect_err(name);
+        assert!(!matches!(e, LoadError::ParserPanic { .. }), "{name}: {e}");
+        assert!(e.to_string().contains(&format!("header line {line}: a number too large for 64 bits")), "{name}: {e}");
+    }
+    // u64::MAX itself parses (and the count is then refused as more than the file holds).
+    let p = dir.path().join("max.ply");
+    std::fs::write(&p, "ply\nformat ascii 1.0\nelement vertex 18446744073709551615\nproperty float x\nend_header\n0\n").expect("write");
+    let e = load(&p, &LoadOptions::default()).expect_err("refused");
+    assert!(!e.to_string().contains("too large for 64 bits") && !matches!(e, LoadError::ParserPanic { .. }), "{e}");
+}

@@ -367,8 +367,23 @@ fn sanitize_header(bytes: &[u8]) -> Option<Vec<u8>> {
     Some(out)
 }
 
+/// The first `format` or `element` line of the header (1-based) holding a number past
+/// `u64`: the header grammar unwraps its parse and panics on one.
+fn number_past_u64(bytes: &[u8]) -> Option<usize> {
+    let end = bytes.windows(10).position(|w| w == b"end_header").unwrap_or(bytes.len());
+    bytes[..end].split(|&b| b == b'\n').position(|line| {
+        let keyword = line.split(|b| b.is_ascii_whitespace()).find(|w| !w.is_empty());
+        matches!(keyword, Some(b"format" | b"element"))
+            && line.split(|b| !b.is_ascii_digit()).any(|digits| std::str::from_utf8(digits).is_ok_and(|d| !d.is_empty() && d.parse::<u64>().is_err()))
+    })
+    .map(|i| i + 1)
+}
+
 pub(super) fn load(path: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<LoadedScene, LoadError> {
     let perr = |loc: String, msg: String| LoadError::parse(path, "PLY", loc, msg);
+    if let Some(line) = number_past_u64(bytes) {
+        return Err(perr(format!("header line {line}"), "a number too large for 64 bits".into()));
+    }
     let parser = Parser::<DefaultElement>::new();
     let fixed = sanitize_header(bytes);
     let bytes: &[u8] = fixed.as_deref().unwrap_or(bytes);
