@@ -442,6 +442,8 @@ fn check_accessor(path: &Path, acc: &gltf::Accessor, what: &str, dt: &[DataType]
             return Err(LoadError::parse(path, "glTF", format!("accessor {} ({what})", acc.index()), "sparse count 0"));
         }
     }
+    // glTF requires a stride of at least the element; gltf's iterator asserts it (debug
+    // builds) or reads overlapping elements (release builds). Every read checks it here.
     if let Some((v, stride)) = acc.view().and_then(|v| Some((v.index(), v.stride()?))) {
         if stride < acc.size() {
             let msg = format!("bufferView {v} has byteStride {stride}, less than the {}-byte element", acc.size());
@@ -477,11 +479,6 @@ where
 /// The elements of accessor `acc` as `T`; `None` where its data is missing or lies outside
 /// its buffer view.
 fn elements<T: gltf::accessor::Item + Send>(acc: &gltf::Accessor, buffers: &[gltf::buffer::Data]) -> Option<Vec<T>> {
-    // glTF requires a stride of at least the element; gltf's iterator asserts it (debug
-    // builds) or reads overlapping elements. [`check_accessor`] names the error first.
-    if acc.view().and_then(|v| v.stride()).is_some_and(|s| s < std::mem::size_of::<T>()) {
-        return None;
-    }
     dense_elements(acc, buffers).or_else(|| {
         let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
         gltf::accessor::Iter::<T>::new(acc.clone(), get).map(Iterator::collect)
