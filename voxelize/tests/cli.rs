@@ -1,14 +1,13 @@
 //! The binary: exit statuses, JSON summary, atomic output.
 
+mod common;
+
 use std::process::Command;
+
+use common::model;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_sct-voxelize"))
-}
-
-fn model(rel: &str) -> Option<std::path::PathBuf> {
-    let p = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/models").join(rel);
-    p.exists().then_some(p)
 }
 
 #[test]
@@ -220,8 +219,7 @@ fn output_path_errors_say_what_is_wrong_once() {
 #[test]
 fn affine_copies_count_against_the_budget() {
     let dir = tempfile::tempdir().unwrap();
-    let tri: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0].iter().flat_map(|v| v.to_le_bytes()).collect();
-    std::fs::write(dir.path().join("tri.bin"), &tri).unwrap();
+    std::fs::write(dir.path().join("tri.bin"), common::triangle_bin()).unwrap();
     let nodes: Vec<String> = (0..3000).map(|i| format!(r#"{{"mesh":0,"scale":[{},1,2],"translation":[{},0,0]}}"#, 1.0 + i as f64 * 1e-3, i as f64 * 0.01)).collect();
     let roots: Vec<String> = (0..3000).map(|i| i.to_string()).collect();
     let gltf = format!(
@@ -267,15 +265,8 @@ fn a_closed_stdout_pipe_is_not_a_panic() {
 #[test]
 fn a_bare_file_name_finds_the_files_beside_it() {
     let dir = tempfile::tempdir().unwrap();
-    let tri: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0].iter().flat_map(|v| v.to_le_bytes()).collect();
-    std::fs::write(dir.path().join("tri.bin"), tri).unwrap();
-    std::fs::write(
-        dir.path().join("tri.gltf"),
-        r#"{"asset":{"version":"2.0"},"buffers":[{"uri":"tri.bin","byteLength":36}],"bufferViews":[{"buffer":0,"byteLength":36}],
-"accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}],
-"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],"nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}],"scene":0}"#,
-    )
-    .unwrap();
+    std::fs::write(dir.path().join("tri.bin"), common::triangle_bin()).unwrap();
+    std::fs::write(dir.path().join("tri.gltf"), common::gltf_with("tri.bin", None)).unwrap();
     std::fs::write(dir.path().join("m.mtl"), "newmtl red\nKd 1 0 0\n").unwrap();
     std::fs::write(dir.path().join("tri.obj"), "mtllib m.mtl\nusemtl red\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
     for name in ["tri.gltf", "tri.obj"] {

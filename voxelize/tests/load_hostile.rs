@@ -4,8 +4,11 @@
 //! clear error, never block, read without end or run for minutes.
 #![cfg(unix)]
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
+use common::{gltf_with, triangle_bin};
 use voxelize::{load, LoadError, LoadOptions};
 
 fn mkfifo(p: &Path) {
@@ -54,21 +57,6 @@ fn fifos_are_refused_not_opened() {
     .expect("write");
     let s = load(&ply, &LoadOptions::default()).expect("loads without its texture");
     assert!(s.warnings.iter().any(|w| w.contains("pipe.png")), "{:?}", s.warnings);
-}
-
-/// A one-triangle glTF whose buffer (and optionally an image) has the given URI.
-fn gltf_with(buffer_uri: &str, image_uri: Option<&str>) -> String {
-    let images = image_uri.map_or(String::new(), |u| format!(r#","images":[{{"uri":{u:?}}}]"#));
-    format!(
-        r#"{{"asset":{{"version":"2.0"}},"buffers":[{{"uri":{buffer_uri:?},"byteLength":36}}],
-"bufferViews":[{{"buffer":0,"byteLength":36}}],
-"accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}],
-"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],"nodes":[{{"mesh":0}}],"scenes":[{{"nodes":[0]}}],"scene":0{images}}}"#
-    )
-}
-
-fn triangle_bin() -> Vec<u8> {
-    [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0].iter().flat_map(|v| v.to_le_bytes()).collect()
 }
 
 /// Items 5 and 14: glTF buffer URIs naming devices (`/dev/zero`, `file:///dev/zero`,

@@ -346,11 +346,16 @@ struct Payload {
     triangles: Vec<[u32; 3]>,
 }
 
+/// Where the header's `end_header` starts, if it has one.
+fn header_end(bytes: &[u8]) -> Option<usize> {
+    bytes.windows(10).position(|w| w == b"end_header")
+}
+
 /// Some exporters (Blender 2.4x) write free text lines in the header; they are turned into
 /// comments so the strict header grammar accepts the file. `None` = no change needed.
 fn sanitize_header(bytes: &[u8]) -> Option<Vec<u8>> {
     const KEYWORDS: &[&str] = &["ply", "format", "element", "property", "comment", "obj_info", "end_header"];
-    let end = bytes.windows(10).position(|w| w == b"end_header")?;
+    let end = header_end(bytes)?;
     let header = std::str::from_utf8(&bytes[..end]).ok()?;
     let bad = |l: &str| !l.trim().is_empty() && !KEYWORDS.contains(&l.split_whitespace().next().unwrap_or(""));
     if !header.lines().any(bad) {
@@ -370,7 +375,7 @@ fn sanitize_header(bytes: &[u8]) -> Option<Vec<u8>> {
 /// The first `format` or `element` line of the header (1-based) holding a number past
 /// `u64`: the header grammar unwraps its parse and panics on one.
 fn number_past_u64(bytes: &[u8]) -> Option<usize> {
-    let end = bytes.windows(10).position(|w| w == b"end_header").unwrap_or(bytes.len());
+    let end = header_end(bytes).unwrap_or(bytes.len());
     bytes[..end].split(|&b| b == b'\n').position(|line| {
         let keyword = line.split(|b| b.is_ascii_whitespace()).find(|w| !w.is_empty());
         matches!(keyword, Some(b"format" | b"element"))

@@ -94,3 +94,19 @@ pub fn surface_distances(tris: &[[[f64; 3]; 3]], points: &[[f64; 3]], cell: f64)
         })
         .collect()
 }
+
+/// A one-triangle glTF whose buffer (and optionally an image) has the given URI.
+pub fn gltf_with(buffer_uri: &str, image_uri: Option<&str>) -> String {
+    let images = image_uri.map_or(String::new(), |u| format!(r#","images":[{{"uri":{u:?}}}]"#));
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"buffers":[{{"uri":{buffer_uri:?},"byteLength":36}}],
+"bufferViews":[{{"buffer":0,"byteLength":36}}],
+"accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}],
+"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],"nodes":[{{"mesh":0}}],"scenes":[{{"nodes":[0]}}],"scene":0{images}}}"#
+    )
+}
+
+/// The unit triangle's three positions (f32, little-endian): the buffer of [`gltf_with`].
+pub fn triangle_bin() -> Vec<u8> {
+    [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0].iter().flat_map(|v| v.to_le_bytes()).collect()
+}
